@@ -1,0 +1,149 @@
+"""Frozen configuration dataclasses, in SI units.
+
+Every stage takes one of these; every checkpoint and report stores them (``to_dict``) so a
+result can be rebuilt from its file alone (``from_dict``).
+
+Frame convention (used everywhere in the package and in the data files): the world frame is
+z **up**, gravity is ``-g e3``. The paper writes gravity as ``+g e3``; see ``physics.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class VehicleParams:
+    """Constants of the quadrotor + slung-load model (the paper's Section III-A).
+
+    Defaults are the authors' values for an Intel Aero RTF carrying a 100 g cube on a 60 cm
+    string; ``cable_length`` is the effective length (string + attachment + half cube).
+    """
+
+    mass_quad: float = 1.35  # kg, vehicle mass m_Q
+    mass_load: float = 0.100  # kg, load mass m_L
+    cable_length: float = 0.7  # m, effective cable length l
+    load_damping: float = 0.025  # -, per-step damping d of the load angular velocity
+    dt: float = 0.03  # s, sampling time h
+    gravity: float = 9.81  # m/s^2, g (the paper prints 9.8; the authors' code uses 9.81)
+
+    def __post_init__(self) -> None:
+        for name in ("mass_quad", "mass_load", "cable_length", "dt", "gravity"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"VehicleParams.{name} must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.load_damping <= 1.0:
+            raise ValueError(f"VehicleParams.load_damping must be in [0, 1], got {self.load_damping}")
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """Sliding windows cut from each flight: M past steps, N future steps."""
+
+    history: int = 50  # steps, M
+    horizon: int = 25  # steps, N
+    stride: int = 1  # steps between consecutive window starts
+
+    def __post_init__(self) -> None:
+        for name in ("history", "horizon", "stride"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"WindowConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def length(self) -> int:
+        """Steps one window spans (M + N)."""
+        return self.history + self.horizon
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Sizes of the LSTM encoder-decoder with Bahdanau attention.
+
+    The defaults give the paper's 238,906 parameters.
+    """
+
+    embed_sizes: tuple[int, ...] = (100, 200, 300)  # input embedding Linear widths
+    hidden_size: int = 20  # LSTM hidden units
+    num_layers: int = 3  # LSTM layers (encoder and decoder)
+    head_sizes: tuple[int, ...] = (300, 200, 100)  # decoder output head widths
+    dropout: float = 0.1  # between embedding layers and LSTM layers
+    slack: bool = True  # emit 13 slack variables per step besides the 13 states
+    normalize: bool = True  # standardise inputs/outputs with training-split statistics
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Weights of the four-term loss (the paper's values)."""
+
+    position: float = 20.0  # lambda_1
+    velocity: float = 20.0  # lambda_2
+    quaternion: float = 20.0  # lambda_3
+    load_position: float = 20.0  # lambda_4
+    physics: float = 5.0  # phi
+    projection: float = 10.0  # psi
+    slack: float = 0.1  # rho
+    alpha: float = 0.1  # 1/step, decay of the fit weights e^{-alpha (n - M)}
+    beta: float = 0.6  # 1/step, decay of the physics and slack weights e^{-beta (n - M)}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation schedule."""
+
+    lr: float = 1e-4  # Adam learning rate
+    weight_decay: float = 0.05  # L2 weight decay
+    batch_size: int = 256  # windows per batch
+    max_epochs: int = 3000
+    patience: int = 50  # epochs without validation improvement before stopping
+    windows_per_epoch: int | None = None  # subsample training windows each epoch (None: all)
+    lr_schedule: str = "constant"  # "constant" or "cosine"
+    grad_clip: float = 1.0  # max gradient norm (0 disables)
+    seed: int = 0
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """A JSON-friendly dict of a config dataclass (nested ones included)."""
+    return dataclasses.asdict(cfg)
+
+
+def from_dict(cls: type[T], data: dict[str, Any]) -> T:
+    """Rebuild a config dataclass from ``to_dict`` output; unknown keys are an error."""
+    known = {f.name: f for f in fields(cls)}  # type: ignore[arg-type]
+    unknown = set(data) - set(known)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown keys {sorted(unknown)}")
+    kwargs = {}
+    for name, value in data.items():
+        if isinstance(value, list):  # JSON turns tuples into lists
+            value = tuple(value)
+        kwargs[name] = value
+    return cls(**kwargs)
+
+
+VEHICLE_FILE = "vehicle.json"
+
+
+def load_vehicle(folder: str | Path) -> VehicleParams | None:
+    """Vehicle constants stored beside a dataset (``vehicle.json``), or None if absent.
+
+    The file may hold the constants at top level or under a ``"vehicle"`` key (the simulator
+    writes the latter, with its effects and seed beside them).
+    """
+    path = Path(folder) / VEHICLE_FILE
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if isinstance(data, dict) and isinstance(data.get("vehicle"), dict):
+        data = data["vehicle"]
+    try:
+        return from_dict(VehicleParams, data)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: bad vehicle constants ({exc})") from exc

@@ -1,0 +1,109 @@
+"""Files on disk: the published flight schema, safe reading, atomic and reproducible writing.
+
+Every output of the package goes through ``atomic_path`` so that a crash never leaves a
+truncated file that a later run would trust.
+
+Flight files (one ``.npz`` per flight, the authors' published format)::
+
+    time      (T,)    s
+    p         (T, 3)  vehicle position, m, world z up
+    v         (T, 3)  vehicle velocity, m/s
+    attitude  (T, 4)  quaternion x-y-z-w, body -> world
+    p_load    (T, 3)  load position, m
+    w_ref     (T, 3)  commanded body rates, rad/s
+    T_ref     (T, 1)  commanded total thrust, N
+
+Optional: ``t_sampling``; ignored: the MATLAB conversion keys ``__header__``, ``__version__``,
+``__globals__``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FLIGHT_KEYS: dict[str, tuple[int, ...] | None] = {
+    "time": (),
+    "p": (3,),
+    "v": (3,),
+    "attitude": (4,),
+    "p_load": (3,),
+    "w_ref": (3,),
+    "T_ref": (1,),
+}  # key -> trailing shape after the time axis
+OPTIONAL_KEYS = ("t_sampling",)
+IGNORED_KEYS = ("__header__", "__version__", "__globals__")
+SPLITS = ("train", "val", "test")
+
+# A fixed timestamp for zip members, so the same arrays give the same bytes.
+_ZIP_DATE = (2024, 1, 1, 0, 0, 0)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write a text file atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def write_json(path: str | Path, data: Any) -> None:
+    """Write JSON atomically, indented and key-sorted (stable bytes)."""
+    write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
+
+
+def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
+    """Write an uncompressed ``.npz`` atomically with fixed member timestamps.
+
+    Same arrays -> same bytes (``np.savez`` stamps members with the current time).
+    """
+    with atomic_path(path) as tmp:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_STORED) as zf:
+            for name in sorted(arrays):
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(arrays[name]), allow_pickle=False)
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=_ZIP_DATE)
+                info.external_attr = 0o644 << 16
+                zf.writestr(info, buf.getvalue())
+
+
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` with pickles refused. Errors name the file."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except ValueError as exc:
+        if "pickle" in str(exc).lower():
+            raise ValueError(f"{path}: holds pickled objects, which are refused") from exc
+        raise ValueError(f"{path}: cannot be read as .npz ({exc})") from exc
+    except (OSError, zipfile.BadZipFile, EOFError) as exc:
+        raise ValueError(f"{path}: cannot be read as .npz ({exc})") from exc
+
+
+def write_splits(folder: str | Path, splits: Mapping[str, list[str]]) -> None:
+    """Write ``train.txt``, ``val.txt``, ``test.txt`` (one flight name a line)."""
+    for split in SPLITS:
+        write_text(Path(folder) / f"{split}.txt", "".join(f"{n}\n" for n in splits.get(split, [])))

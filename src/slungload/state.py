@@ -1,0 +1,143 @@
+"""State and input layout, and quaternion helpers. The only place that knows which column is what.
+
+State ``x`` (13 numbers, the paper's x_k)::
+
+    p   [0:3]    vehicle position, world frame, m
+    v   [3:6]    vehicle velocity, world frame, m/s
+    q   [6:10]   vehicle attitude, unit quaternion **w-x-y-z**, body -> world
+    pL  [10:13]  load position, world frame, m
+
+Input ``u`` (4 numbers, the paper's u_k)::
+
+    T      [0:1]  total thrust, N (the commanded value in the data files)
+    omega  [1:4]  body angular rates, body frame, rad/s
+
+Auxiliary load state ``a`` (6 numbers, not measured, estimated from data; see ``data.py``)::
+
+    vL       [0:3]  load velocity, world frame, m/s
+    OmegaL   [3:6]  load angular velocity about the vehicle, world frame, rad/s
+
+The data files store quaternions x-y-z-w (like roma); the package reorders them to w-x-y-z at
+the edges (``quat_xyzw_to_wxyz``). World frame is z up.
+"""
+
+from __future__ import annotations
+
+import roma
+import torch
+from torch import Tensor
+
+STATE_DIM = 13
+INPUT_DIM = 4
+AUX_DIM = 6
+
+# State slices.
+POS = slice(0, 3)
+VEL = slice(3, 6)
+QUAT = slice(6, 10)
+LOAD_POS = slice(10, 13)
+# Input slices.
+THRUST = slice(0, 1)
+RATES = slice(1, 4)
+# Auxiliary load-state slices.
+LOAD_VEL = slice(0, 3)
+LOAD_RATE = slice(3, 6)
+
+# Named groups used by the loss, metrics and plots, in the paper's order.
+GROUPS: dict[str, slice] = {
+    "position": POS,
+    "velocity": VEL,
+    "quaternion": QUAT,
+    "load_position": LOAD_POS,
+}
+GROUP_UNITS = {"position": "m", "velocity": "m/s", "quaternion": "-", "load_position": "m"}
+STATE_NAMES = (
+    "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "pLx", "pLy", "pLz",
+)  # fmt: skip
+INPUT_NAMES = ("T", "wx", "wy", "wz")
+
+
+def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """(..., 13) -> p (..., 3), v (..., 3), q (..., 4) w-x-y-z, pL (..., 3)."""
+    return x[..., POS], x[..., VEL], x[..., QUAT], x[..., LOAD_POS]
+
+
+def join_state(p: Tensor, v: Tensor, q: Tensor, p_load: Tensor) -> Tensor:
+    """Inverse of ``split_state``: (..., 3), (..., 3), (..., 4), (..., 3) -> (..., 13)."""
+    return torch.cat([p, v, q, p_load], dim=-1)
+
+
+def split_input(u: Tensor) -> tuple[Tensor, Tensor]:
+    """(..., 4) -> thrust (...,) in N, body rates (..., 3) in rad/s."""
+    return u[..., THRUST].squeeze(-1), u[..., RATES]
+
+
+# --- quaternions (w-x-y-z inside the package; roma works in x-y-z-w) ---------------------
+
+
+def quat_wxyz_to_xyzw(q: Tensor) -> Tensor:
+    """(..., 4) w-x-y-z -> x-y-z-w."""
+    return roma.quat_wxyz_to_xyzw(q)
+
+
+def quat_xyzw_to_wxyz(q: Tensor) -> Tensor:
+    """(..., 4) x-y-z-w -> w-x-y-z."""
+    return roma.quat_xyzw_to_wxyz(q)
+
+
+def quat_mul(q1: Tensor, q2: Tensor) -> Tensor:
+    """Hamilton product q1 (x) q2 of w-x-y-z quaternions, (..., 4)."""
+    return quat_xyzw_to_wxyz(roma.quat_product(quat_wxyz_to_xyzw(q1), quat_wxyz_to_xyzw(q2)))
+
+
+def quat_conj(q: Tensor) -> Tensor:
+    """Conjugate of w-x-y-z quaternions (the inverse for unit ones), (..., 4)."""
+    return torch.cat([q[..., :1], -q[..., 1:]], dim=-1)
+
+
+def quat_identity(*shape: int, dtype=None, device=None) -> Tensor:
+    """Identity quaternion (1, 0, 0, 0) broadcast to (*shape, 4)."""
+    q = torch.zeros(*shape, 4, dtype=dtype, device=device)
+    q[..., 0] = 1.0
+    return q
+
+
+def quat_error(q_hat: Tensor, q: Tensor) -> Tensor:
+    """The paper's attitude error e(q_hat, q) = q_hat (x) q^{-1} - q_id, (..., 4).
+
+    ``q^{-1}`` is taken as the conjugate, so ``q`` should be unit norm; ``q_hat`` need not be.
+    """
+    d = quat_mul(q_hat, quat_conj(q))
+    return d - quat_identity(*d.shape[:-1], dtype=d.dtype, device=d.device)
+
+
+def quat_to_rotmat(q: Tensor) -> Tensor:
+    """w-x-y-z quaternion (..., 4) -> rotation matrix (..., 3, 3), body -> world.
+
+    The quaternion is normalised first, so a network output that drifted off unit norm still
+    gives a rotation.
+    """
+    return roma.unitquat_to_rotmat(quat_wxyz_to_xyzw(quat_normalize(q)))
+
+
+def quat_normalize(q: Tensor, eps: float = 1e-12) -> Tensor:
+    """Unit quaternion with the same direction, (..., 4)."""
+    return q / q.norm(dim=-1, keepdim=True).clamp_min(eps)
+
+
+def quat_from_rotvec(r: Tensor) -> Tensor:
+    """Rotation vector (..., 3), rad -> unit quaternion w-x-y-z (..., 4): exp(S(r))."""
+    return quat_xyzw_to_wxyz(roma.rotvec_to_unitquat(r))
+
+
+def quat_continuous(q: Tensor) -> Tensor:
+    """Flip signs along the time axis (-2) so consecutive quaternions have q_k . q_{k-1} >= 0.
+
+    q and -q are the same rotation; a sign jump would look like a huge error to the network.
+    Input (..., T, 4); the first step's sign is kept.
+    """
+    dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1)
+    flips = torch.cumsum((dots < 0).to(torch.int64), dim=-1) % 2
+    sign = torch.ones_like(q[..., :, 0])
+    sign[..., 1:] = 1.0 - 2.0 * flips.to(q.dtype)
+    return q * sign.unsqueeze(-1)
