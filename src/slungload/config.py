@@ -74,6 +74,7 @@ class ModelConfig:
     dropout: float = 0.1  # between embedding layers and LSTM layers
     slack: bool = True  # emit 13 slack variables per step besides the 13 states
     normalize: bool = True  # standardise inputs/outputs with training-split statistics
+    residual: bool = False  # head predicts x_k - x_{k-1} (True) or x_k itself (the paper)
 
 
 @dataclass(frozen=True)
