@@ -1,0 +1,147 @@
+"""Command line: parses arguments and calls the stage functions; no logic lives here.
+
+A user error (bad path, bad file, bad option) prints one line and exits with status 2;
+``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+USER_ERRORS = (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, KeyError)
+
+
+def _vehicle_overrides(args: argparse.Namespace) -> dict[str, float]:
+    names = ("mass_quad", "mass_load", "cable_length", "load_damping", "dt", "gravity")
+    return {n: getattr(args, n) for n in names if getattr(args, n, None) is not None}
+
+
+def _add_vehicle_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group(
+        "vehicle constants (override the dataset's vehicle.json; default: the paper's)"
+    )
+    g.add_argument("--mass-quad", dest="mass_quad", type=float, metavar="KG")
+    g.add_argument("--mass-load", dest="mass_load", type=float, metavar="KG")
+    g.add_argument("--cable-length", dest="cable_length", type=float, metavar="M")
+    g.add_argument("--load-damping", dest="load_damping", type=float, metavar="D")
+    g.add_argument("--dt", type=float, metavar="S", help="sampling time h")
+    g.add_argument("--gravity", type=float, metavar="M/S2")
+
+
+def _add_window_options(p: argparse.ArgumentParser, horizon: int = 25) -> None:
+    p.add_argument("--history", type=int, default=50, metavar="M", help="past steps (default 50)")
+    p.add_argument("--horizon", type=int, default=horizon, metavar="N",
+                   help=f"future steps (default {horizon})")  # fmt: skip
+    p.add_argument("--stride", type=int, default=1, help="steps between windows (default 1)")
+
+
+def _resolve_params(folder: Path, args: argparse.Namespace):
+    """Vehicle constants for a dataset folder: its vehicle.json, then CLI overrides."""
+    import dataclasses
+
+    from .config import VehicleParams, load_vehicle
+
+    overrides = _vehicle_overrides(args)
+    base = load_vehicle(folder)
+    if base is None and not overrides:
+        return None  # the data module applies the paper's constants and says so
+    return dataclasses.replace(base or VehicleParams(), **overrides)
+
+
+# --- commands --------------------------------------------------------------------------
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .sim import SimConfig, simulate_dataset
+
+    result = simulate_dataset(
+        args.out,
+        flights=args.flights,
+        seed=args.seed,
+        config=SimConfig.with_effects_off(args.no) if args.no else SimConfig(),
+        workers=args.workers,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
+    print(result.summary())
+    return 0
+
+
+def cmd_maneuvers(args: argparse.Namespace) -> int:
+    from .sim import MANEUVERS
+
+    for name in sorted(MANEUVERS):
+        doc = (MANEUVERS[name].__doc__ or "").strip().splitlines()
+        print(f"{name:24s} {doc[0] if doc else ''}")
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from .config import WindowConfig
+    from .data import summarize
+
+    window = WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride)
+    summary = summarize(args.data, window=window, params=_resolve_params(Path(args.data), args))
+    print(summary.to_table())
+    return 0
+
+
+# --- parser ----------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="slungload",
+        description="Learn and predict the motion of a quadrotor carrying a cable-slung load.",
+    )
+    parser.add_argument("--version", action="version", version=f"slungload {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    p = sub.add_parser("simulate", help="simulate flights with MuJoCo into a dataset folder")
+    p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
+    p.add_argument("--flights", type=int, default=48, help="number of flights (default 48)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
+    p.add_argument("--no", action="append", default=[], metavar="EFFECT",
+                   help="switch an unmodelled effect off (repeatable); see docs/simulator.md")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("maneuvers", help="list the simulator's maneuvers")
+    p.set_defaults(func=cmd_maneuvers)
+
+    p = sub.add_parser("inspect", help="summarise a dataset folder")
+    p.add_argument("data", type=Path, help="dataset folder (.npz flights + split lists)")
+    _add_window_options(p)
+    _add_vehicle_options(p)
+    p.set_defaults(func=cmd_inspect)
+
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    func: Callable[[argparse.Namespace], int] = args.func
+    if args.debug:
+        return func(args)
+    try:
+        return func(args)
+    except USER_ERRORS as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"slungload {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"slungload {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

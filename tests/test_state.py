@@ -1,0 +1,66 @@
+"""State layout and quaternion helpers."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from slungload.state import (
+    GROUPS,
+    STATE_DIM,
+    join_state,
+    quat_conj,
+    quat_continuous,
+    quat_error,
+    quat_from_rotvec,
+    quat_mul,
+    quat_to_rotmat,
+    quat_wxyz_to_xyzw,
+    quat_xyzw_to_wxyz,
+    split_state,
+)
+
+
+def test_groups_tile_the_state():
+    covered = sorted(i for s in GROUPS.values() for i in range(STATE_DIM)[s])
+    assert covered == list(range(STATE_DIM))
+
+
+def test_split_join_round_trip():
+    x = torch.randn(5, 7, STATE_DIM)
+    assert torch.equal(join_state(*split_state(x)), x)
+
+
+def test_layout_conversion_round_trip():
+    q = torch.randn(10, 4)
+    assert torch.equal(quat_xyzw_to_wxyz(quat_wxyz_to_xyzw(q)), q)
+    assert torch.equal(quat_wxyz_to_xyzw(torch.tensor([1.0, 2, 3, 4])), torch.tensor([2.0, 3, 4, 1]))
+
+
+def test_product_matches_rotation_composition():
+    a = quat_from_rotvec(torch.randn(6, 3, dtype=torch.float64))
+    b = quat_from_rotvec(torch.randn(6, 3, dtype=torch.float64))
+    r = quat_to_rotmat(quat_mul(a, b))
+    assert torch.allclose(r, quat_to_rotmat(a) @ quat_to_rotmat(b), atol=1e-12)
+
+
+def test_error_is_zero_for_equal_and_small_for_near():
+    q = quat_from_rotvec(torch.randn(6, 3, dtype=torch.float64))
+    assert torch.allclose(quat_error(q, q), torch.zeros(6, 4, dtype=torch.float64), atol=1e-12)
+    dq = quat_from_rotvec(torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64))
+    err = quat_error(quat_mul(dq, q), q)
+    # For a small rotation by angle a, the error is about (0, a/2 * axis).
+    assert torch.allclose(err[:, 1], torch.full((6,), 0.005, dtype=torch.float64), atol=1e-6)
+    assert torch.allclose(quat_mul(q, quat_conj(q))[:, 0], torch.ones(6, dtype=torch.float64))
+
+
+def test_continuity_removes_sign_flips():
+    angles = torch.linspace(0, 2 * math.pi, 50, dtype=torch.float64)
+    q = quat_from_rotvec(torch.stack([angles * 0, angles * 0, angles], -1))
+    flipped = q.clone()
+    flipped[10:20] *= -1
+    flipped[30] *= -1
+    fixed = quat_continuous(flipped)
+    assert torch.allclose(fixed, q * torch.sign(q[0, 0]))
+    assert torch.all((fixed[1:] * fixed[:-1]).sum(-1) > 0)
