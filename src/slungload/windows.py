@@ -1,0 +1,218 @@
+"""Sliding windows cut from flights, and their on-disk cache.
+
+A window is M + N consecutive steps of one flight: the first M are the history the network
+sees, the last N the future it predicts. Windows never cross flights. ``data.load_dataset``
+builds them per split; this module knows nothing about files or splits.
+
+The cache is a ``torch.save`` file of plain tensors, strings and dicts, read back with
+``weights_only=True``; its name is a hash of everything the windows depend on (see
+``cache_key``), so a stale cache is never read, only left behind.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .config import VehicleParams, WindowConfig, to_dict
+from .fileio import atomic_path
+
+# Bump when the windows or the cache layout change: old cache files are then never read.
+CACHE_VERSION = 1
+CACHE_ENV = "SLUNGLOAD_CACHE"
+
+
+class Segment(NamedTuple):
+    """Part of a batch of windows: states (W, S, 13), inputs (W, S, 4), aux (W, S, 6)."""
+
+    states: Tensor
+    inputs: Tensor
+    aux: Tensor
+
+
+class FlightSeries(Protocol):
+    """What ``make_windows`` needs of a flight (``data.Flight`` has it)."""
+
+    name: str
+    states: np.ndarray  # (T, 13)
+    inputs: np.ndarray  # (T, 4)
+    aux: np.ndarray  # (T, 6)
+
+
+@dataclass(frozen=True)
+class Windows:
+    """Sliding windows of one split, float32.
+
+    states (W, M+N, 13), inputs (W, M+N, 4), aux (W, M+N, 6) = estimated (vL, Omega_L);
+    flight (W,) int64 index into ``names``; start (W,) int64 first step of each window in its
+    flight. ``history`` / ``future`` give the first M / last N steps.
+    """
+
+    states: Tensor
+    inputs: Tensor
+    aux: Tensor
+    flight: Tensor
+    start: Tensor
+    names: tuple[str, ...]
+    window: WindowConfig
+
+    def __len__(self) -> int:
+        return self.states.shape[0]
+
+    @property
+    def history(self) -> Segment:
+        """The first M steps of every window (what the encoder sees)."""
+        m = self.window.history
+        return Segment(self.states[:, :m], self.inputs[:, :m], self.aux[:, :m])
+
+    @property
+    def future(self) -> Segment:
+        """The last N steps of every window (what is predicted)."""
+        m = self.window.history
+        return Segment(self.states[:, m:], self.inputs[:, m:], self.aux[:, m:])
+
+    def __getitem__(self, index: Tensor | slice | Sequence[int] | int) -> Windows:
+        """A subset: an index or boolean tensor, a slice, a list; an int keeps a window axis."""
+        if isinstance(index, int):
+            index = [index]
+        if not isinstance(index, slice):
+            index = torch.as_tensor(index)
+        return Windows(
+            states=self.states[index],
+            inputs=self.inputs[index],
+            aux=self.aux[index],
+            flight=self.flight[index],
+            start=self.start[index],
+            names=self.names,
+            window=self.window,
+        )
+
+    subset = __getitem__
+
+    def to(self, device: torch.device | str) -> Windows:
+        """The same windows on another device."""
+        return Windows(
+            self.states.to(device),
+            self.inputs.to(device),
+            self.aux.to(device),
+            self.flight.to(device),
+            self.start.to(device),
+            self.names,
+            self.window,
+        )
+
+    def to_payload(self) -> dict[str, Any]:
+        """Plain tensors and strings, for the cache (``from_payload`` inverts it)."""
+        return {
+            "states": self.states,
+            "inputs": self.inputs,
+            "aux": self.aux,
+            "flight": self.flight,
+            "start": self.start,
+            "names": list(self.names),
+            "window": to_dict(self.window),
+        }
+
+    @classmethod
+    def from_payload(cls, data: dict[str, Any]) -> Windows:
+        return cls(
+            states=data["states"],
+            inputs=data["inputs"],
+            aux=data["aux"],
+            flight=data["flight"],
+            start=data["start"],
+            names=tuple(data["names"]),
+            window=WindowConfig(**data["window"]),
+        )
+
+
+def window_count(length: int, window: WindowConfig) -> int:
+    """Windows of ``window.length`` steps at ``window.stride`` in a flight of ``length`` steps."""
+    if length < window.length:
+        return 0
+    return (length - window.length) // window.stride + 1
+
+
+def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windows:
+    """Cut every flight into windows (never across flights), concatenated in flight order."""
+    parts: dict[str, list[Tensor]] = {
+        "states": [],
+        "inputs": [],
+        "aux": [],
+        "flight": [],
+        "start": [],
+    }
+    for i, flight in enumerate(flights):
+        count = window_count(len(flight.states), window)
+        if count == 0:
+            continue
+        for key in ("states", "inputs", "aux"):
+            series = torch.from_numpy(np.asarray(getattr(flight, key), dtype=np.float32))
+            # unfold: (T, C) -> (W, C, L) views; one copy at the concatenation below.
+            cut = series.unfold(0, window.length, window.stride)[:count]
+            parts[key].append(cut.transpose(1, 2))
+        parts["flight"].append(torch.full((count,), i, dtype=torch.int64))
+        parts["start"].append(torch.arange(count, dtype=torch.int64) * window.stride)
+    dims = {"states": 13, "inputs": 4, "aux": 6}
+    out: dict[str, Tensor] = {}
+    for key, chunks in parts.items():
+        if chunks:
+            out[key] = torch.cat(chunks).contiguous()
+        elif key in dims:
+            out[key] = torch.zeros(0, window.length, dims[key])
+        else:
+            out[key] = torch.zeros(0, dtype=torch.int64)
+    return Windows(**out, names=tuple(f.name for f in flights), window=window)
+
+
+# --- cache ----------------------------------------------------------------------------------
+
+
+def default_cache_dir() -> Path:
+    """``$SLUNGLOAD_CACHE`` if set, else ``~/.cache/slungload``."""
+    env = os.environ.get(CACHE_ENV)
+    return Path(env) if env else Path.home() / ".cache" / "slungload"
+
+
+def cache_key(files: Iterable[Path], window: WindowConfig, params: VehicleParams) -> str:
+    """SHA-256 over the cache version, window config, vehicle constants and the name and
+    bytes of every file (flights and split lists), in the given order."""
+    h = hashlib.sha256()
+    meta = {"version": CACHE_VERSION, "window": to_dict(window), "params": to_dict(params)}
+    h.update(json.dumps(meta, sort_keys=True).encode())
+    for path in files:
+        data = Path(path).read_bytes()
+        h.update(f"\0{Path(path).name}\0{len(data)}\0".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+def save_cache(path: Path, key: str, payload: dict[str, Any]) -> None:
+    """Write a cache file atomically (a crash never leaves a half-written cache)."""
+    with atomic_path(path) as tmp:
+        torch.save({"version": CACHE_VERSION, "key": key, "payload": payload}, tmp)
+
+
+def load_cache(path: Path, key: str) -> dict[str, Any] | None:
+    """The payload stored under ``key``, or None if the file is absent.
+
+    Raises ValueError if the file exists but is unreadable or not the expected cache.
+    """
+    if not path.is_file():
+        return None
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # any unpickling / zip error means the same: rebuild
+        raise ValueError(f"{path}: unreadable cache ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(data, dict) or data.get("version") != CACHE_VERSION or data.get("key") != key:
+        raise ValueError(f"{path}: not a cache file of version {CACHE_VERSION} for this dataset")
+    return data["payload"]
