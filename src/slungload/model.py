@@ -1,0 +1,331 @@
+"""The network: LSTM encoder-decoder with Bahdanau attention (the paper's Section III-B).
+
+Read top to bottom: input embedding, encoder, attention, decoder head, the network with its
+recursive decoder loop. Shapes use B batch, M history steps, N horizon steps, E = 300 the
+embedding width, H = 20 the LSTM width.
+
+The network takes and returns **physical units** (m, m/s, unit-ish quaternion w-x-y-z, m;
+N, rad/s). With ``ModelConfig.normalize`` it standardises internally with statistics stored in
+buffers (``fit_normalization``), so they travel with the ``state_dict`` and any export.
+
+Recursion (no teacher forcing)::
+
+    step 0:  (x_{M-1},        u_{M-1})   -> x_hat_M
+    step n:  (x_hat_{M-1+n},  u_{M-1+n}) -> x_hat_{M+n}
+
+so predicting N states uses the inputs u_{M-1} ... u_{M+N-2}. ``forward`` takes the inputs over
+the horizon u_M ... u_{M+N-1} (as the data windows hold them) and does not use the last one.
+"""
+
+from __future__ import annotations
+
+from itertools import pairwise
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from .config import ModelConfig
+from .state import INPUT_DIM, QUAT, STATE_DIM, quat_normalize
+
+FEATURE_DIM = STATE_DIM + INPUT_DIM  # 17: one (x_k, u_k) pair
+
+# Floors on the standard deviations from ``fit_normalization``: a (near-)constant channel
+# must not turn into a huge gain. Quaternion components live in [-1, 1]; a much tighter
+# floor would make a flight at near-constant attitude hypersensitive to tiny attitude changes.
+STD_FLOOR = 1e-3  # state (m, m/s) and input (N, rad/s) channels
+QUAT_STD_FLOOR = 0.05  # quaternion channels, -
+DELTA_STD_FLOOR = 1e-5  # per-step changes x_k - x_{k-1}, same units as the state
+
+
+class Prediction(NamedTuple):
+    """Network output over the horizon, physical units.
+
+    states: (B, N, 13) x_hat_M ... x_hat_{M+N-1}; the quaternion is NOT normalised (the
+        projection loss needs its norm; see ``with_unit_quaternion`` for evaluation).
+    slack: (B, N, 13) slack variables s_M ... s_{M+N-1} in state units (with normalisation,
+        the head's output times ``delta_std``: a physics mismatch is of the size of one step's
+        change), or None when the model was built with ``slack=False``. Used by the loss only;
+        ignore them at evaluation.
+    """
+
+    states: Tensor
+    slack: Tensor | None
+
+
+def with_unit_quaternion(states: Tensor) -> Tensor:
+    """States (..., 13) with the quaternion block scaled to unit norm (for evaluation)."""
+    out = states.clone()
+    out[..., QUAT] = quat_normalize(states[..., QUAT])
+    return out
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+class InputEmbedding(nn.Module):
+    """(x_k, u_k) (..., 17) -> z_k (..., E): Linear -> GELU, repeated, dropout between.
+
+    Shared by the encoder and the decoder. The first Linear is split in its state and input
+    columns so the decoder can apply the input part to the whole horizon at once
+    (``input_part``) and only the state part inside its loop (``from_parts``).
+    """
+
+    def __init__(self, sizes: tuple[int, ...], dropout: float) -> None:
+        super().__init__()
+        widths = (FEATURE_DIM, *sizes)
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairwise(widths))
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, features: Tensor) -> Tensor:  # (..., 17) -> (..., E)
+        return self._rest(self.layers[0](features))
+
+    def input_part(self, u: Tensor) -> Tensor:
+        """First layer's input columns plus bias: (..., 4) -> (..., sizes[0])."""
+        first = self.layers[0]
+        return F.linear(u, first.weight[:, STATE_DIM:], first.bias)
+
+    def state_weight(self) -> Tensor:
+        """First layer's state columns, transposed: (13, sizes[0]), for ``from_parts``."""
+        return self.layers[0].weight[:, :STATE_DIM].t()
+
+    def from_parts(self, x: Tensor, input_part: Tensor, state_weight: Tensor) -> Tensor:
+        """Embedding of (x, u) given ``input_part(u)`` and ``state_weight()``.
+
+        x (B, 13), input_part (B, sizes[0]), state_weight (13, sizes[0]) -> (B, E).
+        """
+        return self._rest(torch.addmm(input_part, x, state_weight))
+
+    def _rest(self, h: Tensor) -> Tensor:
+        h = F.gelu(h)
+        for layer in self.layers[1:]:
+            h = F.gelu(layer(self.dropout(h)))
+        return h
+
+
+class BahdanauAttention(nn.Module):
+    """Additive attention: score_j = v^T tanh(W enc_j + U h), softmax over the M history steps."""
+
+    def __init__(self, hidden: int) -> None:
+        super().__init__()
+        self.W = nn.Linear(hidden, hidden, bias=False)
+        self.U = nn.Linear(hidden, hidden, bias=False)
+        self.v = nn.Linear(hidden, 1, bias=False)
+
+    def keys(self, enc: Tensor) -> Tensor:
+        """W enc, (B, M, H): depends only on the encoder, so computed once per sequence."""
+        return self.W(enc)
+
+    def forward(self, keys: Tensor, enc: Tensor, query: Tensor) -> Tensor:
+        """Context (B, H) from keys = W enc (B, M, H), enc (B, M, H), query h (B, H)."""
+        scores = self.v(torch.tanh(keys + self.U(query).unsqueeze(1)))  # (B, M, 1)
+        weights = torch.softmax(scores, dim=1)  # (B, M, 1)
+        return (weights * enc).sum(dim=1)  # (B, H)
+
+
+class OutputHead(nn.Module):
+    """Decoder output (B, H) -> (B, 13 [+ 13 slack]).
+
+    Linear -> Linear -> GELU -> Linear -> GELU -> Linear: the first two Linears have no
+    activation between them (this is what gives the paper's parameter count).
+    """
+
+    def __init__(self, hidden: int, sizes: tuple[int, ...], out: int) -> None:
+        super().__init__()
+        widths = (hidden, *sizes, out)
+        self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairwise(widths))
+
+    def forward(self, h: Tensor) -> Tensor:
+        h = self.layers[0](h)
+        for layer in self.layers[1:-1]:
+            h = F.gelu(layer(h))
+        return self.layers[-1](h)
+
+
+class SlungLoadNet(nn.Module):
+    """Encoder-decoder that predicts N future states from M past states and inputs.
+
+    ``self.decoder`` is an ``nn.LSTM`` so the parameters have the standard layout and count,
+    but the loop runs its step by hand (``_lstm_cell``): at batch 1 the per-call overhead of
+    ``nn.LSTM`` is several times the arithmetic.
+    """
+
+    def __init__(self, config: ModelConfig | None = None) -> None:
+        super().__init__()
+        cfg = config or ModelConfig()
+        self.config = cfg
+        hidden, layers = cfg.hidden_size, cfg.num_layers
+        embed = cfg.embed_sizes[-1]
+        self.embed = InputEmbedding(cfg.embed_sizes, cfg.dropout)
+        self.encoder = nn.LSTM(embed, hidden, layers, dropout=cfg.dropout, batch_first=True)
+        self.attention = BahdanauAttention(hidden)
+        self.decoder = nn.LSTM(
+            hidden + embed, hidden, layers, dropout=cfg.dropout, batch_first=True
+        )
+        self.head = OutputHead(hidden, cfg.head_sizes, STATE_DIM * (2 if cfg.slack else 1))
+        # Normalisation statistics, physical units; identity until ``fit_normalization``.
+        self.register_buffer("state_mean", torch.zeros(STATE_DIM))
+        self.register_buffer("state_std", torch.ones(STATE_DIM))
+        self.register_buffer("input_mean", torch.zeros(INPUT_DIM))
+        self.register_buffer("input_std", torch.ones(INPUT_DIM))
+        self.register_buffer("delta_std", torch.ones(STATE_DIM))
+
+    # --- normalisation -------------------------------------------------------------------
+
+    @torch.no_grad()
+    def fit_normalization(self, states: Tensor, inputs: Tensor) -> None:
+        """Set the normalisation buffers from training data.
+
+        states (..., T, 13) and inputs (..., T, 4), e.g. windows (W, T, .) or one flight
+        (T, .); physical units. Per-channel mean and standard deviation (floored, see
+        ``STD_FLOOR``), and the standard deviation of the per-step change x_k - x_{k-1}
+        (used by the residual mode and to scale the slack variables).
+        """
+        if not self.config.normalize:
+            raise ValueError("fit_normalization: this model was built with normalize=False")
+        if states.shape[-1] != STATE_DIM or inputs.shape[-1] != INPUT_DIM:
+            raise ValueError(
+                f"fit_normalization: expected states (..., T, {STATE_DIM}) and inputs "
+                f"(..., T, {INPUT_DIM}), got {tuple(states.shape)} and {tuple(inputs.shape)}"
+            )
+        if states.shape[-2] < 2:
+            raise ValueError("fit_normalization: need at least 2 time steps for delta_std")
+        x = states.detach().to(torch.float64)
+        u = inputs.detach().to(torch.float64)
+        flat_x, flat_u = x.reshape(-1, STATE_DIM), u.reshape(-1, INPUT_DIM)
+        delta = (x[..., 1:, :] - x[..., :-1, :]).reshape(-1, STATE_DIM)
+        floor = torch.full((STATE_DIM,), STD_FLOOR, dtype=torch.float64)
+        floor[QUAT] = QUAT_STD_FLOOR
+        self._set("state_mean", flat_x.mean(0))
+        self._set("state_std", flat_x.std(0, correction=0).maximum(floor))
+        self._set("input_mean", flat_u.mean(0))
+        self._set("input_std", flat_u.std(0, correction=0).clamp_min(STD_FLOOR))
+        self._set("delta_std", delta.std(0, correction=0).clamp_min(DELTA_STD_FLOOR))
+
+    def _set(self, name: str, value: Tensor) -> None:
+        buf = getattr(self, name)
+        buf.copy_(value.to(buf.dtype))
+
+    def normalize_state(self, x: Tensor) -> Tensor:
+        """Physical (..., 13) -> network units (identity when normalize=False)."""
+        if not self.config.normalize:
+            return x
+        return (x - self.state_mean) / self.state_std
+
+    def denormalize_state(self, z: Tensor) -> Tensor:
+        """Network units (..., 13) -> physical (identity when normalize=False)."""
+        if not self.config.normalize:
+            return z
+        return z * self.state_std + self.state_mean
+
+    def normalize_input(self, u: Tensor) -> Tensor:
+        """Physical (..., 4) -> network units (identity when normalize=False)."""
+        if not self.config.normalize:
+            return u
+        return (u - self.input_mean) / self.input_std
+
+    # --- forward -------------------------------------------------------------------------
+
+    def forward(self, x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> Prediction:
+        """Predict x_M ... x_{M+N-1}.
+
+        x_hist (B, M, 13) states x_0 ... x_{M-1}; u_hist (B, M, 4) inputs u_0 ... u_{M-1};
+        u_future (B, N, 4) inputs u_M ... u_{M+N-1}; the horizon N is u_future.shape[1].
+        The recursion uses u_{M-1} ... u_{M+N-2}; u_{M+N-1} does not affect the result.
+        """
+        _check_shapes(x_hist, u_hist, u_future)
+        cfg = self.config
+        z_hist = self.normalize_state(x_hist)  # (B, M, 13)
+        v_hist = self.normalize_input(u_hist)  # (B, M, 4)
+        v_future = self.normalize_input(u_future)  # (B, N, 4)
+
+        # Encoder over the history.
+        enc, (h, c) = self.encoder(self.embed(torch.cat([z_hist, v_hist], dim=-1)))
+        # enc (B, M, H); h, c (layers, B, H)
+        keys = self.attention.keys(enc)  # (B, M, H)
+
+        # Decoder inputs u_{M-1} ... u_{M+N-2}: their share of the first embedding layer is
+        # computed for the whole horizon at once.
+        v_dec = torch.cat([v_hist[:, -1:], v_future[:, :-1]], dim=1)  # (B, N, 4)
+        input_parts = self.embed.input_part(v_dec).unbind(1)  # N x (B, E0)
+        # Residual mode: x_k = x_{k-1} + delta_std * out, written in network units.
+        gain = self.delta_std / self.state_std if cfg.normalize else None  # (13,)
+
+        state_weight = self.embed.state_weight()  # (13, E0)
+        weights = _stacked_lstm_weights(self.decoder)  # per layer (in + H, 4H), (4H,)
+        hs, cs = list(h.unbind(0)), list(c.unbind(0))  # layers x (B, H)
+        z = z_hist[:, -1]  # (B, 13) last measured state, network units
+        states, slacks = [], []
+        for part in input_parts:
+            context = self.attention(keys, enc, hs[-1])  # (B, H)
+            emb = self.embed.from_parts(z, part, state_weight)  # (B, E)
+            layer_in = torch.cat([context, emb], dim=-1)  # (B, H + E)
+            for i, (w, b) in enumerate(weights):
+                if i > 0:
+                    layer_in = F.dropout(layer_in, cfg.dropout, self.training)
+                hs[i], cs[i] = _lstm_cell(layer_in, hs[i], cs[i], w, b)
+                layer_in = hs[i]
+            y = self.head(layer_in)  # (B, 13 or 26)
+            step = y[:, :STATE_DIM]  # (B, 13)
+            if not cfg.residual:
+                z = step
+            elif gain is None:
+                z = z + step
+            else:
+                z = z + step * gain
+            states.append(z)
+            if cfg.slack:
+                slacks.append(y[:, STATE_DIM:])
+
+        x_hat = self.denormalize_state(torch.stack(states, dim=1))  # (B, N, 13)
+        slack = None
+        if cfg.slack:
+            slack = torch.stack(slacks, dim=1)  # (B, N, 13)
+            if cfg.normalize:
+                slack = slack * self.delta_std  # see ``Prediction``
+        return Prediction(x_hat, slack)
+
+
+def _stacked_lstm_weights(lstm: nn.LSTM) -> list[tuple[Tensor, Tensor]]:
+    """Per layer, [W_ih W_hh]^T (in + H, 4H) and b_ih + b_hh (4H,) of an ``nn.LSTM``.
+
+    The decoder runs one step at a time; ``nn.LSTM``'s per-call overhead dominates at these
+    sizes, so the step is written out (``_lstm_cell``) on weights joined once per sequence.
+    The module still owns the parameters (standard layout and count).
+    """
+    out = []
+    for i in range(lstm.num_layers):
+        w = torch.cat([getattr(lstm, f"weight_ih_l{i}"), getattr(lstm, f"weight_hh_l{i}")], 1)
+        out.append((w.t(), getattr(lstm, f"bias_ih_l{i}") + getattr(lstm, f"bias_hh_l{i}")))
+    return out
+
+
+def _lstm_cell(x: Tensor, h: Tensor, c: Tensor, w: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
+    """One LSTM step, PyTorch's gate order (i, f, g, o): x (B, in), h, c (B, H) -> h', c'."""
+    gates = torch.addmm(b, torch.cat([x, h], dim=-1), w)  # (B, 4H)
+    i, f, g, o = gates.chunk(4, dim=-1)  # (B, H) each
+    c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+    return torch.sigmoid(o) * torch.tanh(c), c
+
+
+def _check_shapes(x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> None:
+    ok = (
+        x_hist.dim() == 3
+        and u_hist.dim() == 3
+        and u_future.dim() == 3
+        and x_hist.shape[-1] == STATE_DIM
+        and u_hist.shape[-1] == INPUT_DIM
+        and u_future.shape[-1] == INPUT_DIM
+        and u_hist.shape[:2] == x_hist.shape[:2]
+        and u_future.shape[0] == x_hist.shape[0]
+        and u_future.shape[1] >= 1
+    )
+    if not ok:
+        raise ValueError(
+            f"SlungLoadNet: expected x_hist (B, M, {STATE_DIM}), u_hist (B, M, {INPUT_DIM}), "
+            f"u_future (B, N>=1, {INPUT_DIM}); got {tuple(x_hist.shape)}, "
+            f"{tuple(u_hist.shape)}, {tuple(u_future.shape)}"
+        )
