@@ -1,0 +1,401 @@
+"""Write an evaluation ``Report`` to a folder: report.md beside the paper's numbers, CSVs of
+every number, report.json, and the figures. Every file is written atomically.
+
+Layout of the output folder::
+
+    report.md            tables (ours beside the paper's), ratios, timing, figures, configs
+    report.json          the whole Report (curves included) and the paper's numbers
+    rmse.csv             RMSE per run (seed) and horizon
+    rmse_table.csv       RMSE mean and std across seeds per label and horizon
+    mae_<label>_N<n>.csv MAE mean / q1 / median / q3 per horizon step and group
+    timing.csv           batch-1 inference time per model and horizon
+    figures/*.png        MAE comparisons, one predicted window, 3D paths
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+from . import plots
+from .config import to_dict
+from .evaluate import (
+    COMBINED,
+    METRIC_KEYS,
+    PAPER_MODEL_NAMES,
+    PAPER_RMSE_N50,
+    PAPER_TIMING,
+    PHYSICS,
+    Report,
+    RmseRow,
+)
+from .fileio import write_json, write_text
+from .state import GROUPS
+
+REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
+PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
+COLUMN_TITLES = {
+    "position": "Position (m)",
+    "velocity": "Velocity (m/s)",
+    "quaternion": "Quaternion (-)",
+    "load_position": "Load position (m)",
+    "combined": "Combined",
+}
+
+
+def write_report(report: Report, out: str | Path) -> Path:
+    """Write report.md, report.json, the CSVs and the figures into ``out``; returns report.md."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    figures = write_figures(report, out / "figures")
+    csvs = write_csvs(report, out)
+    write_json(out / "report.json", _report_json(report))
+    path = out / "report.md"
+    write_text(path, render_markdown(report, figures=figures, csvs=csvs, out=out))
+    return path
+
+
+# --- figures -----------------------------------------------------------------------------
+
+
+def reference_label(report: Report) -> str | None:
+    """The label others are compared with: "proposed" if present, else the first network."""
+    networks = [la for la in report.labels if la != PHYSICS]
+    if REFERENCE_LABEL in networks:
+        return REFERENCE_LABEL
+    return networks[0] if networks else None
+
+
+def write_figures(report: Report, folder: Path) -> list[tuple[str, Path]]:
+    """All figures; returns (caption, path) pairs in display order."""
+    n = max(report.horizons)
+    out: list[tuple[str, Path]] = []
+    ref = reference_label(report)
+    for other in report.labels:
+        if ref is None or other == ref:
+            continue
+        curves = {ref: report.curves[ref][n], other: report.curves[other][n]}
+        path = plots.plot_mae(
+            curves,
+            folder / f"mae_{_slug(ref)}_vs_{_slug(other)}_N{n}.png",
+            dt=report.dt,
+            training_horizon=report.training_horizon,
+        )
+        out.append((f"MAE per horizon step, {ref} vs {other} (N = {n})", path))
+    if len(report.labels) > 2 or ref is None:
+        curves = {la: report.curves[la][n] for la in report.labels}
+        path = plots.plot_mae(
+            curves,
+            folder / f"mae_all_N{n}.png",
+            dt=report.dt,
+            training_horizon=report.training_horizon,
+        )
+        out.append((f"MAE per horizon step, all models (N = {n})", path))
+    if report.example is not None:
+        ex = report.example
+        path = plots.plot_prediction(
+            ex, folder / "prediction.png", dt=report.dt, training_horizon=report.training_horizon
+        )
+        out.append((f"Predicted vs true states, flight {ex.flight} from step {ex.start}", path))
+        path = plots.plot_paths_3d(ex, folder / "paths_3d.png")
+        out.append((f"Vehicle and load paths, flight {ex.flight}", path))
+    return out
+
+
+# --- CSVs ----------------------------------------------------------------------------------
+
+
+def write_csvs(report: Report, out: Path) -> list[Path]:
+    """rmse.csv, rmse_table.csv, mae_<label>_N<n>.csv, timing.csv; returns their paths."""
+    paths = []
+    rows = [
+        [r.label, _blank(r.seed), r.metrics.horizon, r.metrics.windows]
+        + [r.metrics.rmse[k] for k in METRIC_KEYS]
+        for r in report.results
+    ]
+    paths.append(
+        _write_csv(out / "rmse.csv", ["label", "seed", "horizon", "windows", *METRIC_KEYS], rows)
+    )
+
+    header = ["label", "horizon", "seeds"]
+    header += [f"{k}_{s}" for k in METRIC_KEYS for s in ("mean", "std")]
+    rows = [
+        [r.label, r.horizon, r.seeds] + [v for k in METRIC_KEYS for v in (r.mean[k], r.std[k])]
+        for r in report.table
+    ]
+    paths.append(_write_csv(out / "rmse_table.csv", header, rows))
+
+    for label, by_horizon in report.curves.items():
+        for n, curves in by_horizon.items():
+            header = ["step", "time_s"]
+            header += [f"{g}_{s}" for g in GROUPS for s in ("mean", "q1", "median", "q3")]
+            rows = []
+            for k in range(n):
+                row: list[object] = [k + 1, (k + 1) * report.dt]
+                for g in GROUPS:
+                    c = curves[g]
+                    row += [c.mean[k], c.q1[k], c.median[k], c.q3[k]]
+                rows.append(row)
+            paths.append(_write_csv(out / f"mae_{_slug(label)}_N{n}.csv", header, rows))
+
+    header = ["label", "seed", "history", "horizon", "mean_ms", "std_ms", "repeats", "threads",
+              "device"]  # fmt: skip
+    rows = [
+        [
+            t.label,
+            _blank(t.seed),
+            t.timing.history,
+            t.timing.horizon,
+            t.timing.mean_ms,
+            t.timing.std_ms,
+            t.timing.repeats,
+            t.timing.threads,
+            t.timing.device,
+        ]  # fmt: skip
+        for t in report.timings
+    ]
+    paths.append(_write_csv(out / "timing.csv", header, rows))
+    return paths
+
+
+def _write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> Path:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([_cell(v) for v in row])
+    write_text(path, buf.getvalue())
+    return path
+
+
+def _cell(value: object) -> object:
+    # repr of a float round-trips exactly, so the CSVs hold the Report's numbers.
+    return repr(float(value)) if isinstance(value, float) else value
+
+
+def _blank(value: object) -> object:
+    return "" if value is None else value
+
+
+def _report_json(report: Report) -> dict:
+    data = report.to_dict()
+    data["curves"] = {
+        label: {str(n): {g: c.to_dict() for g, c in cs.items()} for n, cs in by_n.items()}
+        for label, by_n in report.curves.items()
+    }
+    return data
+
+
+# --- markdown ------------------------------------------------------------------------------
+
+
+def render_markdown(
+    report: Report, *, figures: Sequence[tuple[str, Path]], csvs: Sequence[Path], out: Path
+) -> str:
+    """The text of report.md (links relative to ``out``)."""
+    p = report.params
+    env = report.environment
+    lines = [
+        "# Evaluation report",
+        "",
+        f"slungload {env.get('slungload', '?')}, torch {env.get('torch', '?')}; "
+        f"inference on {env.get('device', '?')} with {env.get('threads', '?')} thread(s).",
+        "",
+        "## Dataset",
+        "",
+        f"- folder: `{report.dataset}`",
+        f"- test flights ({len(report.test_flights)}): {', '.join(report.test_flights)}",
+        f"- windows: M = {report.history} history steps, stride 1; "
+        + ", ".join(
+            f"N = {r.metrics.horizon}: {r.metrics.windows}" for r in _first_per_horizon(report)
+        ),
+        f"- vehicle constants: mQ = {p.mass_quad} kg, mL = {p.mass_load} kg, "
+        f"l = {p.cable_length} m, d = {p.load_damping}, h = {p.dt} s, g = {p.gravity} m/s^2"
+        + (f" (from {env['params_source']})" if env.get("params_source") else ""),
+        f"- training horizon N = {report.training_horizon} steps "
+        f"({report.training_horizon * p.dt:.2f} s)",
+        "",
+        "The paper's numbers come from the authors' real flights; ours from the dataset above. "
+        "Compare the ratios and trends; absolute values depend on the data.",
+        "",
+        "Metrics (the paper's): per group, the error norm of each test window at horizon step "
+        "k (quaternion: |q_hat (x) q^-1 - q_id| with q_hat normalised); MAE_k is its mean over "
+        "the windows, with the 25th / 75th percentiles (Q1 / Q3); RMSE = sqrt(sum |e|^2 / "
+        "(windows N)) over all windows and steps; Combined = the sum of the four group RMSEs. "
+        "Several seeds of one model: the table gives mean ± std across seeds, the MAE curves pool "
+        "the windows of all seeds.",
+        "",
+    ]
+    lines += _models_section(report)
+    for n in sorted(report.horizons, key=lambda h: (h != PAPER_HORIZON, h)):
+        lines += _rmse_section(report, n)
+    lines += _paper_rmse_section()
+    lines += _ratio_section(report)
+    lines += _timing_section(report)
+    lines += ["## Figures", ""]
+    for caption, path in figures:
+        rel = path.relative_to(out).as_posix()
+        lines += [f"### {caption}", "", f"![{caption}]({rel})", ""]
+    lines += ["## Files", ""]
+    lines += [f"- [{c.relative_to(out).as_posix()}]({c.relative_to(out).as_posix()})" for c in csvs]
+    lines += ["- [report.json](report.json)", ""]
+    lines += _config_section(report)
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _first_per_horizon(report: Report):
+    seen = {}
+    for r in report.results:
+        seen.setdefault(r.metrics.horizon, r)
+    return [seen[n] for n in sorted(seen)]
+
+
+def _models_section(report: Report) -> list[str]:
+    lines = [
+        "## Models",
+        "",
+        "| label | seed | run | epochs | parameters |",
+        "|---|---|---|---|---|",
+    ]
+    for m in report.models:
+        lines.append(
+            f"| {m.get('label')} | {_dash(m.get('seed'))} | `{m.get('run', '')}` "
+            f"| {_dash(m.get('epochs'))} | {_dash(m.get('parameters'))} |"
+        )
+    if PHYSICS in report.labels:
+        lines.append(
+            f"| {PHYSICS} | - | open-loop `physics.rollout` from x_(M-1) with the estimated "
+            "(vL, Omega_L) and the true inputs | - | - |"
+        )
+    return lines + [""]
+
+
+def _rmse_section(report: Report, n: int) -> list[str]:
+    rows = [r for r in report.table if r.horizon == n]
+    seeds = any(r.seeds > 1 for r in rows)
+    note = " (mean ± std across seeds)" if seeds else ""
+    lines = [f"## RMSE over the test set, N = {n}{note}", ""]
+    lines += _table_header("Model (ours)")
+    for r in rows:
+        name = f"{r.label} ({r.seeds} seeds)" if r.seeds > 1 else r.label
+        lines.append(f"| {name} | " + " | ".join(_pm(r, k) for k in METRIC_KEYS) + " |")
+    return lines + [""]
+
+
+def _paper_rmse_section() -> list[str]:
+    lines = [f"## The paper's RMSE (Table I, real flights, N = {PAPER_HORIZON})", ""]
+    lines += _table_header("Model (paper)")
+    for key, values in PAPER_RMSE_N50.items():
+        cells = " | ".join(f"{values[k]:.3f}" for k in METRIC_KEYS)
+        lines.append(f"| {PAPER_MODEL_NAMES[key]} (`{key}`) | {cells} |")
+    return lines + [""]
+
+
+def _table_header(first: str) -> list[str]:
+    return [
+        f"| {first} | " + " | ".join(COLUMN_TITLES[k] for k in METRIC_KEYS) + " |",
+        "|---" * (len(METRIC_KEYS) + 1) + "|",
+    ]
+
+
+def combined_ratios(report: Report) -> list[tuple[str, str, dict[int, float], float | None]]:
+    """(numerator, denominator, {N: ours}, paper at N = 50) for the reference model against
+    every other label, on the combined RMSE (mean across seeds)."""
+    ref = reference_label(report)
+    out = []
+    if ref is None:
+        return out
+    for other in report.labels:
+        if other == ref:
+            continue
+        ours = {}
+        for n in report.horizons:
+            a, b = report.row(ref, n), report.row(other, n)
+            if a is not None and b is not None and b.mean[COMBINED] > 0:
+                ours[n] = a.mean[COMBINED] / b.mean[COMBINED]
+        paper = None
+        if ref in PAPER_RMSE_N50 and other in PAPER_RMSE_N50:
+            paper = PAPER_RMSE_N50[ref][COMBINED] / PAPER_RMSE_N50[other][COMBINED]
+        out.append((ref, other, ours, paper))
+    return out
+
+
+def _ratio_section(report: Report) -> list[str]:
+    ratios = combined_ratios(report)
+    if not ratios:
+        return []
+    horizons = sorted(report.horizons)
+    lines = [
+        "## Combined-RMSE ratios (below 1: the first model is better)",
+        "",
+        "| ratio | " + " | ".join(f"ours, N = {n}" for n in horizons) + " | paper, N = 50 |",
+        "|---" * (len(horizons) + 2) + "|",
+    ]
+    for ref, other, ours, paper in ratios:
+        cells = " | ".join(_ratio(ours[n]) if n in ours else "-" for n in horizons)
+        lines.append(f"| {ref} / {other} | {cells} | {_dash(paper, '{:.3f}')} |")
+    return lines + [""]
+
+
+def _timing_section(report: Report) -> list[str]:
+    lines = ["## Inference time, batch 1", ""]
+    if report.timings:
+        lines += [
+            "| model | seed | M | N | mean (ms) | std (ms) | calls | threads | device |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for t in report.timings:
+            tm = t.timing
+            lines.append(
+                f"| {t.label} | {_dash(t.seed)} | {tm.history} | {tm.horizon} "
+                f"| {tm.mean_ms:.2f} | {tm.std_ms:.2f} | {tm.repeats} | {tm.threads} "
+                f"| {tm.device} |"
+            )
+    else:
+        lines.append("Not measured (timing was switched off).")
+    lines += [
+        "",
+        "The paper's (Table II):",
+        "",
+        "| device | M | N | mean (ms) | std (ms) |",
+        "|---|---|---|---|---|",
+    ]
+    for t in PAPER_TIMING:
+        lines.append(
+            f"| {t.device} | {t.history} | {t.horizon} | {t.mean_ms:.2f} | {t.std_ms:.2f} |"
+        )
+    return lines + [""]
+
+
+def _config_section(report: Report) -> list[str]:
+    lines = ["## Configurations", "", "Vehicle constants:", "", "```json"]
+    lines += [json.dumps(to_dict(report.params), indent=2, sort_keys=True), "```", ""]
+    for m in report.models:
+        configs = m.get("configs")
+        if not configs:
+            continue
+        lines += [f"Run `{m.get('run', '')}` ({m.get('label')}, seed {_dash(m.get('seed'))}):", ""]
+        lines += ["```json", json.dumps(configs, indent=2, sort_keys=True, default=str), "```", ""]
+    return lines
+
+
+def _ratio(value: float) -> str:
+    return f"{value:.3f}" if value < 1e3 else f"{value:.3g}"
+
+
+def _pm(row: RmseRow, key: str) -> str:
+    if row.seeds > 1:
+        return f"{row.mean[key]:.3f} ± {row.std[key]:.3f}"
+    return f"{row.mean[key]:.3f}"
+
+
+def _dash(value: object, fmt: str = "{}") -> str:
+    return "-" if value is None else fmt.format(value)
+
+
+def _slug(label: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)

@@ -1,0 +1,266 @@
+"""Report files (markdown, CSVs, JSON, figures) from a small Report built with stand-ins, and
+one end-to-end ``evaluate`` of a briefly trained run."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+import torch
+from torch import Tensor, nn
+
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.evaluate import (
+    METRIC_KEYS,
+    PAPER_RMSE_N50,
+    PHYSICS,
+    Candidate,
+    NetworkPredictor,
+    PhysicsPredictor,
+    Report,
+    evaluate,
+    evaluate_predictors,
+)
+from slungload.fileio import write_json, write_npz, write_splits
+from slungload.physics import hover_thrust, rollout
+from slungload.report import write_report
+from slungload.state import GROUPS, LOAD_POS, POS, QUAT, VEL, quat_from_rotvec, quat_wxyz_to_xyzw
+from slungload.windows import make_windows
+
+torch.set_num_threads(1)
+PARAMS = VehicleParams()
+M, N = 6, 8
+
+
+class Flight(NamedTuple):
+    name: str
+    states: np.ndarray
+    inputs: np.ndarray
+    aux: np.ndarray
+
+
+def physics_flight(name: str, steps: int, seed: int) -> Flight:
+    """A flight of the discrete model: thrust near hover, random body rates, a swinging load."""
+    g = torch.Generator().manual_seed(seed)
+    x0 = torch.zeros(13, dtype=torch.float64)
+    x0[QUAT] = quat_from_rotvec(torch.tensor([0.05, -0.03, 0.2], dtype=torch.float64))
+    x0[LOAD_POS] = torch.tensor([0.1, 0.0, -0.69], dtype=torch.float64)
+    x0[LOAD_POS] *= PARAMS.cable_length / x0[LOAD_POS].norm()
+    aux0 = torch.zeros(6, dtype=torch.float64)
+    inputs = torch.zeros(steps, 4, dtype=torch.float64)
+    inputs[:, 0] = hover_thrust(PARAMS) * (1 + 0.03 * torch.randn(steps, generator=g))
+    inputs[:, 1:] = 0.2 * torch.randn(steps, 3, generator=g, dtype=torch.float64)
+    states, aux = rollout(x0, aux0, inputs[:-1], PARAMS)
+    states = torch.cat([x0[None], states])
+    aux = torch.cat([aux0[None], aux])
+    return Flight(name, states.numpy(), inputs.numpy(), aux.numpy())
+
+
+class Pred(NamedTuple):
+    states: Tensor
+    slack: Tensor | None
+
+
+class OffsetNet(nn.Module):
+    """Stand-in network: holds the last measured state plus a learnable velocity offset."""
+
+    def __init__(self, offset: float) -> None:
+        super().__init__()
+        self.offset = nn.Parameter(torch.tensor(offset))
+        self.layer = nn.Linear(17, 13)  # some work to time
+
+    def forward(self, x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> Pred:
+        n = u_future.shape[1]
+        last = x_hist[:, -1:] + 0 * self.layer(torch.cat([x_hist, u_hist], -1))[:, -1:]
+        states = last.repeat(1, n, 1).clone()
+        states[..., VEL] += self.offset
+        return Pred(states, None)
+
+
+@pytest.fixture(scope="module")
+def report() -> Report:
+    flights = [physics_flight(f"test_{i}", 40 + 7 * i, seed=i) for i in range(3)]
+    windows = {n: make_windows(flights, WindowConfig(history=M, horizon=n)) for n in (N, 2 * N)}
+    # A physics model with the wrong load mass, so that it has an error like the real one.
+    mismatched = dataclasses.replace(PARAMS, mass_load=0.2, cable_length=0.6)
+    candidates = [Candidate(PHYSICS, PhysicsPredictor(mismatched))]
+    for label, seed, offset in (("proposed", 0, 0.1), ("proposed", 1, 0.2), ("no-physics", 0, 0.5)):
+        net = OffsetNet(offset)
+        candidates.append(
+            Candidate(label, NetworkPredictor(net), seed, net, {"run": f"runs/{label}-{seed}"})
+        )
+    return evaluate_predictors(
+        candidates,
+        windows,
+        params=PARAMS,
+        training_horizon=N,
+        dataset="synthetic",
+        timing=True,
+        timing_repeats=3,
+        environment={"slungload": "test"},
+    )
+
+
+@pytest.fixture(scope="module")
+def written(report, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("report")
+    write_report(report, out)
+    return out
+
+
+def read_csv(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_every_file_exists_and_is_not_empty(written, report):
+    names = ["report.md", "report.json", "rmse.csv", "rmse_table.csv", "timing.csv"]
+    names += [f"mae_{la}_N{n}.csv" for la in report.labels for n in report.horizons]
+    for name in names:
+        assert (written / name).stat().st_size > 0, name
+    pngs = sorted((written / "figures").glob("*.png"))
+    assert {p.name for p in pngs} >= {
+        "mae_proposed_vs_physics_N16.png",
+        "mae_proposed_vs_no-physics_N16.png",
+        "mae_all_N16.png",
+        "prediction.png",
+        "paths_3d.png",
+    }
+    for p in pngs:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 10_000, p.name
+    assert not list(written.rglob("*.tmp")), "atomic writes left temporary files"
+
+
+def test_rmse_csv_matches_report(written, report):
+    rows = read_csv(written / "rmse.csv")
+    assert len(rows) == len(report.results)
+    for row, r in zip(rows, report.results, strict=True):
+        assert row["label"] == r.label and int(row["horizon"]) == r.metrics.horizon
+        for k in METRIC_KEYS:
+            value = float(row[k])
+            assert math.isfinite(value) and value == r.metrics.rmse[k]
+    rows = read_csv(written / "rmse_table.csv")
+    assert len(rows) == len(report.table)
+    for row, r in zip(rows, report.table, strict=True):
+        assert int(row["seeds"]) == r.seeds
+        for k in METRIC_KEYS:
+            assert float(row[f"{k}_mean"]) == r.mean[k] and float(row[f"{k}_std"]) == r.std[k]
+    assert report.row("proposed", 2 * N).seeds == 2
+
+
+def test_mae_csv_matches_report(written, report):
+    for label in report.labels:
+        for n in report.horizons:
+            rows = read_csv(written / f"mae_{label}_N{n}.csv")
+            assert [int(r["step"]) for r in rows] == list(range(1, n + 1))
+            for g in GROUPS:
+                curve = report.curves[label][n][g]
+                for stat in ("mean", "q1", "median", "q3"):
+                    values = np.array([float(r[f"{g}_{stat}"]) for r in rows])
+                    assert np.all(np.isfinite(values))
+                    np.testing.assert_array_equal(values, getattr(curve, stat))
+            np.testing.assert_allclose(
+                [float(r["time_s"]) for r in rows], np.arange(1, n + 1) * PARAMS.dt
+            )
+
+
+def test_timing_csv_matches_report(written, report):
+    rows = read_csv(written / "timing.csv")
+    assert len(rows) == len(report.timings) == 3 * len(report.horizons)  # 3 networks
+    for row, t in zip(rows, report.timings, strict=True):
+        assert float(row["mean_ms"]) == t.timing.mean_ms > 0
+        assert math.isfinite(float(row["std_ms"])) and int(row["threads"]) >= 1
+
+
+def test_markdown_has_both_tables_ratios_and_figures(written, report):
+    text = (written / "report.md").read_text()
+    for values in PAPER_RMSE_N50.values():  # the paper's table
+        assert f"{values['combined']:.3f}" in text
+    assert "Proposed model (w/o physics)" in text and "59.44" in text and "115.26" in text
+    ours = report.row("proposed", 2 * N)
+    assert f"{ours.mean['combined']:.3f} ± {ours.std['combined']:.3f}" in text
+    ratio = ours.mean["combined"] / report.row(PHYSICS, 2 * N).mean["combined"]
+    assert "| proposed / physics | " in text and f"{ratio:.3f}" in text
+    paper_ratio = PAPER_RMSE_N50["proposed"]["combined"] / PAPER_RMSE_N50["physics"]["combined"]
+    assert f"{paper_ratio:.3f}" in text
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert len(links) >= 4
+    for link in links:
+        assert not Path(link).is_absolute() and (written / link).is_file(), link
+
+
+def test_json_round_trips(written, report):
+    data = json.loads((written / "report.json").read_text())
+    assert data["horizons"] == list(report.horizons)
+    assert data["curves"]["proposed"][str(N)]["position"]["mean"] == list(
+        report.curves["proposed"][N]["position"].mean
+    )
+    assert data["paper"]["rmse_n50"]["physics"]["combined"] == 1.879
+
+
+# --- end to end ----------------------------------------------------------------------------
+
+
+def write_dataset(folder: Path) -> None:
+    """Physics-generated flights in the published file schema, with splits and constants."""
+    names = {"train": [], "val": [], "test": []}
+    for i, split in enumerate(["train", "train", "val", "test", "test"]):
+        f = physics_flight(f"{split}_{i}", 40 + 3 * i, seed=10 + i)
+        s = f.states
+        write_npz(
+            folder / f"{f.name}.npz",
+            {
+                "time": np.arange(len(s)) * PARAMS.dt,
+                "p": s[:, POS],
+                "v": s[:, VEL],
+                "attitude": quat_wxyz_to_xyzw(torch.from_numpy(s[:, QUAT])).numpy(),
+                "p_load": s[:, LOAD_POS],
+                "w_ref": f.inputs[:, 1:],
+                "T_ref": f.inputs[:, :1],
+            },
+        )
+        names[split].append(f.name)
+    write_splits(folder, names)
+    write_json(folder / "vehicle.json", {"vehicle": {"dt": PARAMS.dt}})
+
+
+def test_evaluate_end_to_end(tmp_path, monkeypatch):
+    from slungload.train import train
+
+    monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
+    data = tmp_path / "data"
+    write_dataset(data)
+    small = ModelConfig(embed_sizes=(8,), hidden_size=4, num_layers=1, head_sizes=(8,), dropout=0.0)
+    run = train(
+        data,
+        out=tmp_path / "run",
+        preset="quick",
+        max_epochs=1,
+        model_config=small,
+        window=WindowConfig(history=M, horizon=4),
+        progress=False,
+    )
+    out = tmp_path / "eval"
+    report = evaluate([run.out], out=out, horizons=(4, 8), timing_repeats=3, progress=False)
+    assert report.labels == (PHYSICS, "proposed") and report.training_horizon == 4
+    assert report.test_flights == ("test_3", "test_4")
+    windows = {(r.label, r.metrics.horizon): r.metrics.windows for r in report.results}
+    # Stride-1 windows of the two test flights (49 and 52 steps): T - (M + N) + 1 each.
+    assert windows[(PHYSICS, 8)] == windows[("proposed", 8)] == (49 - 14 + 1) + (52 - 14 + 1)
+    assert all(math.isfinite(v) for r in report.results for v in r.metrics.rmse.values())
+    assert (out / "report.md").is_file() and (out / "figures" / "prediction.png").is_file()
+    assert {(t.timing.history, t.timing.horizon) for t in report.timings} == {(M, 4), (M, 8)}
+
+
+def test_evaluate_refuses_nothing_to_do(tmp_path):
+    with pytest.raises(ValueError, match="nothing|no run"):
+        evaluate([], data=tmp_path, include_physics=False, progress=False)
+    with pytest.raises(ValueError, match="horizons"):
+        evaluate([], data=tmp_path, horizons=(0,), progress=False)
