@@ -55,27 +55,28 @@ def _resolve_params(folder: Path, args: argparse.Namespace):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .sim import SimConfig, simulate_dataset
+    from .data import summarize
+    from .sim import Effects, SimConfig, simulate_dataset
 
+    off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
     result = simulate_dataset(
         args.out,
         flights=args.flights,
         seed=args.seed,
-        config=SimConfig.with_effects_off(args.no) if args.no else SimConfig(),
+        config=SimConfig(effects=Effects().without(*off)),
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.quiet,
     )
-    print(result.summary())
+    print(f"wrote {len(result.flights)} flights to {result.folder} in {result.elapsed:.1f} s")
+    print(summarize(result.folder).to_table())
     return 0
 
 
 def cmd_maneuvers(args: argparse.Namespace) -> int:
     from .sim import MANEUVERS
 
-    for name in sorted(MANEUVERS):
-        doc = (MANEUVERS[name].__doc__ or "").strip().splitlines()
-        print(f"{name:24s} {doc[0] if doc else ''}")
+    print("\n".join(sorted(MANEUVERS)))
     return 0
 
 
@@ -90,6 +91,12 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 # --- parser ----------------------------------------------------------------------------
+
+
+def _effect_names() -> tuple[str, ...]:
+    from .sim import Effects
+
+    return Effects.names()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -109,8 +116,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
-    p.add_argument("--no", action="append", default=[], metavar="EFFECT",
-                   help="switch an unmodelled effect off (repeatable); see docs/simulator.md")  # fmt: skip
+    effects = p.add_argument_group("unmodelled effects (all on by default; docs/simulator.md)")
+    for name in _effect_names():
+        effects.add_argument(f"--no-{name.replace('_', '-')}", dest=f"no_{name}",
+                             action="store_true", help=f"switch {name} off")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
 

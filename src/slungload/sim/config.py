@@ -1,0 +1,157 @@
+"""Simulator settings: which unmodelled effects are on, and every physical constant, in SI units.
+
+The paper's discrete model (``physics.py``) leaves out drag, rotor downwash on the load, actuator
+lags, thrust errors, cable stretch and slack, wind and sensor noise. The simulator puts them back,
+each behind a switch in ``Effects``, so that a learned model has something to learn and a test can
+turn one effect off at a time. Where each magnitude comes from is written in ``docs/simulator.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+
+
+@dataclass(frozen=True)
+class Effects:
+    """Switches for the effects the paper's model leaves out (all on by default)."""
+
+    drag: bool = True  # rotor (linear) + body (quadratic) drag on the vehicle, drag on the cube
+    downwash: bool = True  # rotor wake pushing the load down when it is under the rotors
+    thrust_lag: bool = True  # first-order lag of the achieved thrust behind the command
+    rate_loop: bool = True  # finite-bandwidth inner body-rate loop (off: rates follow instantly)
+    thrust_error: bool = True  # per-flight thrust scale and battery-sag drift
+    thrust_offset: bool = True  # thrust centre off the centre of mass -> disturbance torque
+    cable_stretch: bool = True  # elastic cable (off: a near-rigid one; slack is always possible)
+    wind: bool = True  # Ornstein-Uhlenbeck gusts (indoor, modest)
+    mocap_noise: bool = True  # noise on recorded positions and attitude
+    velocity_filter: bool = True  # recorded velocity = low-passed difference (off: true velocity)
+    latency: bool = True  # delay between a measurement and its command reaching the motors
+
+    @classmethod
+    def none(cls) -> Effects:
+        """Every effect off: the ideal system (rigid body, taut-or-slack cable, exact sensing)."""
+        return cls(**{f.name: False for f in fields(cls)})
+
+    @classmethod
+    def only(cls, *names: str) -> Effects:
+        """Only the named effects on (tests isolate one effect this way)."""
+        return replace(cls.none(), **{n: True for n in cls._checked(names)})
+
+    @classmethod
+    def _checked(cls, names) -> tuple[str, ...]:
+        unknown = set(names) - set(cls.names())
+        if unknown:
+            raise ValueError(f"unknown effects {sorted(unknown)}; known: {list(cls.names())}")
+        return tuple(names)
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """Names of the switches, for the CLI's ``--no-EFFECT`` flags."""
+        return tuple(f.name for f in fields(cls))
+
+    def without(self, *names: str) -> Effects:
+        """A copy with the named effects switched off; unknown names are an error."""
+        return replace(self, **{n: False for n in self._checked(names)})
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Constants of the simulated quadrotor, cable, load, air, actuators, sensors and controller.
+
+    Sources for every magnitude are in ``docs/simulator.md``.
+    """
+
+    effects: Effects = field(default_factory=Effects)
+    # --- timing
+    control_dt: float = 0.03  # s, h: control and recording period (the paper's sampling time)
+    substeps: int = 15  # MuJoCo steps per control period (timestep 2 ms)
+    warmup: float = 1.0  # s, hover simulated before recording starts (not written)
+    # --- vehicle (Intel Aero RTF)
+    mass_quad: float = 1.35  # kg
+    inertia_quad: tuple[float, float, float] = (0.0115, 0.0115, 0.021)  # kg m^2, body x, y, z
+    attach_below: float = 0.05  # m, cable attachment below the vehicle's centre of mass
+    rotor_area: float = 0.166  # m^2, total disc area of the four 9-inch rotors
+    max_thrust: float = 30.0  # N, saturation of the achieved thrust
+    hover_z: float = 1.5  # m, hover height of the vehicle (load 0.8 m above the floor)
+    # --- cable and load (100 g cube, 10 cm edges, 60 cm string)
+    string_length: float = 0.6  # m, string between attachment and the cube's top face
+    load_mass: float = 0.1  # kg
+    load_size: float = 0.1  # m, cube edge
+    cable_stiffness: float = 1500.0  # N/m, elastic stretch of the string when taut
+    cable_damping: float = 5.0  # N s/m, internal damping of the string (about 0.2 critical)
+    # --- air
+    air_density: float = 1.2  # kg/m^3
+    rotor_drag: float = 0.35  # N/(m/s), linear rotor drag on in-plane air-relative velocity
+    body_drag_area: tuple[float, float, float] = (0.025, 0.025, 0.05)  # m^2, Cd*A body x, y, z
+    load_drag_area: float = 0.0105  # m^2, Cd*A of the cube (Cd 1.05 x 0.01 m^2)
+    downwash_gain: float = 1.0  # -, wake speed at the load / induced velocity at the disc
+    downwash_radius: float = 0.2  # m, 1/e lateral radius of the wake around the rotor axis
+    wind_std: float = 0.15  # m/s, horizontal gust standard deviation (vertical: a third)
+    wind_tau: float = 2.0  # s, gust correlation time
+    # --- actuators
+    thrust_tau: float = 0.04  # s, first-order lag of thrust behind its command
+    rate_bandwidth: tuple[float, float, float] = (18.0, 18.0, 6.0)  # rad/s, inner rate loop x y z
+    motor_tau: float = 0.02  # s, lag of the rate loop's torque command (motor spin-up)
+    thrust_scale_spread: float = 0.06  # -, achieved/commanded thrust drawn in 1 +- spread
+    battery_sag: float = 0.003  # 1/s, largest loss of thrust per second of flight
+    thrust_offset_std: float = 0.002  # m, thrust centre offset from the centre of mass (x, y)
+    latency: float = 0.012  # s, measurement-to-motor delay (rounded to substeps)
+    # --- motion capture
+    pos_noise: float = 0.001  # m, vehicle position noise (1 sigma)
+    load_pos_noise: float = 0.003  # m, load position noise (1 sigma)
+    att_noise: float = 0.008  # rad, attitude noise per axis (1 sigma)
+    velocity_tau: float = 0.04  # s, low-pass time constant of the velocity estimate
+    # --- offboard controller (acts on the noisy measurements)
+    kp: tuple[float, float, float] = (3.5, 3.5, 5.0)  # 1/s^2, position gain
+    kd: tuple[float, float, float] = (3.0, 3.0, 3.5)  # 1/s, velocity gain
+    ki: tuple[float, float, float] = (1.0, 1.0, 1.5)  # 1/s^3, integral gain
+    k_att: tuple[float, float, float] = (7.0, 7.0, 3.0)  # 1/s, attitude error -> rate command
+    max_tilt: float = 0.75  # rad, tilt limit of the desired attitude (43 deg)
+    max_rate: float = 4.0  # rad/s, body-rate command limit
+    max_position_error: float = 1.0  # m, position error saturation (steps)
+    gravity: float = 9.81  # m/s^2
+
+    def __post_init__(self) -> None:
+        positive = (
+            "control_dt", "mass_quad", "string_length", "load_mass", "load_size", "rotor_area",
+            "max_thrust", "air_density", "thrust_tau", "motor_tau", "wind_tau", "velocity_tau",
+            "gravity", "cable_stiffness",
+        )  # fmt: skip
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SimConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.substeps < 1:
+            raise ValueError(f"SimConfig.substeps must be >= 1, got {self.substeps}")
+        if self.latency < 0 or self.latency >= self.control_dt:
+            raise ValueError(f"SimConfig.latency must be in [0, control_dt), got {self.latency}")
+
+    @property
+    def timestep(self) -> float:
+        """MuJoCo timestep, s."""
+        return self.control_dt / self.substeps
+
+    @property
+    def cable_length(self) -> float:
+        """Effective length, m, vehicle centre of mass -> cube centre (the paper's l)."""
+        return self.attach_below + self.string_length + 0.5 * self.load_size
+
+    @property
+    def total_mass(self) -> float:
+        """mQ + mL, kg."""
+        return self.mass_quad + self.load_mass
+
+    @classmethod
+    def from_dict(cls, data: dict) -> SimConfig:
+        """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
+        data = dict(data)
+        effects = Effects(**data.pop("effects", {}))
+        known = {f.name for f in fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
+        data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
+        return cls(effects=effects, **data)
+
+    def with_effects(self, effects: Effects) -> SimConfig:
+        """A copy with other effect switches."""
+        return replace(self, effects=effects)

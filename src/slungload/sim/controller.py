@@ -1,0 +1,87 @@
+"""Offboard position controller: reference + noisy measurements -> (thrust, body-rate) commands.
+
+A geometric PID controller on the total mass mQ + mL (the load is treated as a disturbance):
+the desired force F = m (a_ref + Kp e_p + Kd e_v + Ki int e_p + g e3) gives the thrust command
+T = F . R e3 and the desired thrust axis F / |F|; the body-rate command is proportional to the
+attitude error between the measured and the desired attitude (with the reference yaw). Runs once
+per control period h.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import SimConfig
+
+
+def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of a rotation matrix (3, 3) (angles below pi)."""
+    cos = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
+    angle = math.acos(cos)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    s = math.sin(angle)
+    if s < 1e-9:
+        return 0.5 * axis
+    return axis * (0.5 * angle / s)
+
+
+class Controller:
+    """Stateful (integral term) offboard controller; call once per control step."""
+
+    def __init__(self, cfg: SimConfig) -> None:
+        self.mass = cfg.total_mass
+        self.g = cfg.gravity
+        self.dt = cfg.control_dt
+        self.kp = np.asarray(cfg.kp, dtype=float)
+        self.kd = np.asarray(cfg.kd, dtype=float)
+        self.ki = np.asarray(cfg.ki, dtype=float)
+        self.k_att = np.asarray(cfg.k_att, dtype=float)
+        self.max_tilt = cfg.max_tilt
+        self.max_rate = cfg.max_rate
+        self.max_err = cfg.max_position_error
+        self.max_thrust = cfg.max_thrust
+        self.max_int_acc = 2.0  # m/s^2, anti-windup bound on the integral's contribution
+        self.integral = np.zeros(3)
+
+    def __call__(
+        self,
+        p_ref: np.ndarray,
+        v_ref: np.ndarray,
+        a_ref: np.ndarray,
+        yaw_ref: float,
+        p: np.ndarray,
+        v: np.ndarray,
+        rot: np.ndarray,
+    ) -> tuple[float, np.ndarray]:
+        """References (3,) m, m/s, m/s^2 and yaw rad; measured p, v (3,), R (3, 3) body->world.
+
+        Returns the thrust command T_ref, N, and the body-rate command w_ref (3,), rad/s.
+        """
+        e_p = p_ref - p
+        n = math.sqrt(e_p @ e_p)
+        if n > self.max_err:
+            e_p *= self.max_err / n
+        e_v = v_ref - v
+        self.integral += e_p * self.dt
+        limit = self.max_int_acc / np.maximum(self.ki, 1e-9)
+        np.clip(self.integral, -limit, limit, out=self.integral)
+        acc = a_ref + self.kp * e_p + self.kd * e_v + self.ki * self.integral
+        force = self.mass * np.array([acc[0], acc[1], acc[2] + self.g])
+        # Tilt limit: keep the vertical component, shrink the horizontal one.
+        force[2] = max(force[2], 0.3 * self.mass * self.g)
+        horiz = math.hypot(force[0], force[1])
+        max_h = force[2] * math.tan(self.max_tilt)
+        if horiz > max_h:
+            force[:2] *= max_h / horiz
+        b3 = force / math.sqrt(force @ force)
+        thrust = float(np.clip(force @ rot[:, 2], 0.0, self.max_thrust))
+        c = np.array([math.cos(yaw_ref), math.sin(yaw_ref), 0.0])
+        b2 = np.cross(b3, c)
+        b2 /= math.sqrt(b2 @ b2)
+        b1 = np.cross(b2, b3)
+        rot_des = np.stack([b1, b2, b3], axis=1)
+        err = _rotvec_from_matrix(rot.T @ rot_des)  # body frame, rad
+        rates = np.clip(self.k_att * err, -self.max_rate, self.max_rate)
+        return thrust, rates

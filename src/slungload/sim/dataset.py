@@ -1,0 +1,184 @@
+"""Write a simulated dataset: one ``.npz`` per flight, the splits and ``vehicle.json``.
+
+Flights run in parallel (a process pool); each flight's random streams come from
+``SeedSequence(seed).spawn`` so the bytes depend on the seed only, not on the worker count.
+Everything is written into a temporary folder beside the target and renamed into place at the
+end, so a crash leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import multiprocessing
+import shutil
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config import VEHICLE_FILE, VehicleParams, to_dict
+from ..fileio import SPLITS, write_json, write_npz, write_splits
+from .config import SimConfig
+from .flight import simulate_flight
+from .maneuvers import MANEUVERS
+
+SPLIT_FRACTIONS = {"train": 0.58, "val": 0.17, "test": 0.25}  # of windows, the paper's split
+WINDOW_STEPS = 75  # M + N = 50 + 25: a flight of T steps gives T - 74 windows (stride 1)
+
+
+@dataclass(frozen=True)
+class SimulatedDataset:
+    """What ``simulate_dataset`` wrote."""
+
+    folder: Path
+    flights: tuple[str, ...]  # flight names (file stems), in generation order
+    steps: tuple[int, ...]  # steps per flight
+    splits: dict[str, tuple[str, ...]]  # split -> flight names
+    seed: int
+    elapsed: float  # s, wall-clock time of the generation
+
+    @property
+    def paths(self) -> tuple[Path, ...]:
+        return tuple(self.folder / f"{name}.npz" for name in self.flights)
+
+
+def flight_plan(n: int) -> list[tuple[str, str]]:
+    """(maneuver family, flight name) for n flights: families in turn, repetitions numbered."""
+    families = list(MANEUVERS)
+    plan = []
+    for i in range(n):
+        family = families[i % len(families)]
+        plan.append((family, f"{family}_{i // len(families):02d}"))
+    return plan
+
+
+def windows_of(steps: int, window: int = WINDOW_STEPS) -> int:
+    """Sliding windows (stride 1) of ``window`` steps in a flight of ``steps`` steps."""
+    return max(steps - window + 1, 0)
+
+
+def split_flights(
+    names: list[str], steps: list[int], rng: np.random.Generator
+) -> dict[str, tuple[str, ...]]:
+    """Assign whole flights to train/val/test so each split gets about its share of windows.
+
+    Flights in random order, longest first within the draw, each to the split furthest below
+    its target; every split gets at least one flight when there are three or more.
+    """
+    order = rng.permutation(len(names))
+    order = sorted(order, key=lambda i: -windows_of(steps[i]))
+    total = sum(windows_of(s) for s in steps) or 1
+    got = {s: 0 for s in SPLITS}
+    out: dict[str, list[str]] = {s: [] for s in SPLITS}
+    for rank, i in enumerate(order):
+        empty = [s for s in SPLITS if not out[s]]
+        if empty and len(order) - rank <= len(empty):
+            split = empty[0]
+        else:
+            split = max(SPLITS, key=lambda s: SPLIT_FRACTIONS[s] * total - got[s])
+        out[split].append(names[i])
+        got[split] += windows_of(steps[i])
+    return {s: tuple(sorted(v)) for s, v in out.items()}
+
+
+def _fly(job: tuple[str, str, np.random.SeedSequence, SimConfig, Path]) -> tuple[str, int]:
+    family, name, seed, cfg, folder = job
+    flight = simulate_flight(family, seed=seed, config=cfg)
+    write_npz(folder / f"{name}.npz", flight.arrays)
+    return name, flight.steps
+
+
+def simulate_dataset(
+    out_dir: str | Path,
+    *,
+    flights: int = 48,
+    seed: int = 0,
+    config: SimConfig | None = None,
+    workers: int = 2,
+    progress: bool = True,
+    overwrite: bool = False,
+) -> SimulatedDataset:
+    """Simulate ``flights`` flights into ``out_dir`` (npz per flight, splits, vehicle.json).
+
+    Refuses a non-empty existing ``out_dir`` unless ``overwrite``. Same seed and config give
+    the same bytes whatever ``workers`` is.
+    """
+    cfg = config or SimConfig()
+    if flights < 1:
+        raise ValueError(f"flights must be >= 1, got {flights}")
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise FileExistsError(f"{out}: exists and is not empty (pass overwrite=True to replace)")
+    start = time.perf_counter()
+    plan = flight_plan(flights)
+    root = np.random.SeedSequence(seed)
+    split_seed, *flight_seeds = root.spawn(flights + 1)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        jobs = [(fam, name, s, cfg, tmp) for (fam, name), s in zip(plan, flight_seeds, strict=True)]
+        steps = dict(_run(jobs, workers, progress))
+        names = [name for _, name in plan]
+        lengths = [steps[n] for n in names]
+        splits = split_flights(names, lengths, np.random.default_rng(split_seed))
+        write_splits(tmp, {k: list(v) for k, v in splits.items()})
+        write_json(tmp / VEHICLE_FILE, _metadata(cfg, seed, flights))
+        if out.exists():
+            shutil.rmtree(out)
+        tmp.rename(out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return SimulatedDataset(
+        out, tuple(names), tuple(lengths), splits, seed, time.perf_counter() - start
+    )
+
+
+def vehicle_params(cfg: SimConfig) -> VehicleParams:
+    """The paper-model constants matching the simulated geometry."""
+    return VehicleParams(
+        mass_quad=cfg.mass_quad,
+        mass_load=cfg.load_mass,
+        cable_length=round(cfg.cable_length, 9),  # 0.05 + 0.6 + 0.05 without float dust
+        dt=cfg.control_dt,
+        gravity=cfg.gravity,
+    )
+
+
+def _metadata(cfg: SimConfig, seed: int, flights: int) -> dict:
+    try:
+        version = importlib.metadata.version("slungload")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    return {
+        "vehicle": to_dict(vehicle_params(cfg)),
+        "sim": to_dict(cfg),
+        "seed": seed,
+        "flights": flights,
+        "version": version,
+    }
+
+
+def _run(jobs: list, workers: int, progress: bool):
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(jobs), desc="simulating flights", unit="flight", disable=not progress)
+    try:
+        if workers <= 1:
+            for job in jobs:
+                yield _fly(job)
+                bar.update()
+            return
+        # fork starts in milliseconds; the workers only use numpy and MuJoCo (never torch), so
+        # the parent's torch state is harmless. spawn elsewhere.
+        methods = multiprocessing.get_all_start_methods()
+        ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            for result in pool.map(_fly, jobs):
+                yield result
+                bar.update()
+    finally:
+        bar.close()

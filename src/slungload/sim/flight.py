@@ -1,0 +1,112 @@
+"""Fly one maneuver: controller + plant + mocap, recorded as the published flight schema."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .aero import ou_wind
+from .config import SimConfig
+from .controller import Controller
+from .maneuvers import Maneuver, make_maneuver, sample_reference
+from .plant import Plant, PlantParams
+from .sensors import Mocap
+
+
+@dataclass(frozen=True)
+class Flight:
+    """One simulated flight.
+
+    ``arrays`` holds the published schema (``fileio.FLIGHT_KEYS``: time, p, v, attitude x-y-z-w,
+    p_load, w_ref, T_ref) as recorded, i.e. noisy measurements and the *commands*.
+    ``truth`` holds what really happened at the same instants: p, v, q (w-x-y-z), p_load,
+    v_load, thrust (achieved, N), rates (achieved, rad/s), cable (attachment -> cube top, m),
+    wind (m/s).
+    """
+
+    maneuver: str
+    arrays: dict[str, np.ndarray]
+    truth: dict[str, np.ndarray]
+    params: PlantParams = field(default_factory=PlantParams)
+
+    @property
+    def steps(self) -> int:
+        return int(self.arrays["time"].shape[0])
+
+
+def simulate_flight(
+    maneuver: str | Maneuver,
+    *,
+    seed: int | np.random.SeedSequence = 0,
+    config: SimConfig | None = None,
+    steps: int | None = None,
+) -> Flight:
+    """Simulate one flight of a maneuver (a registered name or a ``Maneuver``).
+
+    seed: integer or SeedSequence; it draws the maneuver's parameters, the plant's
+    imperfections, the wind and the sensor noise from independent streams. steps overrides the
+    maneuver's length (recorded control steps). Returns a ``Flight`` with float64 arrays.
+    """
+    cfg = config or SimConfig()
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    s_man, s_plant, s_wind, s_sens = (np.random.default_rng(s) for s in ss.spawn(4))
+    man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
+    n = int(steps if steps is not None else man.steps)
+    if n < 1:
+        raise ValueError(f"a flight needs at least one step, got {n}")
+
+    h = cfg.control_dt
+    warm = round(cfg.warmup / h)
+    total = warm + n
+    times = (np.arange(total) - warm) * h  # recording starts at t = 0
+    plant = Plant(cfg, PlantParams.draw(cfg, s_plant))
+    hover = plant.p
+    ref = sample_reference(man, times, hover)
+    wind = ou_wind(cfg, total, s_wind)
+    mocap = Mocap(cfg, s_sens)
+    ctrl = Controller(cfg)
+
+    rec = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3))}
+    rec.update(w_ref=np.empty((n, 3)), T_ref=np.empty((n, 1)))
+    truth = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3),
+             ("v_load", 3), ("rates", 3), ("wind", 3))}  # fmt: skip
+    truth.update(thrust=np.empty(n), cable=np.empty(n))
+    for k in range(total):
+        p, v, q, pl = plant.p, plant.v, plant.q, plant.p_load
+        p_m, v_m, q_m, pl_m = mocap.measure(p, v, q, pl)
+        rot_m = _rotmat(q_m)
+        thrust, rates = ctrl(
+            ref.position[k], ref.velocity[k], ref.acceleration[k], ref.yaw[k], p_m, v_m, rot_m
+        )
+        i = k - warm
+        if i >= 0:
+            rec["p"][i], rec["v"][i], rec["q"][i], rec["p_load"][i] = p_m, v_m, q_m, pl_m
+            rec["w_ref"][i], rec["T_ref"][i, 0] = rates, thrust
+            truth["p"][i], truth["v"][i], truth["q"][i], truth["p_load"][i] = p, v, q, pl
+            truth["v_load"][i], truth["rates"][i] = plant.v_load, plant.rates
+            truth["thrust"][i], truth["cable"][i] = plant.thrust, plant.cable_length
+            truth["wind"][i] = wind[k]
+        plant.advance(thrust, rates, wind[k])
+
+    q_rec = rec["q"] / np.linalg.norm(rec["q"], axis=1, keepdims=True)
+    arrays = {
+        "time": np.arange(n, dtype=np.float64) * h,
+        "p": rec["p"],
+        "v": rec["v"],
+        "attitude": np.concatenate([q_rec[:, 1:], q_rec[:, :1]], axis=1),  # x-y-z-w
+        "p_load": rec["p_load"],
+        "w_ref": rec["w_ref"],
+        "T_ref": rec["T_ref"],
+    }
+    return Flight(man.name, arrays, truth, plant.params)
+
+
+def _rotmat(q: np.ndarray) -> np.ndarray:
+    """w-x-y-z unit quaternion (4,) -> rotation matrix (3, 3)."""
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
