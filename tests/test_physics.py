@@ -66,8 +66,12 @@ def random_batch(batch: int, dtype=torch.float64, seed: int = 0):
 
 def test_hover_equilibrium_stays_put():
     x0 = hanging_state()
-    states, aux = rollout(x0, torch.zeros(AUX_DIM, dtype=torch.float64),
-                          constant_input(hover_thrust(PARAMS), 200), PARAMS)  # fmt: skip
+    states, aux = rollout(
+        x0,
+        torch.zeros(AUX_DIM, dtype=torch.float64),
+        constant_input(hover_thrust(PARAMS), 200),
+        PARAMS,
+    )
     assert torch.allclose(states, x0.expand_as(states), atol=1e-9)
     assert torch.allclose(aux, torch.zeros_like(aux), atol=1e-9)
 
@@ -78,8 +82,12 @@ def test_hover_tension_carries_the_load_weight():
         x0, constant_input(hover_thrust(PARAMS), 1)[0], torch.zeros(3, dtype=torch.float64), PARAMS
     )
     xi = (x0[LOAD_POS] - x0[POS]) / PARAMS.cable_length
-    t_load = tension(xi, torch.tensor([0, 0, hover_thrust(PARAMS)], dtype=torch.float64),
-                     torch.zeros(3, dtype=torch.float64), PARAMS)  # fmt: skip
+    t_load = tension(
+        xi,
+        torch.tensor([0, 0, hover_thrust(PARAMS)], dtype=torch.float64),
+        torch.zeros(3, dtype=torch.float64),
+        PARAMS,
+    )
     assert t_load.item() == pytest.approx(PARAMS.mass_load * PARAMS.gravity, rel=1e-12)
     assert torch.allclose(acc, torch.zeros(3, dtype=torch.float64), atol=1e-12)
     assert torch.allclose(acc_load, torch.zeros(3, dtype=torch.float64), atol=1e-12)
@@ -88,8 +96,9 @@ def test_hover_tension_carries_the_load_weight():
 def test_zero_thrust_falls_at_g():
     n = 20
     x0 = hanging_state()
-    states, _ = rollout(x0, torch.zeros(AUX_DIM, dtype=torch.float64), constant_input(0.0, n),
-                        PARAMS)  # fmt: skip
+    states, _ = rollout(
+        x0, torch.zeros(AUX_DIM, dtype=torch.float64), constant_input(0.0, n), PARAMS
+    )
     t = PARAMS.dt * torch.arange(1, n + 1, dtype=torch.float64)
     expected_z = -0.5 * PARAMS.gravity * t**2
     # Without thrust the tension vanishes: both bodies fall freely, cable unchanged.
@@ -102,8 +111,9 @@ def test_thrust_along_body_axis_accelerates_that_way():
     # Rolled +30 deg about x: body z points towards -y in the world.
     x0 = hanging_state()
     x0[QUAT] = quat_from_rotvec(torch.tensor([math.radians(30), 0.0, 0.0], dtype=torch.float64))
-    acc, _, _ = accelerations(x0, constant_input(10.0, 1)[0], torch.zeros(3, dtype=torch.float64),
-                              PARAMS)  # fmt: skip
+    acc, _, _ = accelerations(
+        x0, constant_input(10.0, 1)[0], torch.zeros(3, dtype=torch.float64), PARAMS
+    )
     assert acc[1] < 0
     assert acc[0] == pytest.approx(0.0, abs=1e-12)
 
@@ -111,8 +121,12 @@ def test_thrust_along_body_axis_accelerates_that_way():
 def test_small_swing_has_pendulum_period():
     angle = math.radians(3)
     n = 400
-    states, _ = rollout(hanging_state(angle), torch.zeros(AUX_DIM, dtype=torch.float64),
-                        constant_input(hover_thrust(PARAMS), n), PARAMS)  # fmt: skip
+    states, _ = rollout(
+        hanging_state(angle),
+        torch.zeros(AUX_DIM, dtype=torch.float64),
+        constant_input(hover_thrust(PARAMS), n),
+        PARAMS,
+    )
     rel_x = (states[:, 10] - states[:, 0]).numpy()
     crossings = np.where((rel_x[:-1] < 0) & (rel_x[1:] >= 0))[0]
     periods = np.diff(crossings) * PARAMS.dt
@@ -138,8 +152,12 @@ def test_load_rate_follows_damped_recursion_without_thrust():
 def test_body_rates_rotate_the_attitude():
     rate = 0.5  # rad/s about body z
     n = 40
-    states, _ = rollout(hanging_state(), torch.zeros(AUX_DIM, dtype=torch.float64),
-                        constant_input(hover_thrust(PARAMS), n, rates=(0, 0, rate)), PARAMS)  # fmt: skip
+    states, _ = rollout(
+        hanging_state(),
+        torch.zeros(AUX_DIM, dtype=torch.float64),
+        constant_input(hover_thrust(PARAMS), n, rates=(0, 0, rate)),
+        PARAMS,
+    )
     yaw = 2 * torch.atan2(states[-1, 9], states[-1, 6])
     assert yaw.item() == pytest.approx(rate * n * PARAMS.dt, rel=1e-9)
 
@@ -148,8 +166,9 @@ def test_quaternions_stay_unit():
     x, u, aux = random_batch(64)
     inputs = u[:, None, :].expand(64, 50, 4) + 0.5 * torch.randn(64, 50, 4, dtype=torch.float64)
     states, _ = rollout(x, aux, inputs, PARAMS)
-    assert torch.allclose(states[..., QUAT].norm(dim=-1), torch.ones(64, 50, dtype=torch.float64),
-                          atol=1e-12)  # fmt: skip
+    assert torch.allclose(
+        states[..., QUAT].norm(dim=-1), torch.ones(64, 50, dtype=torch.float64), atol=1e-12
+    )
 
 
 def test_batched_equals_looped():
@@ -178,8 +197,11 @@ def test_rotation_matrix_matches_quaternion_convention():
     # w-x-y-z quaternion of +90 deg about z maps body x to world y.
     q = torch.tensor([math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)], dtype=torch.float64)
     r = quat_to_rotmat(q)
-    assert torch.allclose(r @ torch.tensor([1.0, 0, 0], dtype=torch.float64),
-                          torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64), atol=1e-12)  # fmt: skip
+    assert torch.allclose(
+        r @ torch.tensor([1.0, 0, 0], dtype=torch.float64),
+        torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64),
+        atol=1e-12,
+    )
 
 
 def test_gradcheck_float64():

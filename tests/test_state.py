@@ -35,7 +35,9 @@ def test_split_join_round_trip():
 def test_layout_conversion_round_trip():
     q = torch.randn(10, 4)
     assert torch.equal(quat_xyzw_to_wxyz(quat_wxyz_to_xyzw(q)), q)
-    assert torch.equal(quat_wxyz_to_xyzw(torch.tensor([1.0, 2, 3, 4])), torch.tensor([2.0, 3, 4, 1]))
+    assert torch.equal(
+        quat_wxyz_to_xyzw(torch.tensor([1.0, 2, 3, 4])), torch.tensor([2.0, 3, 4, 1])
+    )
 
 
 def test_product_matches_rotation_composition():

@@ -1,47 +1,48 @@
-"""slungload: physics-informed learned dynamics of a quadrotor carrying a cable-slung load."""
+"""slungload: physics-informed learned dynamics of a quadrotor carrying a cable-slung load.
 
-from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
-from .data import (
-    Dataset,
-    DatasetError,
-    DatasetSummary,
-    Flight,
-    FlightFormatError,
-    estimate_load_state,
-    load_dataset,
-    read_flight,
-    read_splits,
-    summarize,
-)
-from .physics import rollout, step
-from .state import GROUPS, INPUT_DIM, STATE_DIM
+The public API is re-exported here. Names are resolved on first use (PEP 562), so that
+``import slungload`` and the CLI's ``--help`` stay fast: the simulator pulls in MuJoCo and
+training pulls in Lightning only when they are used.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 __version__ = "0.1.0"
 
-from .windows import Windows, make_windows
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "config": ("LossWeights", "ModelConfig", "TrainConfig", "VehicleParams", "WindowConfig",
+               "load_vehicle"),
+    "state": ("GROUPS", "INPUT_DIM", "STATE_DIM", "quat_error"),
+    "physics": ("rollout", "step"),
+    "sim": ("Effects", "MANEUVERS", "SimConfig", "SimulatedDataset", "simulate_dataset",
+            "simulate_flight"),
+    "data": ("Dataset", "DatasetError", "DatasetSummary", "Flight", "FlightFormatError",
+             "estimate_load_state", "load_dataset", "read_flight", "read_splits", "summarize"),
+    "windows": ("Windows", "make_windows"),
+    "model": ("Prediction", "SlungLoadNet", "count_parameters"),
+    "loss": ("LOSS_VARIANTS", "LossTerms", "compute_loss", "model_config_for"),
+    "train": ("PRESETS", "LoadedModel", "Run", "load_checkpoint", "train"),
+    "predictor": ("Predictor",),
+    "evaluate": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
+    "report": ("write_report",),
+    "experiment": ("Reproduction", "reproduce"),
+}  # fmt: skip
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = [
-    "Dataset",
-    "DatasetError",
-    "DatasetSummary",
-    "Flight",
-    "FlightFormatError",
-    "Windows",
-    "estimate_load_state",
-    "load_dataset",
-    "make_windows",
-    "read_flight",
-    "read_splits",
-    "summarize",
-    "GROUPS",
-    "INPUT_DIM",
-    "STATE_DIM",
-    "LossWeights",
-    "ModelConfig",
-    "TrainConfig",
-    "VehicleParams",
-    "WindowConfig",
-    "__version__",
-    "rollout",
-    "step",
-]
+__all__ = sorted(_WHERE) + ["__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'slungload' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -33,8 +33,13 @@ def _add_vehicle_options(p: argparse.ArgumentParser) -> None:
 
 def _add_window_options(p: argparse.ArgumentParser, horizon: int = 25) -> None:
     p.add_argument("--history", type=int, default=50, metavar="M", help="past steps (default 50)")
-    p.add_argument("--horizon", type=int, default=horizon, metavar="N",
-                   help=f"future steps (default {horizon})")  # fmt: skip
+    p.add_argument(
+        "--horizon",
+        type=int,
+        default=horizon,
+        metavar="N",
+        help=f"future steps (default {horizon})",
+    )
     p.add_argument("--stride", type=int, default=1, help="steps between windows (default 1)")
 
 
@@ -90,7 +95,91 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    from lightning.pytorch.utilities import rank_zero_only
+
+    from .config import WindowConfig
+    from .train import train
+
+    run = train(
+        args.data,
+        out=args.out,
+        variant=args.variant,
+        preset=args.preset,
+        device=args.device,
+        devices=args.devices,
+        seed=args.seed,
+        max_epochs=args.epochs,
+        resume=args.resume,
+        window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
+        params=_resolve_params(Path(args.data), args),
+        progress=not args.quiet,
+        num_threads=args.threads,
+    )
+    if rank_zero_only.rank == 0:  # with --devices K every process runs this command
+        print(run.summary())
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from .evaluate import evaluate
+
+    evaluate(
+        args.runs,
+        data=args.data,
+        out=args.out,
+        horizons=tuple(args.horizons),
+        include_physics=not args.no_physics,
+        timing=not args.no_timing,
+        device=args.device,
+        progress=not args.quiet,
+    )
+    print(args.out / "report.md")
+    return 0
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from .experiment import reproduce
+
+    result = reproduce(
+        out=args.out,
+        data=args.data,
+        preset=args.preset,
+        seeds=_seed_range(args.seeds),
+        workers=args.workers,
+        device=args.device,
+        timing=not args.no_timing,
+        progress=not args.quiet,
+    )
+    stages = ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items())
+    print(f"report: {result.report_path}  ({stages})")
+    return 0
+
+
+def _seed_range(text: str) -> tuple[int, ...]:
+    """'3' -> (3,); '1..3' -> (1, 2, 3); '0,4' -> (0, 4)."""
+    try:
+        if ".." in text:
+            lo, hi = (int(t) for t in text.split(".."))
+            seeds = tuple(range(lo, hi + 1))
+        else:
+            seeds = tuple(int(t) for t in text.split(","))
+    except ValueError:
+        raise ValueError(f"--seeds: expected N, A..B or A,B,..., got {text!r}") from None
+    if not seeds:
+        raise ValueError(f"--seeds: {text!r} names no seed")
+    return seeds
+
+
 # --- parser ----------------------------------------------------------------------------
+
+
+def _choices(kind: str) -> list[str]:
+    if kind == "variants":
+        from .loss import LOSS_VARIANTS as names
+    else:
+        from .train import PRESETS as names
+    return sorted(names)
 
 
 def _effect_names() -> tuple[str, ...]:
@@ -118,8 +207,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
     effects = p.add_argument_group("unmodelled effects (all on by default; docs/simulator.md)")
     for name in _effect_names():
-        effects.add_argument(f"--no-{name.replace('_', '-')}", dest=f"no_{name}",
-                             action="store_true", help=f"switch {name} off")  # fmt: skip
+        effects.add_argument(
+            f"--no-{name.replace('_', '-')}",
+            dest=f"no_{name}",
+            action="store_true",
+            help=f"switch {name} off",
+        )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
 
@@ -131,6 +224,59 @@ def build_parser() -> argparse.ArgumentParser:
     _add_window_options(p)
     _add_vehicle_options(p)
     p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("train", help="train one model variant on a dataset")
+    p.add_argument("--data", required=True, type=Path, help="dataset folder")
+    p.add_argument("--out", required=True, type=Path, help="run folder to create")
+    p.add_argument(
+        "--variant",
+        default="proposed",
+        choices=_choices("variants"),
+        help="loss variant (default proposed)",
+    )
+    p.add_argument(
+        "--preset",
+        default="default",
+        choices=_choices("presets"),
+        help="training schedule (default: tuned for a 2-core CPU)",
+    )
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--devices", type=int, default=1, help="processes for DDP (default 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, help="override the preset's maximum epochs")
+    p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.ckpt")
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_window_options(p)
+    _add_vehicle_options(p)
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("evaluate", help="evaluate trained runs against the physics model")
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR")
+    p.add_argument("--data", type=Path, help="dataset folder (default: the runs' own)")
+    p.add_argument("--out", required=True, type=Path, help="report folder")
+    p.add_argument("--horizons", type=int, nargs="+", default=[25, 50], metavar="N")
+    p.add_argument("--no-physics", action="store_true", help="leave out the physics predictor")
+    p.add_argument("--no-timing", action="store_true", help="skip the inference-time benchmark")
+    p.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("reproduce", help="the paper's experiment end to end (the main job)")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--data", type=Path, help="dataset folder (default: simulate one)")
+    p.add_argument(
+        "--preset",
+        default="default",
+        choices=_choices("presets"),
+        help="default (CPU, ~25 min), quick (smoke test) or paper",
+    )
+    p.add_argument("--seeds", default="0", help="training seeds: N, A..B or A,B (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    p.add_argument("--device", default="cpu", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--no-timing", action="store_true", help="skip the inference-time benchmark")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_reproduce)
 
     return parser
 

@@ -100,7 +100,9 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
         raise FileNotFoundError(f"{path}: no such file")
     # np.load treats any non-zip bytes as a pickle; say what the file really is instead.
     if not zipfile.is_zipfile(path):
-        raise ValueError(f"{path}: cannot be read as .npz (not a zip archive: truncated or not npz)")
+        raise ValueError(
+            f"{path}: cannot be read as .npz (not a zip archive: truncated or not npz)"
+        )
     try:
         with np.load(path, allow_pickle=False) as data:
             return {key: data[key] for key in data.files}

@@ -98,7 +98,9 @@ def step(x: Tensor, u: Tensor, aux: Tensor, params: VehicleParams) -> tuple[Tens
     return x_next, torch.cat([v_load_next, rate_next], dim=-1)
 
 
-def rollout(x0: Tensor, aux0: Tensor, inputs: Tensor, params: VehicleParams) -> tuple[Tensor, Tensor]:
+def rollout(
+    x0: Tensor, aux0: Tensor, inputs: Tensor, params: VehicleParams
+) -> tuple[Tensor, Tensor]:
     """Open-loop physics-only prediction (the paper's "physics" row).
 
     x0 (..., 13) last measured state x_{M-1}; aux0 (..., 6) its estimated (vL, Omega_L);

@@ -1,0 +1,760 @@
+"""Training: the network and its loss in a Lightning module, presets, checkpoints, resume.
+
+One entry function, ``train(data, out=...) -> Run``, and its inverse for the trained file,
+``load_checkpoint(path) -> LoadedModel``. Read top to bottom: presets, batches, the Lightning
+module, checkpoints, ``train``, the ``python -m slungload.train`` entry point.
+
+A run folder holds::
+
+    best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
+                            the key "slungload"), so ``load_checkpoint`` rebuilds the model from
+                            the file alone, with ``torch.load(weights_only=True)``
+    run.json                summary (``Run``), written atomically by rank 0
+    csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
+    tensorboard/            the same for TensorBoard
+
+Reproducibility: ``seed`` seeds the weights, dropout and the per-epoch subsample of training
+windows (drawn from ``(seed, epoch)``, so a resumed run draws what the uninterrupted run would
+have). Two CPU runs with the same seed and no wall-clock budget give identical weights. A
+preset with ``max_time`` stops on the clock, so its epoch count depends on the machine.
+
+Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
+re-launches the running command once per extra process, so call ``train`` from a script or
+the command line (``python -m slungload.train`` or ``slungload train``), not from a notebook.
+Each process takes an equal share of every epoch's windows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import logging
+import math
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field, replace
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import numpy as np
+import torch
+from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
+from lightning.pytorch.utilities import rank_zero_only
+from torch import Tensor
+from torch.utils.data import DataLoader, Sampler
+
+from .config import (
+    LossWeights,
+    ModelConfig,
+    TrainConfig,
+    VehicleParams,
+    WindowConfig,
+    from_dict,
+    to_dict,
+)
+from .data import Dataset, load_dataset
+from .fileio import write_json
+from .loss import compute_loss, model_config_for
+from .model import Prediction, SlungLoadNet, with_unit_quaternion
+from .state import GROUPS, QUAT, quat_error
+from .windows import Windows
+
+CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
+CKPT_FORMAT = 1  # bump when the embedded dict changes incompatibly
+BEST, LAST, RUN_JSON = "best.ckpt", "last.ckpt", "run.json"
+MONITOR = "val/total"  # drives early stopping and the best checkpoint
+
+# --- presets -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrainExtras:
+    """Training options beyond ``config.TrainConfig`` (candidates to move into it)."""
+
+    warmup_epochs: int = 0  # epochs of linear lr warm-up before the cosine decay
+    min_lr_ratio: float = 0.0  # lr at the end of the cosine decay, as a fraction of lr
+    max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
+    val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
+
+    def __post_init__(self) -> None:
+        if self.warmup_epochs < 0:
+            raise ValueError(f"warmup_epochs must be >= 0, got {self.warmup_epochs}")
+        if not 0.0 <= self.min_lr_ratio <= 1.0:
+            raise ValueError(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio}")
+        if self.max_time is not None and self.max_time <= 0:
+            raise ValueError(f"max_time must be > 0 s, got {self.max_time}")
+        if self.val_windows is not None and self.val_windows < 1:
+            raise ValueError(f"val_windows must be >= 1, got {self.val_windows}")
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named optimisation schedule: ``TrainConfig`` plus ``TrainExtras``."""
+
+    name: str
+    config: TrainConfig
+    extras: TrainExtras = TrainExtras()
+    description: str = ""
+
+
+PRESETS: dict[str, Preset] = {
+    "paper": Preset(
+        "paper",
+        TrainConfig(
+            lr=1e-4, weight_decay=0.05, batch_size=256, max_epochs=3000, patience=50, grad_clip=0.0
+        ),
+        description="the paper: Adam 1e-4, L2 0.05, batch 256, <= 3000 epochs, patience 50",
+    ),
+    # For a 2-core CPU, one thread per run, two runs side by side (measured, docs/training.md):
+    # the paper-size model costs ~2.8 ms per window and training step at batch 64, so an epoch
+    # of 2,048 windows plus 1,024 validation windows takes ~7 s alone and ~10 s with a second
+    # run beside it; 45 epochs fit in ~8 min, and max_time caps a run at 10 min whatever the
+    # machine, so three variants two at a time finish within ~20 min.
+    "default": Preset(
+        "default",
+        TrainConfig(
+            lr=1e-3,
+            weight_decay=0.05,
+            optimizer="adamw",
+            batch_size=64,
+            max_epochs=45,
+            patience=12,
+            windows_per_epoch=2048,
+            lr_schedule="cosine",
+        ),
+        TrainExtras(warmup_epochs=3, min_lr_ratio=0.05, max_time=600.0, val_windows=1024),
+        description="CPU budget: AdamW 1e-3, warm-up + cosine, 2048 windows/epoch, <= 10 min",
+    ),
+    "quick": Preset(
+        "quick",
+        TrainConfig(
+            lr=1e-3,
+            weight_decay=0.0,
+            batch_size=32,
+            max_epochs=2,
+            patience=2,
+            windows_per_epoch=128,
+        ),
+        TrainExtras(val_windows=64),
+        description="smoke test: 2 epochs of 128 windows, seconds",
+    ),
+}
+
+
+def get_preset(preset: str | Preset) -> Preset:
+    """A preset by name (``PRESETS``), or the given ``Preset`` itself."""
+    if isinstance(preset, Preset):
+        return preset
+    if preset not in PRESETS:
+        raise ValueError(f"unknown training preset {preset!r}; choose from {sorted(PRESETS)}")
+    return PRESETS[preset]
+
+
+# --- batches -----------------------------------------------------------------------------
+
+
+class WindowTensors(torch.utils.data.Dataset):
+    """Windows as a map-style dataset indexed by a whole batch of indices at once.
+
+    ``dataset[idx]`` with an index tensor (B,) -> states (B, M+N, 13), inputs (B, M+N, 4),
+    aux (B, M+N, 6): one gather per tensor instead of B item lookups and a collate.
+    """
+
+    def __init__(self, windows: Windows) -> None:
+        self.tensors = (windows.states, windows.inputs, windows.aux)
+
+    def __len__(self) -> int:
+        return len(self.tensors[0])
+
+    def __getitem__(self, index: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return tuple(t[index] for t in self.tensors)  # type: ignore[return-value]
+
+
+class EpochBatches(Sampler[Tensor]):
+    """Index batches of one epoch, drawn from ``(seed, epoch)`` and split over processes.
+
+    shuffle=True: a random permutation (several back to back if ``num_samples`` > n), cut to
+    ``num_samples``; shuffle=False: 0 .. n-1 in order. Process ``rank`` of ``world_size`` takes
+    every world_size-th index of an equal-length prefix, so all processes run the same number
+    of batches (DDP needs that). Lightning calls ``set_epoch`` before each epoch.
+    """
+
+    def __init__(
+        self,
+        n: int,
+        batch_size: int,
+        *,
+        num_samples: int | None = None,
+        shuffle: bool = True,
+        seed: int = 0,
+        rank: int = 0,
+        world_size: int = 1,
+    ) -> None:
+        if n < 1:
+            raise ValueError("EpochBatches: no windows to draw from")
+        self.n, self.batch_size, self.shuffle, self.seed = n, batch_size, shuffle, seed
+        self.num_samples = num_samples if num_samples is not None else n
+        self.rank, self.world_size = rank, world_size
+        self.epoch = 0
+        if self.num_samples < world_size:
+            raise ValueError(f"EpochBatches: {self.num_samples} windows for {world_size} processes")
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def _indices(self) -> Tensor:
+        if not self.shuffle:
+            idx = torch.arange(self.n)[: self.num_samples]
+        else:
+            seed = int(np.random.SeedSequence([self.seed, self.epoch]).generate_state(1)[0])
+            gen = torch.Generator().manual_seed(seed)
+            reps = math.ceil(self.num_samples / self.n)
+            idx = torch.cat([torch.randperm(self.n, generator=gen) for _ in range(reps)])
+            idx = idx[: self.num_samples]
+        share = len(idx) // self.world_size
+        return idx[: share * self.world_size][self.rank :: self.world_size]
+
+    def __iter__(self) -> Iterator[Tensor]:
+        yield from self._indices().split(self.batch_size)
+
+    def __len__(self) -> int:
+        share = self.num_samples // self.world_size
+        return math.ceil(share / self.batch_size)
+
+
+class WindowData(L.LightningDataModule):
+    """Training and validation loaders over ``Windows`` tensors, in the main process."""
+
+    def __init__(self, train: Windows, val: Windows, config: TrainConfig, extras: TrainExtras):
+        super().__init__()
+        if len(train) == 0 or len(val) == 0:
+            raise ValueError(
+                f"training needs windows in both splits; got train {len(train)}, val {len(val)}"
+            )
+        self.train_windows, self.config = train, config
+        if extras.val_windows is not None and extras.val_windows < len(val):
+            gen = torch.Generator().manual_seed(config.seed)
+            pick = torch.randperm(len(val), generator=gen)[: extras.val_windows]
+            val = val[pick.sort().values]
+        self.val_windows = val
+
+    def _loader(self, windows: Windows, *, train: bool) -> DataLoader:
+        trainer = self.trainer
+        rank, world = (trainer.global_rank, trainer.world_size) if trainer else (0, 1)
+        sampler = EpochBatches(
+            len(windows),
+            self.config.batch_size,
+            num_samples=self.config.windows_per_epoch if train else None,
+            shuffle=train,
+            seed=self.config.seed,
+            rank=rank,
+            world_size=world,
+        )
+        return DataLoader(WindowTensors(windows), batch_size=None, sampler=sampler)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train_windows, train=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.val_windows, train=False)
+
+
+# --- the Lightning module ----------------------------------------------------------------
+
+
+def _terms(loss_terms: Any) -> dict[str, Tensor]:
+    """LossTerms (NamedTuple or dataclass) -> {name: scalar tensor}, Nones dropped."""
+    if dataclasses.is_dataclass(loss_terms):
+        items = {f.name: getattr(loss_terms, f.name) for f in dataclasses.fields(loss_terms)}
+    else:
+        items = loss_terms._asdict()
+    return {k: v for k, v in items.items() if isinstance(v, Tensor)}
+
+
+class SlungLoadModule(L.LightningModule):
+    """The network and its loss: Adam with L2 decay, optional warm-up + cosine lr.
+
+    Logs every loss term as ``train/<term>`` and ``val/<term>`` (epoch means), the validation
+    RMSE per state group ``val/rmse_<group>`` (unit quaternion, error q_hat (x) q^-1 - q_id) and
+    their sum ``val/fit_rmse`` (the paper's "combined").
+    """
+
+    def __init__(
+        self,
+        net: SlungLoadNet,
+        *,
+        variant: str,
+        params: VehicleParams,
+        weights: LossWeights,
+        window: WindowConfig,
+        config: TrainConfig,
+        extras: TrainExtras,
+        meta: dict[str, Any],
+    ) -> None:
+        super().__init__()
+        self.net = net
+        self.variant, self.params, self.weights = variant, params, weights
+        self.history = window.history
+        self.config, self.extras = config, extras
+        self.meta = meta  # plain dicts, embedded in every checkpoint
+        self._sq_err = torch.zeros(len(GROUPS), dtype=torch.float64)
+        self._count = torch.zeros((), dtype=torch.float64)
+
+    def forward(self, states: Tensor, inputs: Tensor) -> Prediction:
+        """Windows states (B, M+N, 13), inputs (B, M+N, 4) -> prediction of the last N steps."""
+        m = self.history
+        return self.net(states[:, :m], inputs[:, :m], inputs[:, m:])
+
+    def _step(self, batch: tuple[Tensor, Tensor, Tensor], stage: str) -> tuple[Tensor, Prediction]:
+        states, inputs, aux = batch
+        pred = self(states, inputs)
+        terms = _terms(
+            compute_loss(
+                pred,
+                states,
+                inputs,
+                aux,
+                history=self.history,
+                params=self.params,
+                weights=self.weights,
+                variant=self.variant,
+            )
+        )
+        for name, value in terms.items():
+            self.log(
+                f"{stage}/{name}",
+                value,
+                on_step=False,
+                on_epoch=True,
+                batch_size=len(states),
+                sync_dist=True,
+                prog_bar=name == "total",
+            )
+        return terms["total"], pred
+
+    def training_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> Tensor:
+        return self._step(batch, "train")[0]
+
+    def on_validation_epoch_start(self) -> None:
+        self._sq_err = torch.zeros(len(GROUPS), dtype=torch.float64, device=self.device)
+        self._count = torch.zeros((), dtype=torch.float64, device=self.device)
+
+    def validation_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> None:
+        _, pred = self._step(batch, "val")
+        truth = batch[0][:, self.history :]  # (B, N, 13)
+        x_hat = with_unit_quaternion(pred.states)
+        for i, cols in enumerate(GROUPS.values()):
+            if cols == QUAT:
+                err = quat_error(x_hat[..., cols], truth[..., cols])
+            else:
+                err = x_hat[..., cols] - truth[..., cols]
+            self._sq_err[i] += err.double().square().sum()
+        self._count += truth.shape[0] * truth.shape[1]
+
+    def on_validation_epoch_end(self) -> None:
+        sq_err = self.trainer.strategy.reduce(self._sq_err, reduce_op="sum")
+        count = self.trainer.strategy.reduce(self._count, reduce_op="sum")
+        rmse = (sq_err / count.clamp_min(1)).sqrt().float()
+        for i, name in enumerate(GROUPS):
+            self.log(f"val/rmse_{name}", rmse[i])
+        self.log("val/fit_rmse", rmse.sum(), prog_bar=True)
+
+    def configure_optimizers(self) -> Any:
+        cfg, extras = self.config, self.extras
+        # Adam's weight_decay adds wd * theta to the gradient: the L2 penalty the paper means.
+        optimizer = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
+        opt = optimizer(self.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        if cfg.lr_schedule == "constant":
+            return opt
+        total = max(1, int(self.trainer.estimated_stepping_batches))
+        per_epoch = max(1, total // max(1, self.trainer.max_epochs or 1))
+        warmup = min(total - 1, extras.warmup_epochs * per_epoch)
+        sched = torch.optim.lr_scheduler.LambdaLR(
+            opt, _warmup_cosine(warmup, total, extras.min_lr_ratio)
+        )
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "step"}}
+
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[CKPT_KEY] = self.meta
+
+
+def _warmup_cosine(warmup: int, total: int, floor: float):
+    """lr factor at optimiser step s: linear 0 -> 1 over ``warmup`` steps, then cosine to
+    ``floor`` at ``total``. A plain function, so LambdaLR's state stays a plain dict."""
+
+    def factor(s: int) -> float:
+        if s < warmup:
+            return (s + 1) / warmup
+        t = min(1.0, (s - warmup) / max(1, total - warmup))
+        return floor + (1.0 - floor) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+    return factor
+
+
+# --- checkpoints -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    """A trained network rebuilt from a checkpoint, in eval mode on the CPU."""
+
+    model: SlungLoadNet
+    variant: str
+    window: WindowConfig
+    params: VehicleParams
+    model_config: ModelConfig
+    weights: LossWeights
+    train_config: TrainConfig
+    meta: dict[str, Any]  # everything embedded in the file (plain dicts)
+    path: Path
+
+
+def checkpoint_path(path: str | Path) -> Path:
+    """A ``.ckpt`` file as given, or a run folder's ``best.ckpt``."""
+    path = Path(path).expanduser()
+    if path.is_dir():
+        path = path / BEST
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    return path
+
+
+def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu") -> LoadedModel:
+    """Rebuild the network of a slungload checkpoint (a ``.ckpt``, or a run folder's best).
+
+    Loads with ``torch.load(weights_only=True)``: no arbitrary object is ever unpickled.
+    Raises ``ValueError`` naming the file if it is not a slungload checkpoint.
+    """
+    path = checkpoint_path(path)
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # zip, pickle or format errors all mean the same to the caller
+        raise ValueError(
+            f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})"
+        ) from exc
+    meta = ckpt.get(CKPT_KEY) if isinstance(ckpt, dict) else None
+    if not isinstance(meta, dict) or not isinstance(ckpt.get("state_dict"), Mapping):
+        raise ValueError(f"{path}: not a slungload checkpoint (no '{CKPT_KEY}' configs inside)")
+    if meta.get("format") != CKPT_FORMAT:
+        raise ValueError(
+            f"{path}: slungload checkpoint format {meta.get('format')}, expected {CKPT_FORMAT}"
+        )
+    try:
+        model_config = from_dict(ModelConfig, meta["model"])
+        net = SlungLoadNet(model_config)
+        prefix = "net."
+        state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
+        net.load_state_dict(state)
+        loaded = LoadedModel(
+            model=net.eval(),
+            variant=str(meta["variant"]),
+            window=from_dict(WindowConfig, meta["window"]),
+            params=from_dict(VehicleParams, meta["params"]),
+            model_config=model_config,
+            weights=from_dict(LossWeights, meta["weights"]),
+            train_config=from_dict(TrainConfig, meta["train"]),
+            meta=meta,
+            path=path,
+        )
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{path}: damaged slungload checkpoint ({exc})") from exc
+    return loaded
+
+
+# --- train -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Run:
+    """What a ``train`` call produced."""
+
+    out: Path
+    best_checkpoint: Path
+    last_checkpoint: Path
+    variant: str
+    preset: str
+    epochs: int  # epochs completed in total (a resumed run counts the earlier ones)
+    seconds: float  # wall-clock time of this call's fit
+    stop_reason: str  # "max_epochs" | "early_stopping" | "max_time"
+    best_val_loss: float
+    metrics: dict[str, float] = field(default_factory=dict)  # last epoch's val metrics
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        return {k: str(v) if isinstance(v, Path) else v for k, v in d.items()}
+
+    def summary(self) -> str:
+        return (
+            f"{self.variant} ({self.preset}): {self.epochs} epochs in {self.seconds:.0f} s, "
+            f"stopped by {self.stop_reason}; best val loss {self.best_val_loss:.4g}, "
+            f"val fit RMSE {self.metrics.get('val/fit_rmse', float('nan')):.4g}; "
+            f"{self.best_checkpoint}"
+        )
+
+
+def _accelerator(device: str) -> str:
+    if device not in ("auto", "cpu", "cuda"):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but torch sees no CUDA GPU")
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
+def train(
+    data: str | Path | Dataset,
+    *,
+    out: str | Path,
+    variant: str = "proposed",
+    preset: str | Preset = "default",
+    device: str = "auto",
+    devices: int = 1,
+    seed: int = 0,
+    max_epochs: int | None = None,
+    resume: bool = False,
+    model_config: ModelConfig = ModelConfig(),  # noqa: B008 (frozen)
+    weights: LossWeights = LossWeights(),  # noqa: B008 (frozen)
+    window: WindowConfig = WindowConfig(),  # noqa: B008 (frozen)
+    params: VehicleParams | None = None,
+    progress: bool = True,
+    num_threads: int | None = None,
+) -> Run:
+    """Train one model variant on a dataset folder (or a loaded ``Dataset``) into ``out``.
+
+    ``preset`` names a schedule in ``PRESETS``; ``seed`` and ``max_epochs`` override its own.
+    ``variant`` names a loss variant of ``loss.py`` (it may change the network, e.g. no slack
+    outputs). ``window``/``params`` are used only when ``data`` is a folder. ``resume=True``
+    continues from ``out/last.ckpt`` (epochs, optimiser, schedule and early-stopping state);
+    without it, an ``out`` that already holds a run is refused. ``num_threads`` sets torch's
+    CPU threads for this process.
+    """
+    out = Path(out).expanduser()
+    last = out / LAST
+    if resume and not last.is_file():
+        raise FileNotFoundError(f"cannot resume: {last} does not exist")
+    if not resume and last.is_file():
+        raise FileExistsError(f"{out} already holds a run ({LAST}); pass resume=True or a new out")
+    if devices < 1:
+        raise ValueError(f"devices must be >= 1, got {devices}")
+    accelerator = _accelerator(device)
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
+
+    chosen = get_preset(preset)
+    config = replace(chosen.config, seed=seed)
+    if max_epochs is not None:
+        config = replace(config, max_epochs=max_epochs)
+    extras = chosen.extras
+
+    dataset = (
+        data if isinstance(data, Dataset) else load_dataset(data, window=window, params=params)
+    )
+    window = dataset.window
+    model_config = model_config_for(variant, model_config)
+
+    L.seed_everything(seed, workers=False, verbose=False)
+    net = SlungLoadNet(model_config)
+    train_windows = dataset.splits["train"]
+    if model_config.normalize and len(train_windows):
+        net.fit_normalization(train_windows.states, train_windows.inputs)
+
+    from . import __version__
+
+    meta = {
+        "format": CKPT_FORMAT,
+        "package_version": __version__,
+        "variant": variant,
+        "preset": chosen.name,
+        "model": to_dict(model_config),
+        "weights": to_dict(weights),
+        "train": to_dict(config),
+        "extras": to_dict(extras),
+        "window": to_dict(window),
+        "params": to_dict(dataset.params),
+        "params_source": dataset.params_source,
+        "data": str(dataset.folder),
+    }
+    module = SlungLoadModule(
+        net,
+        variant=variant,
+        params=dataset.params,
+        weights=weights,
+        window=window,
+        config=config,
+        extras=extras,
+        meta=meta,
+    )
+    datamodule = WindowData(train_windows, dataset.splits["val"], config, extras)
+
+    best_cb = ModelCheckpoint(
+        dirpath=out,
+        filename=BEST.removesuffix(".ckpt"),
+        monitor=MONITOR,
+        mode="min",
+        save_top_k=1,
+        save_last=True,
+        auto_insert_metric_name=False,
+        enable_version_counter=False,
+    )
+    stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience)
+    start = time.perf_counter()
+    with _quiet_lightning(not progress):
+        trainer = _make_trainer(
+            out, accelerator, devices, config, extras, [best_cb, stop_cb], progress=progress
+        )
+        trainer.fit(
+            module, datamodule=datamodule, ckpt_path=last if resume else None, weights_only=True
+        )
+    seconds = time.perf_counter() - start
+
+    run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
+    if trainer.is_global_zero:
+        write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
+    return run
+
+
+def _make_trainer(
+    out: Path,
+    accelerator: str,
+    devices: int,
+    config: TrainConfig,
+    extras: TrainExtras,
+    callbacks: list[Any],
+    *,
+    progress: bool,
+) -> L.Trainer:
+    strategy: Any = "auto"
+    if devices > 1:
+        from lightning.pytorch.strategies import DDPStrategy
+
+        strategy = DDPStrategy(process_group_backend="gloo" if accelerator == "cpu" else "nccl")
+    return L.Trainer(
+        accelerator=accelerator,
+        devices=devices,
+        strategy=strategy,
+        max_epochs=config.max_epochs,
+        max_time=timedelta(seconds=extras.max_time) if extras.max_time else None,
+        gradient_clip_val=config.grad_clip or None,
+        callbacks=[*callbacks, LearningRateMonitor(logging_interval="epoch")],
+        logger=[
+            CSVLogger(out, name="csv", version=""),
+            TensorBoardLogger(out, name="tensorboard", version="", default_hp_metric=False),
+        ],
+        default_root_dir=out,
+        enable_progress_bar=progress,
+        enable_model_summary=progress,
+        use_distributed_sampler=False,  # EpochBatches shards the windows itself
+        log_every_n_steps=1,
+        num_sanity_val_steps=1,
+    )
+
+
+def _run_result(
+    trainer: L.Trainer,
+    best_cb: ModelCheckpoint,
+    stop_cb: EarlyStopping,
+    out: Path,
+    variant: str,
+    preset: str,
+    config: TrainConfig,
+    seconds: float,
+) -> Run:
+    epochs = trainer.current_epoch
+    if stop_cb.stopped_epoch > 0:
+        reason = "early_stopping"
+    elif epochs >= config.max_epochs:
+        reason = "max_epochs"
+    else:
+        reason = "max_time"
+    metrics = {
+        k: float(v) for k, v in sorted(trainer.callback_metrics.items()) if k.startswith("val/")
+    }
+    best_score = best_cb.best_model_score
+    return Run(
+        out=out,
+        best_checkpoint=Path(best_cb.best_model_path) if best_cb.best_model_path else out / BEST,
+        last_checkpoint=out / LAST,
+        variant=variant,
+        preset=preset,
+        epochs=epochs,
+        seconds=seconds,
+        stop_reason=reason,
+        best_val_loss=float(best_score) if best_score is not None else float("nan"),
+        metrics=metrics,
+    )
+
+
+@contextlib.contextmanager
+def _quiet_lightning(quiet: bool) -> Iterator[None]:
+    """Silence Lightning's warnings about our deliberate choices, and its info lines if quiet."""
+    levels: dict[str, int] = {}
+    with warnings.catch_warnings():
+        # Windows are tensors in memory (no workers needed); resuming into the run folder is
+        # the point of resume.
+        # Lightning 2.6 on torch 2.13 warns about its own use of torch's pytree.
+        for pattern in (
+            r".*does not have many workers.*",
+            r".*exists and is not empty.*",
+            r".*treespec, LeafSpec.*",
+        ):
+            warnings.filterwarnings("ignore", message=pattern)
+        if quiet:
+            for name in ("lightning.pytorch", "lightning.fabric"):
+                levels[name] = logging.getLogger(name).level
+                logging.getLogger(name).setLevel(logging.WARNING)
+        try:
+            yield
+        finally:
+            for name, level in levels.items():
+                logging.getLogger(name).setLevel(level)
+
+
+# --- python -m slungload.train -----------------------------------------------------------
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Minimal command line (the full one is ``slungload train``); also the DDP re-launch
+    target: Lightning starts every extra process with this same command line."""
+    p = argparse.ArgumentParser(prog="python -m slungload.train", description=main.__doc__)
+    p.add_argument("--data", required=True, type=Path, help="dataset folder")
+    p.add_argument("--out", required=True, type=Path, help="run folder")
+    p.add_argument("--variant", default="proposed")
+    p.add_argument("--preset", default="default", choices=sorted(PRESETS))
+    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
+    p.add_argument("--devices", type=int, default=1, help="processes (DDP when > 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=None, help="override the preset's max epochs")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.ckpt")
+    p.add_argument("--history", type=int, default=50, metavar="M")
+    p.add_argument("--horizon", type=int, default=25, metavar="N")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads per process")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = p.parse_args(argv)
+    run = train(
+        args.data,
+        out=args.out,
+        variant=args.variant,
+        preset=args.preset,
+        device=args.device,
+        devices=args.devices,
+        seed=args.seed,
+        max_epochs=args.epochs,
+        resume=args.resume,
+        window=WindowConfig(history=args.history, horizon=args.horizon),
+        progress=not args.quiet,
+        num_threads=args.threads,
+    )
+    if rank_zero_only.rank == 0:  # every DDP process runs this command
+        print(run.summary())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,146 @@
+"""The numpy facade: parity with the eager network, file quaternion convention, shapes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.data import Dataset, estimate_load_state
+from slungload.model import with_unit_quaternion
+from slungload.physics import hover_thrust, rollout
+from slungload.predictor import Predictor
+from slungload.state import QUAT, STATE_DIM, join_state
+from slungload.train import load_checkpoint, train
+from slungload.windows import make_windows
+
+torch.set_num_threads(1)
+
+TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
+SMALL = WindowConfig(history=6, horizon=4)
+M, N = SMALL.history, SMALL.horizon
+WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
+
+
+def physics_flight(name: str, seed: int, steps: int = 40) -> SimpleNamespace:
+    """One flight of the physics model (package layout), with tilted attitude and a swing."""
+    params = VehicleParams()
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps) * params.dt
+    q0 = torch.tensor([np.cos(0.2), np.sin(0.2), 0.0, 0.0], dtype=torch.float64)  # 23 deg roll
+    p0 = torch.tensor(rng.uniform(-1, 1, 3))
+    x0 = join_state(p0, torch.zeros(3, dtype=torch.float64), q0, p0 + torch.tensor([0.1, 0, -0.69]))
+    u = np.zeros((steps, 4))
+    u[:, 0] = hover_thrust(params) * (1 + 0.05 * np.sin(3 * t + seed))
+    u[:, 1:] = 0.3 * np.sin(2 * t[:, None] + rng.uniform(0, 6, 3))
+    after, _ = rollout(x0, torch.zeros(6, dtype=torch.float64), torch.from_numpy(u[:-1]), params)
+    states = torch.cat([x0[None], after]).numpy()
+    return SimpleNamespace(
+        name=name, states=states, inputs=u, aux=estimate_load_state(states, params)
+    )
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
+    flights = {s: [physics_flight(f"{s}{i}", 10 * i + len(s)) for i in range(2)] for s in "abc"}
+    splits = dict(zip(("train", "val", "test"), flights.values(), strict=True))
+    return Dataset(
+        folder=tmp_path_factory.mktemp("memory"),
+        params=VehicleParams(),
+        params_source="test",
+        window=SMALL,
+        splits={k: make_windows(v, SMALL) for k, v in splits.items()},
+        flights={},
+    )
+
+
+@pytest.fixture(scope="module")
+def run_dir(dataset: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("run")
+    train(dataset, out=out, preset="quick", model_config=TINY, progress=False, num_threads=1)
+    return out
+
+
+def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
+    """Package-layout states (..., T, 13) and inputs (..., T, 4) -> file rows (..., T, 17)."""
+    s = states.double().numpy().copy()
+    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
+    return np.concatenate([s, inputs.double().numpy()], axis=-1)
+
+
+def test_predict_matches_the_eager_model(run_dir: Path, dataset: Dataset) -> None:
+    val = dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(run_dir)
+    model = load_checkpoint(run_dir / "best.ckpt").model
+    for i in (0, len(val) - 1):
+        states, inputs = val.states[i], val.inputs[i]
+        got = predictor.predict(file_rows(states[:M], inputs[:M]), inputs[M:].numpy())
+        with torch.no_grad():
+            pred = model(states[None, :M], inputs[None, :M], inputs[None, M:]).states[0]
+        want = with_unit_quaternion(pred).double().numpy()
+        want[:, QUAT] = want[:, QUAT][:, WXYZ_TO_XYZW]
+        assert got.shape == (N, STATE_DIM) and got.dtype == np.float64
+        np.testing.assert_allclose(got, want, atol=1e-5)
+        np.testing.assert_allclose(np.linalg.norm(got[:, QUAT], axis=-1), 1.0, atol=1e-6)
+
+
+def test_batch_and_single_inputs_agree(run_dir: Path, dataset: Dataset) -> None:
+    val = dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(run_dir / "best.ckpt")
+    history = file_rows(val.states[:5, :M], val.inputs[:5, :M])  # (5, M, 17)
+    future = val.inputs[:5, M:].numpy()
+    batch = predictor.predict(history, future)
+    assert batch.shape == (5, N, STATE_DIM)
+    for b in range(5):
+        np.testing.assert_allclose(batch[b], predictor.predict(history[b], future[b]), atol=1e-5)
+
+
+def test_other_horizons_and_quaternion_sign_flips(run_dir: Path, dataset: Dataset) -> None:
+    val = dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(run_dir)
+    history = file_rows(val.states[0, :M], val.inputs[0, :M])
+    longer = np.repeat(val.inputs[0, M:].numpy(), 2, axis=0)  # 2N steps of inputs
+    out = predictor.predict(history, longer)
+    assert out.shape == (2 * N, STATE_DIM)
+    # q and -q are one rotation: a sign jump inside the history must not change the answer.
+    flipped = history.copy()
+    flipped[M // 2 :, QUAT] *= -1
+    np.testing.assert_allclose(predictor.predict(flipped, longer), out, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("history_shape", "future_shape"),
+    [
+        ((M, 13), (N, 4)),  # states without inputs
+        ((M, 17), (N, 3)),  # missing a rate
+        ((M, 17), (2, N, 4)),  # single history with batched inputs
+        ((2, M, 17), (3, N, 4)),  # batch sizes differ
+        ((17,), (4,)),  # one row is not a history
+        ((0, 17), (N, 4)),  # empty history
+        ((M, 17), (0, 4)),  # no future
+    ],
+)
+def test_bad_shapes_name_expected_and_actual(
+    run_dir: Path, history_shape: tuple, future_shape: tuple
+) -> None:
+    predictor = Predictor.from_checkpoint(run_dir)
+    with pytest.raises(ValueError, match=r"expected history .*got history") as info:
+        predictor.predict(np.zeros(history_shape), np.zeros(future_shape))
+    assert str(history_shape) in str(info.value) and str(future_shape) in str(info.value)
+
+
+def test_non_finite_values_and_bad_checkpoints_are_refused(run_dir: Path, tmp_path: Path) -> None:
+    predictor = Predictor.from_checkpoint(run_dir)
+    history = np.zeros((M, 17))
+    history[:, 9] = 1.0  # identity quaternion, x-y-z-w
+    history[2, 0] = np.nan
+    with pytest.raises(ValueError, match="history holds NaN"):
+        predictor.predict(history, np.zeros((N, 4)))
+    bad = tmp_path / "bad.ckpt"
+    bad.write_text("hello")
+    with pytest.raises(ValueError, match="bad.ckpt"):
+        Predictor.from_checkpoint(bad)

@@ -1,0 +1,342 @@
+"""Training: runs, logs, checkpoints, determinism, resume, variants, DDP on CPU.
+
+Tiny flights come from the package's own physics model, written in the published file schema;
+the network is shrunk (``TINY``) and the windows short (``SMALL``) so each run takes seconds.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from slungload.config import ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
+from slungload.data import load_dataset
+from slungload.fileio import write_json, write_npz, write_splits
+from slungload.loss import LOSS_VARIANTS, compute_loss
+from slungload.physics import hover_thrust, rollout
+from slungload.state import LOAD_POS, POS, QUAT, RATES, THRUST, VEL, join_state, quat_wxyz_to_xyzw
+from slungload.train import (
+    PRESETS,
+    EpochBatches,
+    Preset,
+    TrainExtras,
+    _warmup_cosine,
+    load_checkpoint,
+    train,
+)
+
+torch.set_num_threads(1)
+
+TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
+SMALL = WindowConfig(history=6, horizon=4)
+LOSS_TERMS = ("total", "fit", "physics", "projection", "slack")
+
+
+def make_flights(folder: Path, *, flights: int = 6, steps: int = 60, seed: int = 0) -> Path:
+    """A dataset folder of physics-model flights around hover with a swinging load."""
+    params = VehicleParams()
+    rng = np.random.default_rng(seed)
+    names = []
+    t = np.arange(steps) * params.dt
+    for i in range(flights):
+        swing = rng.uniform(-0.3, 0.3)  # rad, initial cable angle
+        p0 = torch.tensor(rng.uniform(-1.0, 1.0, 3))
+        load0 = p0 + params.cable_length * torch.tensor([np.sin(swing), 0.0, -np.cos(swing)])
+        q0 = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+        x0 = join_state(p0, torch.zeros(3, dtype=torch.float64), q0, load0)
+        u = np.zeros((steps, 4))
+        u[:, 0] = hover_thrust(params) * (1 + 0.05 * np.sin(2 * np.pi * rng.uniform(0.3, 1) * t))
+        for j in range(3):
+            u[:, 1 + j] = 0.3 * np.sin(2 * np.pi * rng.uniform(0.2, 1) * t + rng.uniform(0, 6))
+        after, _ = rollout(
+            x0, torch.zeros(6, dtype=torch.float64), torch.from_numpy(u[:-1]), params
+        )
+        x = torch.cat([x0[None], after]).numpy()
+        names.append(f"flight_{i:02d}")
+        arrays = {
+            "time": t,
+            "p": x[:, POS],
+            "v": x[:, VEL],
+            "attitude": quat_wxyz_to_xyzw(torch.from_numpy(x[:, QUAT])).numpy(),
+            "p_load": x[:, LOAD_POS],
+            "w_ref": u[:, RATES],
+            "T_ref": u[:, THRUST],
+        }
+        write_npz(folder / f"{names[-1]}.npz", arrays)
+    write_splits(folder, {"train": names[:-2], "val": names[-2:-1], "test": names[-1:]})
+    write_json(folder / "vehicle.json", to_dict(params))
+    return folder
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_flights(tmp_path_factory.mktemp("flights"))
+
+
+@pytest.fixture(scope="module")
+def dataset(data_dir: Path, tmp_path_factory: pytest.TempPathFactory):
+    return load_dataset(data_dir, window=SMALL, cache_dir=tmp_path_factory.mktemp("cache"))
+
+
+def quick(out: Path, data, **kw):
+    kw = {"preset": "quick", "model_config": TINY, "progress": False, "num_threads": 1, **kw}
+    return train(data, out=out, **kw)
+
+
+def read_metrics(run_dir: Path) -> list[dict[str, str]]:
+    with open(run_dir / "csv" / "metrics.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def epoch_values(rows: list[dict[str, str]], key: str) -> list[float]:
+    return [float(r[key]) for r in rows if r.get(key)]
+
+
+def weights_of(path: Path) -> dict[str, torch.Tensor]:
+    return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
+
+
+# --- the run folder ------------------------------------------------------------------------
+
+
+def test_quick_run_writes_checkpoints_logs_and_summary(data_dir: Path, tmp_path: Path) -> None:
+    run = quick(tmp_path / "run", data_dir, window=SMALL)  # from the folder itself
+    assert run.epochs == PRESETS["quick"].config.max_epochs
+    assert run.stop_reason == "max_epochs"
+    assert run.best_checkpoint == tmp_path / "run" / "best.ckpt" and run.best_checkpoint.is_file()
+    assert run.last_checkpoint.is_file()
+    assert np.isfinite(run.best_val_loss)
+
+    summary = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert summary["variant"] == "proposed" and summary["epochs"] == run.epochs
+    assert summary["config"]["window"] == to_dict(SMALL)
+    assert summary["config"]["model"]["hidden_size"] == TINY.hidden_size
+
+    rows = read_metrics(tmp_path / "run")
+    for stage in ("train", "val"):
+        for term in LOSS_TERMS:
+            assert len(epoch_values(rows, f"{stage}/{term}")) == run.epochs, f"{stage}/{term}"
+    assert len(epoch_values(rows, "val/fit_rmse")) == run.epochs
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(tmp_path / "run" / "tensorboard"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {f"{s}/{t}" for s in ("train", "val") for t in LOSS_TERMS} <= tags
+    assert "val/fit_rmse" in tags
+
+
+def test_fit_rmse_is_the_sum_of_group_rmses(dataset, tmp_path: Path) -> None:
+    run = quick(tmp_path / "run", dataset)
+    groups = sum(run.metrics[f"val/rmse_{g}"] for g in ("position", "velocity", "quaternion"))
+    groups += run.metrics["val/rmse_load_position"]
+    assert run.metrics["val/fit_rmse"] == pytest.approx(groups, rel=1e-5)
+
+
+def test_existing_run_is_not_overwritten_and_resume_needs_one(dataset, tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="last.ckpt"):
+        quick(tmp_path / "run", dataset, resume=True)
+    quick(tmp_path / "run", dataset, max_epochs=1)
+    with pytest.raises(FileExistsError, match="resume"):
+        quick(tmp_path / "run", dataset)
+
+
+def test_bad_options_are_refused(dataset, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="preset"):
+        quick(tmp_path / "a", dataset, preset="fastest")
+    with pytest.raises(ValueError, match="device"):
+        quick(tmp_path / "b", dataset, device="tpu")
+    with pytest.raises(ValueError, match="variant"):
+        quick(tmp_path / "c", dataset, variant="no-such-thing")
+
+
+# --- optimisation --------------------------------------------------------------------------
+
+
+def test_loss_decreases_when_overfitting_a_few_windows(dataset, tmp_path: Path) -> None:
+    few = dataclasses.replace(
+        dataset, splits={**dataset.splits, "train": dataset.splits["train"][torch.arange(8)]}
+    )
+    overfit = Preset(
+        "overfit",
+        TrainConfig(lr=3e-3, weight_decay=0.0, batch_size=8, max_epochs=60, patience=1000),
+    )
+    run = quick(tmp_path / "run", few, preset=overfit)
+    losses = epoch_values(read_metrics(tmp_path / "run"), "train/total")
+    assert len(losses) == 60
+    assert losses[-1] < 0.2 * losses[0], (losses[0], losses[-1])
+    assert run.best_val_loss <= epoch_values(read_metrics(tmp_path / "run"), "val/total")[0]
+
+
+def test_warmup_cosine_schedule_shape() -> None:
+    factor = _warmup_cosine(warmup=10, total=110, floor=0.1)
+    ramp = [factor(s) for s in range(10)]
+    assert ramp == sorted(ramp) and ramp[0] > 0 and ramp[-1] == pytest.approx(1.0)
+    decay = [factor(s) for s in range(10, 111)]
+    assert all(a >= b for a, b in zip(decay[:-1], decay[1:], strict=True))
+    assert decay[0] == pytest.approx(1.0) and decay[-1] == pytest.approx(0.1)
+    assert factor(60) == pytest.approx(0.55)  # half way down the cosine
+
+
+def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path) -> None:
+    cosine = Preset(
+        "cosine",
+        dataclasses.replace(PRESETS["quick"].config, max_epochs=5, lr_schedule="cosine"),
+        TrainExtras(warmup_epochs=2, min_lr_ratio=0.0, val_windows=16),
+    )
+    quick(tmp_path / "run", dataset, preset=cosine)
+    lrs = epoch_values(read_metrics(tmp_path / "run"), "lr-Adam")
+    peak = lrs.index(max(lrs))
+    assert 0 < peak <= 2 and lrs[0] < lrs[peak] and lrs[-1] < lrs[peak]
+
+
+# --- batches -------------------------------------------------------------------------------
+
+
+def test_epoch_batches_are_seeded_by_epoch_and_shard_evenly() -> None:
+    def epoch(seed: int, e: int, rank: int = 0, world: int = 1) -> torch.Tensor:
+        s = EpochBatches(50, 8, num_samples=30, seed=seed, rank=rank, world_size=world)
+        s.set_epoch(e)
+        batches = list(s)
+        assert len(batches) == len(s)
+        return torch.cat(batches)
+
+    assert torch.equal(epoch(0, 3), epoch(0, 3))
+    assert not torch.equal(epoch(0, 3), epoch(0, 4))
+    assert not torch.equal(epoch(0, 3), epoch(1, 3))
+    assert len(set(epoch(0, 3).tolist())) == 30  # without replacement
+    shards = [epoch(0, 3, rank, 3) for rank in range(3)]
+    assert all(len(s) == 10 for s in shards)
+    assert torch.equal(torch.cat(shards).sort().values, epoch(0, 3).sort().values)
+    ordered = EpochBatches(10, 4, shuffle=False)
+    assert torch.equal(torch.cat(list(ordered)), torch.arange(10))
+    more = EpochBatches(5, 4, num_samples=12)  # more windows per epoch than exist
+    assert torch.bincount(torch.cat(list(more)), minlength=5).min() >= 2
+
+
+# --- determinism and resume ----------------------------------------------------------------
+
+
+def test_same_seed_gives_identical_weights(dataset, tmp_path: Path) -> None:
+    config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
+    a = quick(tmp_path / "a", dataset, seed=3, model_config=config)
+    b = quick(tmp_path / "b", dataset, seed=3, model_config=config)
+    c = quick(tmp_path / "c", dataset, seed=4, model_config=config)
+    wa, wb, wc = (weights_of(r.last_checkpoint) for r in (a, b, c))
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)
+    assert not all(torch.equal(wa[k], wc[k]) for k in wa)
+
+
+def test_resume_continues_the_epoch_count_and_matches_one_long_run(dataset, tmp_path: Path) -> None:
+    first = quick(tmp_path / "split", dataset, max_epochs=1)
+    assert first.epochs == 1
+    resumed = quick(tmp_path / "split", dataset, max_epochs=3, resume=True)
+    assert resumed.epochs == 3
+    assert epoch_values(read_metrics(tmp_path / "split"), "epoch")[-1] == 2
+    straight = quick(tmp_path / "straight", dataset, max_epochs=3)
+    # No dropout in TINY and the epoch's windows come from (seed, epoch): the same weights.
+    ws, wr = weights_of(straight.last_checkpoint), weights_of(resumed.last_checkpoint)
+    assert all(torch.allclose(ws[k], wr[k], atol=1e-6) for k in ws)
+
+
+# --- checkpoints ---------------------------------------------------------------------------
+
+
+def test_load_checkpoint_reproduces_the_logged_validation_loss(dataset, tmp_path: Path) -> None:
+    run = quick(tmp_path / "run", dataset)
+    assert len(dataset.splits["val"]) <= PRESETS["quick"].extras.val_windows  # all are used
+    loaded = load_checkpoint(tmp_path / "run")  # the folder means best.ckpt
+    assert loaded.path == run.best_checkpoint
+    assert not loaded.model.training
+    assert loaded.variant == "proposed" and loaded.window == SMALL
+    assert loaded.params == dataset.params and loaded.model_config == TINY
+
+    val = dataset.splits["val"]
+    m = SMALL.history
+    with torch.no_grad():
+        pred = loaded.model(val.states[:, :m], val.inputs[:, :m], val.inputs[:, m:])
+        terms = compute_loss(
+            pred, val.states, val.inputs, val.aux,
+            history=m, params=loaded.params, weights=loaded.weights, variant=loaded.variant,
+        )  # fmt: skip
+    assert float(terms.total) == pytest.approx(run.best_val_loss, rel=1e-4)
+
+    again = load_checkpoint(run.best_checkpoint).model
+    x = val.states[:3, :m], val.inputs[:3, :m], val.inputs[:3, m:]
+    assert torch.equal(loaded.model(*x).states, again(*x).states)
+
+
+def test_non_slungload_files_give_clear_errors(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match="missing.ckpt"):
+        load_checkpoint(tmp_path / "missing.ckpt")
+    garbage = tmp_path / "garbage.ckpt"
+    garbage.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(ValueError, match="garbage.ckpt.*not a readable checkpoint"):
+        load_checkpoint(garbage)
+    other = tmp_path / "other.ckpt"
+    torch.save({"state_dict": {"w": torch.zeros(2)}, "epoch": 3}, other)
+    with pytest.raises(ValueError, match="other.ckpt.*not a slungload checkpoint"):
+        load_checkpoint(other)
+
+
+class _Evil:
+    def __reduce__(self):
+        return (os.system, ("echo pwned",))
+
+
+def test_checkpoints_with_pickled_objects_are_refused(tmp_path: Path) -> None:
+    evil = tmp_path / "evil.ckpt"
+    torch.save({"state_dict": {}, "slungload": _Evil()}, evil)
+    with pytest.raises(ValueError, match="evil.ckpt"):
+        load_checkpoint(evil)
+
+
+# --- variants ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("variant", sorted(LOSS_VARIANTS))
+def test_each_variant_trains_and_reloads(variant: str, dataset, tmp_path: Path) -> None:
+    one_step = Preset("one", dataclasses.replace(PRESETS["quick"].config, max_epochs=1))
+    run = quick(tmp_path / variant, dataset, variant=variant, preset=one_step)
+    assert run.epochs == 1 and run.variant == variant
+    loaded = load_checkpoint(run.out)
+    assert loaded.variant == variant
+    assert loaded.model_config.slack == LOSS_VARIANTS[variant].slack
+    val = dataset.splits["val"]
+    pred = loaded.model(val.states[:2, :6], val.inputs[:2, :6], val.inputs[:2, 6:])
+    assert (pred.slack is not None) == LOSS_VARIANTS[variant].slack
+    if not LOSS_VARIANTS[variant].physics:
+        assert run.metrics["val/physics"] == 0.0
+
+
+# --- several processes ---------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
+    """Lightning's "ddp" re-launches the command line, so run it as ``python -m``."""
+    out = tmp_path / "ddp"
+    cmd = [
+        sys.executable, "-m", "slungload.train", "--data", str(data_dir), "--out", str(out),
+        "--preset", "quick", "--device", "cpu", "--devices", "2", "--threads", "1", "--quiet",
+        "--history", str(SMALL.history), "--horizon", str(SMALL.horizon),
+    ]  # fmt: skip
+    env = {**os.environ, "SLUNGLOAD_CACHE": str(tmp_path / "cache")}
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=env)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    summary = json.loads((out / "run.json").read_text())
+    assert summary["epochs"] == PRESETS["quick"].config.max_epochs
+    assert (out / "best.ckpt").is_file() and (out / "last.ckpt").is_file()
+    assert len(epoch_values(read_metrics(out), "train/total")) == summary["epochs"]
+    assert load_checkpoint(out).variant == "proposed"
+    assert done.stdout.count("epochs in") == 1  # only rank 0 reports
