@@ -13,7 +13,7 @@ from slungload.model import (
     count_parameters,
     with_unit_quaternion,
 )
-from slungload.state import QUAT, quat_normalize
+from slungload.state import LOAD_POS, POS, QUAT, VEL, quat_normalize
 
 torch.set_num_threads(1)
 
@@ -110,7 +110,7 @@ def test_prediction_is_causal_in_future_inputs(j):
 
 
 def test_fit_normalization_standardises_the_fitting_data():
-    model = make_model()
+    model = make_model(relative_positions=False)
     x, u = physical_windows()
     x[..., 5] = 2.5  # a constant channel must not blow up
     model.fit_normalization(x, u)
@@ -147,8 +147,9 @@ def test_outputs_are_in_physical_units(residual):
     n = x.shape[1] - M
     if residual:
         expected = x[:, M - 1 : M].expand(-1, n, -1)
-    else:
-        expected = model.state_mean.expand(x.shape[0], n, -1)
+    else:  # the data mean, in the frame of the last measured vehicle position
+        origin = model.origin(x[:, M - 1]).unsqueeze(1)
+        expected = (model.state_mean + origin).expand(-1, n, -1)
     torch.testing.assert_close(pred.states, expected, atol=1e-5, rtol=1e-5)
 
 
@@ -229,3 +230,36 @@ def test_with_unit_quaternion_normalises_only_the_quaternion():
     torch.testing.assert_close(out[..., QUAT].norm(dim=-1), torch.ones(2, 3))
     keep = [c for c in range(13) if c not in range(QUAT.start, QUAT.stop)]
     torch.testing.assert_close(out[..., keep], states[..., keep], rtol=0, atol=0)
+
+
+def test_relative_positions_make_the_prediction_translation_invariant():
+    model = make_model()
+    x, u = physical_windows()
+    model.fit_normalization(x, u, origin_step=M - 1)
+    x_hist, u_hist, u_future = x[:, :M], u[:, :M], u[:, M:]
+    offset = torch.tensor([3.0, -7.0, 1.5])
+    moved = x_hist.clone()
+    moved[..., POS] += offset
+    moved[..., LOAD_POS] += offset
+    with torch.no_grad():
+        base = model(x_hist, u_hist, u_future).states
+        shifted = model(moved, u_hist, u_future).states
+    for part in (POS, LOAD_POS):
+        torch.testing.assert_close(shifted[..., part], base[..., part] + offset, atol=1e-4, rtol=0)
+    for part in (VEL, QUAT):
+        torch.testing.assert_close(shifted[..., part], base[..., part], atol=1e-5, rtol=0)
+    # Absolute positions (the paper's setting) see the offset.
+    absolute = make_model(relative_positions=False)
+    absolute.fit_normalization(x, u)
+    with torch.no_grad():
+        a = absolute(x_hist, u_hist, u_future).states
+        b = absolute(moved, u_hist, u_future).states
+    assert (b[..., VEL] - a[..., VEL]).abs().max() > 1e-4
+
+
+def test_relative_normalization_uses_the_origin_step():
+    model = make_model()
+    x, u = physical_windows()
+    model.fit_normalization(x, u, origin_step=M - 1)
+    local = x - model.origin(x[:, M - 1]).unsqueeze(1)
+    torch.testing.assert_close(model.state_mean, local.reshape(-1, 13).mean(0), atol=1e-5, rtol=0)

@@ -79,6 +79,10 @@ class ModelConfig:
     # The head predicts x_k - x_{k-1} (True) or x_k itself (False, the paper). The residual form
     # starts from "hold the last state" and learns far faster on a CPU budget (docs/training.md).
     residual: bool = True
+    # Positions (vehicle and load) enter and leave the network relative to the last measured
+    # vehicle position: the dynamics do not depend on where the arena's origin is, and a network
+    # that sees absolute positions can tell training flights apart and memorise them.
+    relative_positions: bool = True
 
 
 @dataclass(frozen=True)

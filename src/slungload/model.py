@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from .config import ModelConfig
-from .state import INPUT_DIM, QUAT, STATE_DIM, quat_normalize
+from .state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, quat_normalize
 
 FEATURE_DIM = STATE_DIM + INPUT_DIM  # 17: one (x_k, u_k) pair
 
@@ -172,17 +172,31 @@ class SlungLoadNet(nn.Module):
         self.register_buffer("input_mean", torch.zeros(INPUT_DIM))
         self.register_buffer("input_std", torch.ones(INPUT_DIM))
         self.register_buffer("delta_std", torch.ones(STATE_DIM))
+        # (3, 13) selector: a vehicle position p -> the state offset that moves p and pL by p.
+        shift = torch.zeros(3, STATE_DIM)
+        if cfg.relative_positions:
+            shift[:, POS] = torch.eye(3)
+            shift[:, LOAD_POS] = torch.eye(3)
+        self.register_buffer("position_shift", shift, persistent=False)
 
     # --- normalisation -------------------------------------------------------------------
 
+    def origin(self, x_last: Tensor) -> Tensor:
+        """State offset (..., 13) that ``forward`` subtracts from positions: the vehicle
+        position of x_last (..., 13) in the p and pL slots, zero elsewhere (all zero when
+        ``ModelConfig.relative_positions`` is off)."""
+        return x_last[..., POS] @ self.position_shift
+
     @torch.no_grad()
-    def fit_normalization(self, states: Tensor, inputs: Tensor) -> None:
+    def fit_normalization(self, states: Tensor, inputs: Tensor, *, origin_step: int = -1) -> None:
         """Set the normalisation buffers from training data.
 
         states (..., T, 13) and inputs (..., T, 4), e.g. windows (W, T, .) or one flight
         (T, .); physical units. Per-channel mean and standard deviation (floored, see
         ``STD_FLOOR``), and the standard deviation of the per-step change x_k - x_{k-1}
-        (used by the residual mode and to scale the slack variables).
+        (used by the residual mode and to scale the slack variables). With relative
+        positions, each sequence is first shifted by ``origin`` of its step ``origin_step``
+        (pass M - 1 for windows: the step ``forward`` uses).
         """
         if not self.config.normalize:
             raise ValueError("fit_normalization: this model was built with normalize=False")
@@ -194,6 +208,7 @@ class SlungLoadNet(nn.Module):
         if states.shape[-2] < 2:
             raise ValueError("fit_normalization: need at least 2 time steps for delta_std")
         x = states.detach().to(torch.float64)
+        x = x - (x[..., origin_step, POS] @ self.position_shift.double()).unsqueeze(-2)
         u = inputs.detach().to(torch.float64)
         flat_x, flat_u = x.reshape(-1, STATE_DIM), u.reshape(-1, INPUT_DIM)
         delta = (x[..., 1:, :] - x[..., :-1, :]).reshape(-1, STATE_DIM)
@@ -238,7 +253,8 @@ class SlungLoadNet(nn.Module):
         """
         _check_shapes(x_hist, u_hist, u_future)
         cfg = self.config
-        z_hist = self.normalize_state(x_hist)  # (B, M, 13)
+        origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
+        z_hist = self.normalize_state(x_hist - origin)  # (B, M, 13)
         v_hist = self.normalize_input(u_hist)  # (B, M, 4)
         v_future = self.normalize_input(u_future)  # (B, N, 4)
 
@@ -280,7 +296,7 @@ class SlungLoadNet(nn.Module):
             if cfg.slack:
                 slacks.append(y[:, STATE_DIM:])
 
-        x_hat = self.denormalize_state(torch.stack(states, dim=1))  # (B, N, 13)
+        x_hat = self.denormalize_state(torch.stack(states, dim=1)) + origin  # (B, N, 13)
         slack = None
         if cfg.slack:
             slack = torch.stack(slacks, dim=1)  # (B, N, 13)

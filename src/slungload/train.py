@@ -563,7 +563,9 @@ def train(
     net = SlungLoadNet(model_config)
     train_windows = dataset.splits["train"]
     if model_config.normalize and len(train_windows):
-        net.fit_normalization(train_windows.states, train_windows.inputs)
+        net.fit_normalization(
+            train_windows.states, train_windows.inputs, origin_step=window.history - 1
+        )
 
     from . import __version__
 
