@@ -44,16 +44,16 @@ def _add_window_options(p: argparse.ArgumentParser, horizon: int = 25) -> None:
 
 
 def _resolve_params(folder: Path, args: argparse.Namespace):
-    """Vehicle constants for a dataset folder: its vehicle.json, then CLI overrides."""
+    """Vehicle constants for a dataset folder with the CLI's overrides applied, or None when
+    there are none (the data module then reads vehicle.json or says it uses the paper's)."""
     import dataclasses
 
     from .config import VehicleParams, load_vehicle
 
     overrides = _vehicle_overrides(args)
-    base = load_vehicle(folder)
-    if base is None and not overrides:
-        return None  # the data module applies the paper's constants and says so
-    return dataclasses.replace(base or VehicleParams(), **overrides)
+    if not overrides:
+        return None
+    return dataclasses.replace(load_vehicle(folder) or VehicleParams(), **overrides)
 
 
 # --- commands --------------------------------------------------------------------------
