@@ -191,7 +191,9 @@ def test_warmup_cosine_schedule_shape() -> None:
 def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path) -> None:
     cosine = Preset(
         "cosine",
-        dataclasses.replace(PRESETS["quick"].config, max_epochs=5, lr_schedule="cosine"),
+        dataclasses.replace(
+            PRESETS["quick"].config, max_epochs=5, patience=100, lr_schedule="cosine"
+        ),
         TrainExtras(warmup_epochs=2, min_lr_ratio=0.0, val_windows=16),
     )
     quick(tmp_path / "run", dataset, preset=cosine)
@@ -238,13 +240,20 @@ def test_same_seed_gives_identical_weights(dataset, tmp_path: Path) -> None:
 
 
 def test_resume_continues_the_epoch_count_and_matches_one_long_run(dataset, tmp_path: Path) -> None:
-    first = quick(tmp_path / "split", dataset, max_epochs=1)
+    config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
+    first = quick(tmp_path / "split", dataset, max_epochs=1, model_config=config)
     assert first.epochs == 1
-    resumed = quick(tmp_path / "split", dataset, max_epochs=3, resume=True)
+    one_epoch = torch.load(first.last_checkpoint, weights_only=True)["global_step"]
+    resumed = quick(tmp_path / "split", dataset, max_epochs=3, resume=True, model_config=config)
     assert resumed.epochs == 3
-    assert epoch_values(read_metrics(tmp_path / "split"), "epoch")[-1] == 2
-    straight = quick(tmp_path / "straight", dataset, max_epochs=3)
-    # No dropout in TINY and the epoch's windows come from (seed, epoch): the same weights.
+    rows = read_metrics(tmp_path / "split")
+    assert epoch_values(rows, "epoch")[-1] == 2
+    assert len(epoch_values(rows, "train/total")) == 3  # the first call's rows are kept
+    straight = quick(tmp_path / "straight", dataset, max_epochs=3, model_config=config)
+    # last.ckpt is the last epoch's even when that epoch did not improve on the best one.
+    last = torch.load(straight.last_checkpoint, weights_only=True)
+    assert last["global_step"] == 3 * one_epoch
+    # Windows and dropout are drawn from (seed, epoch, batch): the same weights.
     ws, wr = weights_of(straight.last_checkpoint), weights_of(resumed.last_checkpoint)
     assert all(torch.allclose(ws[k], wr[k], atol=1e-6) for k in ws)
 

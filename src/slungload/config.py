@@ -161,8 +161,8 @@ def load_vehicle(folder: str | Path) -> VehicleParams | None:
     if not path.is_file():
         return None
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from exc
     if isinstance(data, dict) and isinstance(data.get("vehicle"), dict):
         data = data["vehicle"]

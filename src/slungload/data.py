@@ -263,6 +263,10 @@ def resolve_params(folder: Path, params: VehicleParams | None) -> tuple[VehicleP
 
 def _check_folder(folder: str | Path) -> Path:
     folder = Path(folder).expanduser()
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(
+            f"dataset folder {folder} is not a folder (expected a folder of .npz flights)"
+        )
     if not folder.is_dir():
         raise FileNotFoundError(f"dataset folder {folder} does not exist")
     if not any(folder.glob("*.npz")):
@@ -293,7 +297,7 @@ def read_splits(folder: str | Path) -> dict[str, list[str]]:
         if split not in present:
             warnings.warn(f"{list_path} is missing: split '{split}' is empty", DataWarning, 2)
             continue
-        for line in list_path.read_text().splitlines():
+        for line in _read_list(list_path):
             name = line.strip().removesuffix(".npz")
             if not name or name.startswith("#"):
                 continue
@@ -311,6 +315,17 @@ def read_splits(folder: str | Path) -> dict[str, list[str]]:
     if unlisted:
         warnings.warn(f"{folder}: flights in no split list are ignored: {unlisted}", DataWarning, 2)
     return names
+
+
+def _read_list(path: Path) -> list[str]:
+    """Lines of a split list; a file that is not UTF-8 text is a ``DatasetError``."""
+    try:
+        return path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise DatasetError(
+            f"{path}: not a text file ({exc.reason} at byte {exc.start}); expected one flight "
+            "name a line"
+        ) from None
 
 
 def load_dataset(

@@ -58,6 +58,10 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # The bytes reach the disk before the name does: after a power cut the file is either
+        # the old one or the whole new one.
+        with open(tmp_path, "rb+") as f:
+            os.fsync(f.fileno())
         # mkstemp makes the file private; give it the mode a plain open() would have.
         umask = os.umask(0)
         os.umask(umask)
@@ -110,8 +114,8 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
         if "pickle" in str(exc).lower():
             raise ValueError(f"{path}: holds pickled objects, which are refused") from exc
         raise ValueError(f"{path}: cannot be read as .npz ({exc})") from exc
-    except (OSError, zipfile.BadZipFile, EOFError) as exc:
-        raise ValueError(f"{path}: cannot be read as .npz ({exc})") from exc
+    except Exception as exc:  # damaged bytes surface as zip, struct, key or memory errors
+        raise ValueError(f"{path}: cannot be read as .npz ({type(exc).__name__}: {exc})") from exc
 
 
 def write_splits(folder: str | Path, splits: Mapping[str, list[str]]) -> None:

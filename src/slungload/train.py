@@ -13,10 +13,18 @@ A run folder holds::
     csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
     tensorboard/            the same for TensorBoard
 
-Reproducibility: ``seed`` seeds the weights, dropout and the per-epoch subsample of training
-windows (drawn from ``(seed, epoch)``, so a resumed run draws what the uninterrupted run would
-have). Two CPU runs with the same seed and no wall-clock budget give identical weights. A
-preset with ``max_time`` stops on the clock, so its epoch count depends on the machine.
+Faults: every checkpoint is written under a temporary name and renamed into place, so a killed
+run never leaves a truncated ``.ckpt``. SIGINT (Ctrl-C) or SIGTERM stops after the current
+batch, saves ``last.ckpt`` and raises ``TrainingInterrupted``; ``resume=True`` continues from
+it (a second Ctrl-C stops at once, without saving). A training step whose loss is not finite is
+skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_steps``);
+``TrainExtras.max_bad_steps`` of them in a row stop the run with ``TrainingDiverged``.
+
+Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
+batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
+draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
+CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
+``max_time`` stops on the clock, so its epoch count depends on the machine.
 
 Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
 re-launches the running command once per extra process, so call ``train`` from a script or
@@ -28,12 +36,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
 import dataclasses
 import logging
 import math
+import re
+import signal
 import sys
+import threading
 import time
 import warnings
+import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from datetime import timedelta
@@ -43,9 +56,18 @@ from typing import Any
 import lightning as L
 import numpy as np
 import torch
-from lightning.pytorch.callbacks import EarlyStopping, LearningRateMonitor, ModelCheckpoint
+from lightning.pytorch.callbacks import (
+    Callback,
+    EarlyStopping,
+    LearningRateMonitor,
+    ModelCheckpoint,
+)
 from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
-from lightning.pytorch.utilities import rank_zero_only
+from lightning.pytorch.loggers.csv_logs import ExperimentWriter
+from lightning.pytorch.loggers.logger import rank_zero_experiment
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.utilities import rank_zero_only, rank_zero_warn
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 from torch import Tensor
 from torch.utils.data import DataLoader, Sampler
 
@@ -59,7 +81,7 @@ from .config import (
     to_dict,
 )
 from .data import Dataset, load_dataset
-from .fileio import write_json
+from .fileio import atomic_path, write_json
 from .loss import compute_loss, model_config_for
 from .model import Prediction, SlungLoadNet, with_unit_quaternion
 from .state import GROUPS, QUAT, quat_error
@@ -69,6 +91,19 @@ CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
 CKPT_FORMAT = 1  # bump when the embedded dict changes incompatibly
 BEST, LAST, RUN_JSON = "best.ckpt", "last.ckpt", "run.json"
 MONITOR = "val/total"  # drives early stopping and the best checkpoint
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped a run; ``last.ckpt`` holds it (``resume=True`` continues)."""
+
+    def __init__(self, message: str, signum: int = signal.SIGINT) -> None:
+        super().__init__(message)
+        self.signum = signum
+
+
+class TrainingDiverged(ValueError):
+    """The training loss stayed non-finite for ``TrainExtras.max_bad_steps`` steps in a row."""
+
 
 # --- presets -----------------------------------------------------------------------------
 
@@ -81,6 +116,7 @@ class TrainExtras:
     min_lr_ratio: float = 0.0  # lr at the end of the cosine decay, as a fraction of lr
     max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
     val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
+    max_bad_steps: int = 10  # consecutive non-finite training losses before giving up
 
     def __post_init__(self) -> None:
         if self.warmup_epochs < 0:
@@ -91,6 +127,8 @@ class TrainExtras:
             raise ValueError(f"max_time must be > 0 s, got {self.max_time}")
         if self.val_windows is not None and self.val_windows < 1:
             raise ValueError(f"val_windows must be >= 1, got {self.val_windows}")
+        if self.max_bad_steps < 1:
+            raise ValueError(f"max_bad_steps must be >= 1, got {self.max_bad_steps}")
 
 
 @dataclass(frozen=True)
@@ -305,48 +343,83 @@ class SlungLoadModule(L.LightningModule):
         self.meta = meta  # plain dicts, embedded in every checkpoint
         self._sq_err = torch.zeros(len(GROUPS), dtype=torch.float64)
         self._count = torch.zeros((), dtype=torch.float64)
+        self.skipped_steps = 0  # training steps with a non-finite loss, this call
+        self._bad_in_a_row = 0
 
     def forward(self, states: Tensor, inputs: Tensor) -> Prediction:
         """Windows states (B, M+N, 13), inputs (B, M+N, 4) -> prediction of the last N steps."""
         m = self.history
         return self.net(states[:, :m], inputs[:, :m], inputs[:, m:])
 
-    def _step(self, batch: tuple[Tensor, Tensor, Tensor], stage: str) -> tuple[Tensor, Prediction]:
+    def _loss_terms(
+        self, batch: tuple[Tensor, Tensor, Tensor]
+    ) -> tuple[dict[str, Tensor], Prediction]:
         states, inputs, aux = batch
         pred = self(states, inputs)
-        terms = _terms(
-            compute_loss(
-                pred,
-                states,
-                inputs,
-                aux,
-                history=self.history,
-                params=self.params,
-                weights=self.weights,
-                variant=self.variant,
-            )
+        terms = compute_loss(
+            pred,
+            states,
+            inputs,
+            aux,
+            history=self.history,
+            params=self.params,
+            weights=self.weights,
+            variant=self.variant,
         )
+        return _terms(terms), pred
+
+    def _log_terms(self, terms: dict[str, Tensor], stage: str, batch_size: int) -> None:
         for name, value in terms.items():
             self.log(
                 f"{stage}/{name}",
                 value,
                 on_step=False,
                 on_epoch=True,
-                batch_size=len(states),
+                batch_size=batch_size,
                 sync_dist=True,
                 prog_bar=name == "total",
             )
-        return terms["total"], pred
 
-    def training_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> Tensor:
-        return self._step(batch, "train")[0]
+    def training_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> Tensor | None:
+        terms, _ = self._loss_terms(batch)
+        loss = terms["total"]
+        bad = ~torch.isfinite(loss.detach())
+        if self.trainer.world_size > 1:  # every process must skip the same step
+            bad = self.trainer.strategy.reduce(bad.float(), reduce_op="sum") > 0
+        self.log("train/skipped_steps", bad.float(), on_step=False, on_epoch=True, reduce_fx="sum")
+        if not bad:
+            self._bad_in_a_row = 0
+            self._log_terms(terms, "train", len(batch[0]))
+            return loss
+        self.skipped_steps += 1
+        self._bad_in_a_row += 1
+        where = f"epoch {self.current_epoch}, batch {batch_idx}"
+        if self._bad_in_a_row >= self.extras.max_bad_steps:
+            raise TrainingDiverged(
+                f"training loss not finite for {self._bad_in_a_row} steps in a row (last at "
+                f"{where}); the weights were not updated by them. Try a lower learning rate, "
+                "gradient clipping (TrainConfig.grad_clip), or check the data for outliers"
+            )
+        rank_zero_warn(f"non-finite training loss at {where}: step skipped", category=UserWarning)
+        if self.trainer.world_size > 1:
+            # DDP needs a backward on every process: zero gradients, so only momentum moves.
+            return sum((p * 0.0).sum() for p in self.parameters())  # type: ignore[return-value]
+        return None  # Lightning skips the backward pass and the weight update
+
+    def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
+        # Dropout draws from torch's global generator, which a checkpoint does not hold (and
+        # which the data loader draws from too): reseed it for every batch, so a run resumed at
+        # an epoch boundary draws the numbers the uninterrupted run drew.
+        ids = [self.config.seed, self.current_epoch, batch_idx, self.global_rank]
+        torch.manual_seed(int(np.random.SeedSequence(ids).generate_state(1)[0]))
 
     def on_validation_epoch_start(self) -> None:
         self._sq_err = torch.zeros(len(GROUPS), dtype=torch.float64, device=self.device)
         self._count = torch.zeros((), dtype=torch.float64, device=self.device)
 
     def validation_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> None:
-        _, pred = self._step(batch, "val")
+        terms, pred = self._loss_terms(batch)
+        self._log_terms(terms, "val", len(batch[0]))
         truth = batch[0][:, self.history :]  # (B, N, 13)
         x_hat = with_unit_quaternion(pred.states)
         for i, cols in enumerate(GROUPS.values()):
@@ -400,6 +473,72 @@ def _warmup_cosine(warmup: int, total: int, floor: float):
 # --- checkpoints -------------------------------------------------------------------------
 
 
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writer, through a temporary file beside the target.
+
+    Lightning 2.6 stages a local checkpoint in the system temporary folder and moves it into
+    place; across file systems that move is a copy, which a crash can leave truncated.
+    """
+
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: str | Path, storage_options: Any | None = None
+    ) -> None:
+        if storage_options is not None:
+            raise TypeError("AtomicCheckpointIO.save_checkpoint takes no storage_options")
+        with atomic_path(path) as tmp:
+            torch.save(checkpoint, tmp)
+
+
+class SaveOnInterrupt(Callback):
+    """On SIGTERM (or SIGINT, see ``_sigint_as_sigterm``) save ``last.ckpt`` before stopping.
+
+    Lightning 2.6 turns SIGTERM into a ``SIGTERMException`` at the end of the current batch
+    (every DDP process at the same batch) but saves nothing; this adds the save.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.saved = False
+
+    def on_exception(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
+    ) -> None:
+        if isinstance(exception, SIGTERMException) and not trainer.sanity_checking:
+            trainer.save_checkpoint(self.path)
+            self.saved = True
+
+
+@contextlib.contextmanager
+def _sigint_as_sigterm() -> Iterator[list[int]]:
+    """While fitting, a first Ctrl-C asks for the graceful stop Lightning gives SIGTERM;
+    a second one (or one before Lightning's handler is in place) interrupts at once.
+
+    Yields a list that receives the number of every signal that asked to stop.
+    """
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received  # signal handlers can only be set from the main thread
+        return
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        lightning = signal.getsignal(signal.SIGTERM)
+        if received or not callable(lightning):
+            raise KeyboardInterrupt
+        received.append(signum)
+        print(
+            "\nstopping after this batch to save last.ckpt (Ctrl-C again: stop now)",
+            file=sys.stderr,
+        )
+        lightning(signal.SIGTERM, frame)
+
+    previous = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @dataclass(frozen=True)
 class LoadedModel:
     """A trained network rebuilt from a checkpoint, in eval mode on the CPU."""
@@ -432,19 +571,7 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
     Raises ``ValueError`` naming the file if it is not a slungload checkpoint.
     """
     path = checkpoint_path(path)
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # zip, pickle or format errors all mean the same to the caller
-        raise ValueError(
-            f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})"
-        ) from exc
-    meta = ckpt.get(CKPT_KEY) if isinstance(ckpt, dict) else None
-    if not isinstance(meta, dict) or not isinstance(ckpt.get("state_dict"), Mapping):
-        raise ValueError(f"{path}: not a slungload checkpoint (no '{CKPT_KEY}' configs inside)")
-    if meta.get("format") != CKPT_FORMAT:
-        raise ValueError(
-            f"{path}: slungload checkpoint format {meta.get('format')}, expected {CKPT_FORMAT}"
-        )
+    ckpt, meta = _read_checkpoint(path, map_location)
     try:
         model_config = from_dict(ModelConfig, meta["model"])
         net = SlungLoadNet(model_config)
@@ -463,8 +590,90 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
             path=path,
         )
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ValueError(f"{path}: damaged slungload checkpoint ({exc})") from exc
+        raise ValueError(
+            f"{path}: {_written_by(meta)} does not fit this slungload {_version()} "
+            f"({type(exc).__name__}: {_first_line(exc)})"
+        ) from exc
     return loaded
+
+
+def _read_checkpoint(path: Path, map_location: Any = "cpu") -> tuple[dict, dict[str, Any]]:
+    """The checkpoint dict and its embedded configs, loaded with ``weights_only=True``."""
+    if not zipfile.is_zipfile(path):  # torch.load would try any other bytes as a raw pickle
+        raise ValueError(
+            f"{path}: not a readable checkpoint (not a torch zip archive: truncated, or "
+            "another format)"
+        )
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # zip, pickle or format errors all mean the same to the caller
+        if "Weights only load failed" in str(exc):
+            # torch's message is a paragraph on how to allow it; keep only what was refused.
+            found = re.search(r"GLOBAL ([\w.]+)", str(exc))
+            what = f"it calls {found.group(1)}" if found else _first_line(exc)
+            raise ValueError(
+                f"{path}: holds pickled Python objects beyond tensors and plain data, which "
+                f"are refused, never unpickled ({what})"
+            ) from None
+        raise ValueError(
+            f"{path}: not a readable checkpoint ({type(exc).__name__}: {_first_line(exc)})"
+        ) from exc
+    meta = ckpt.get(CKPT_KEY) if isinstance(ckpt, dict) else None
+    if not isinstance(meta, dict) or not isinstance(ckpt.get("state_dict"), Mapping):
+        raise ValueError(f"{path}: not a slungload checkpoint (no '{CKPT_KEY}' configs inside)")
+    if meta.get("format") != CKPT_FORMAT:
+        raise ValueError(
+            f"{path}: {_written_by(meta)} uses checkpoint format {meta.get('format')!r}; "
+            f"this slungload {_version()} reads format {CKPT_FORMAT}"
+        )
+    return ckpt, meta
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def _written_by(meta: dict[str, Any]) -> str:
+    return f"checkpoint written by slungload {meta.get('package_version', '(unknown version)')}"
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message on one line: its first two lines, at most 300 characters."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    text = " ".join(lines[:2]) or type(exc).__name__
+    return text if len(text) <= 300 else text[:297] + "..."
+
+
+def _check_resumable(last: Path, meta: dict[str, Any]) -> None:
+    """Refuse to resume a run with other settings than it was started with, naming them."""
+    _, saved = _read_checkpoint(last)
+    # The epoch budget may be raised on resume, the data folder may have moved, and the same
+    # constants may come from vehicle.json or from options.
+    free = {"package_version", "data", "params_source", "train.max_epochs"}
+    differ = [d for d in _differences(saved, meta) if d[0] not in free]
+    order = ["variant", "preset", "window", "params", "model", "weights", "train", "extras"]
+    differ.sort(
+        key=lambda d: order.index(d[0].split(".")[0]) if d[0].split(".")[0] in order else 99
+    )
+    if differ:
+        details = "; ".join(f"{k}: {a!r} -> {b!r}" for k, a, b in differ[:8])
+        details += f"; and {len(differ) - 8} more" if len(differ) > 8 else ""
+        raise ValueError(
+            f"cannot resume {last}: it was started with other settings ({details}); "
+            "resume with the same options or start a new run folder"
+        )
+
+
+def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
+    """(dotted key, a's value, b's value) wherever two nested dicts differ."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b), key=str):
+            out += _differences(a.get(key), b.get(key), f"{prefix}{key}.")
+        return out
+    return [] if a == b else [(prefix.rstrip("."), a, b)]
 
 
 # --- train -------------------------------------------------------------------------------
@@ -484,17 +693,21 @@ class Run:
     stop_reason: str  # "max_epochs" | "early_stopping" | "max_time"
     best_val_loss: float
     metrics: dict[str, float] = field(default_factory=dict)  # last epoch's val metrics
+    skipped_steps: int = 0  # training steps skipped for a non-finite loss, this call
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
         return {k: str(v) if isinstance(v, Path) else v for k, v in d.items()}
 
     def summary(self) -> str:
+        skipped = f"{self.skipped_steps} steps skipped (loss not finite); " * bool(
+            self.skipped_steps
+        )
         return (
             f"{self.variant} ({self.preset}): {self.epochs} epochs in {self.seconds:.0f} s, "
             f"stopped by {self.stop_reason}; best val loss {self.best_val_loss:.4g}, "
             f"val fit RMSE {self.metrics.get('val/fit_rmse', float('nan')):.4g}; "
-            f"{self.best_checkpoint}"
+            f"{skipped}{self.best_checkpoint}"
         )
 
 
@@ -534,15 +747,24 @@ def train(
     continues from ``out/last.ckpt`` (epochs, optimiser, schedule and early-stopping state);
     without it, an ``out`` that already holds a run is refused. ``num_threads`` sets torch's
     CPU threads for this process.
+
+    Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
+    ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
     """
     out = Path(out).expanduser()
     last = out / LAST
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"run folder {out} is a file, expected a folder")
     if resume and not last.is_file():
         raise FileNotFoundError(f"cannot resume: {last} does not exist")
     if not resume and last.is_file():
         raise FileExistsError(f"{out} already holds a run ({LAST}); pass resume=True or a new out")
     if devices < 1:
         raise ValueError(f"devices must be >= 1, got {devices}")
+    if max_epochs is not None and max_epochs < 1:
+        raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
+    if num_threads is not None and num_threads < 1:
+        raise ValueError(f"num_threads (torch CPU threads) must be >= 1, got {num_threads}")
     accelerator = _accelerator(device)
     if num_threads is not None:
         torch.set_num_threads(num_threads)
@@ -583,6 +805,8 @@ def train(
         "params_source": dataset.params_source,
         "data": str(dataset.folder),
     }
+    if resume:
+        _check_resumable(last, meta)
     module = SlungLoadModule(
         net,
         variant=variant,
@@ -601,22 +825,41 @@ def train(
         monitor=MONITOR,
         mode="min",
         save_top_k=1,
-        save_last=True,
         auto_insert_metric_name=False,
         enable_version_counter=False,
     )
+    # Lightning 2.6's save_last=True refreshes last.ckpt only in epochs that improve the best
+    # one; a second callback without a monitor writes it after every epoch. Listed after
+    # best_cb, so last.ckpt holds best_cb's state of the same epoch.
+    last_cb = ModelCheckpoint(
+        dirpath=out, filename=LAST.removesuffix(".ckpt"), save_top_k=1, enable_version_counter=False
+    )
     stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience)
+    interrupt_cb = SaveOnInterrupt(last)
+    callbacks = [best_cb, last_cb, stop_cb, interrupt_cb]
     start = time.perf_counter()
-    with _quiet_lightning(not progress):
-        trainer = _make_trainer(
-            out, accelerator, devices, config, extras, [best_cb, stop_cb], progress=progress
-        )
-        trainer.fit(
-            module, datamodule=datamodule, ckpt_path=last if resume else None, weights_only=True
-        )
+    with _quiet_lightning(not progress), _sigint_as_sigterm() as sigints:
+        trainer = _make_trainer(out, accelerator, devices, config, extras, callbacks, progress)
+        try:
+            trainer.fit(
+                module,
+                datamodule=datamodule,
+                ckpt_path=last if resume else None,
+                weights_only=True,
+            )
+        except SIGTERMException:
+            signum = signal.SIGINT if sigints else signal.SIGTERM
+            saved = f"saved {last}" if interrupt_cb.saved else f"{last} is the last epoch's"
+            raise TrainingInterrupted(
+                f"training stopped by {signal.Signals(signum).name} at epoch "
+                f"{trainer.current_epoch}, step {trainer.global_step}; {saved}; continue with "
+                "resume=True (slungload train --resume)",
+                signum,
+            ) from None
     seconds = time.perf_counter() - start
 
     run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
+    run = replace(run, skipped_steps=module.skipped_steps)
     if trainer.is_global_zero:
         write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
     return run
@@ -629,7 +872,6 @@ def _make_trainer(
     config: TrainConfig,
     extras: TrainExtras,
     callbacks: list[Any],
-    *,
     progress: bool,
 ) -> L.Trainer:
     strategy: Any = "auto"
@@ -645,8 +887,9 @@ def _make_trainer(
         max_time=timedelta(seconds=extras.max_time) if extras.max_time else None,
         gradient_clip_val=config.grad_clip or None,
         callbacks=[*callbacks, LearningRateMonitor(logging_interval="epoch")],
+        plugins=[AtomicCheckpointIO()],
         logger=[
-            CSVLogger(out, name="csv", version=""),
+            _ResumableCSVLogger(out, name="csv", version=""),
             TensorBoardLogger(out, name="tensorboard", version="", default_hp_metric=False),
         ],
         default_root_dir=out,
@@ -693,6 +936,27 @@ def _run_result(
     )
 
 
+class _AppendingWriter(ExperimentWriter):
+    """Lightning's CSV writer deletes an existing metrics.csv; a resumed run appends to it."""
+
+    def _check_log_dir_exists(self) -> None:
+        if self._fs.isfile(self.metrics_file_path):
+            with self._fs.open(self.metrics_file_path, "r", newline="") as f:
+                self.metrics_keys = list(csv.DictReader(f).fieldnames or [])
+
+
+class _ResumableCSVLogger(CSVLogger):
+    """``CSVLogger`` that keeps the rows of the epochs before a resume."""
+
+    @property
+    @rank_zero_experiment
+    def experiment(self) -> ExperimentWriter:
+        if self._experiment is None:
+            self._fs.makedirs(self.root_dir, exist_ok=True)
+            self._experiment = _AppendingWriter(log_dir=self.log_dir)
+        return self._experiment
+
+
 @contextlib.contextmanager
 def _quiet_lightning(quiet: bool) -> Iterator[None]:
     """Silence Lightning's warnings about our deliberate choices, and its info lines if quiet."""
@@ -705,6 +969,7 @@ def _quiet_lightning(quiet: bool) -> Iterator[None]:
             r".*does not have many workers.*",
             r".*exists and is not empty.*",
             r".*treespec, LeafSpec.*",
+            r".*`training_step` returned `None`.*",  # a skipped non-finite step, on purpose
         ):
             warnings.filterwarnings("ignore", message=pattern)
         if quiet:
@@ -739,20 +1004,25 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads per process")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-    run = train(
-        args.data,
-        out=args.out,
-        variant=args.variant,
-        preset=args.preset,
-        device=args.device,
-        devices=args.devices,
-        seed=args.seed,
-        max_epochs=args.epochs,
-        resume=args.resume,
-        window=WindowConfig(history=args.history, horizon=args.horizon),
-        progress=not args.quiet,
-        num_threads=args.threads,
-    )
+    try:
+        run = train(
+            args.data,
+            out=args.out,
+            variant=args.variant,
+            preset=args.preset,
+            device=args.device,
+            devices=args.devices,
+            seed=args.seed,
+            max_epochs=args.epochs,
+            resume=args.resume,
+            window=WindowConfig(history=args.history, horizon=args.horizon),
+            progress=not args.quiet,
+            num_threads=args.threads,
+        )
+    except TrainingInterrupted as exc:
+        if rank_zero_only.rank == 0:
+            print(f"{p.prog}: {exc}", file=sys.stderr)
+        return 128 + exc.signum  # the shell's convention for "ended by this signal"
     if rank_zero_only.rank == 0:  # every DDP process runs this command
         print(run.summary())
     return 0
