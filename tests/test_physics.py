@@ -215,3 +215,20 @@ def test_params_validate():
         VehicleParams(cable_length=0.0)
     with pytest.raises(ValueError, match="load_damping"):
         VehicleParams(load_damping=1.5)
+
+
+def test_model_is_equivariant_under_a_turn_about_z():
+    from slungload.state import rotate_about_z
+
+    x, u, aux = random_batch(16)
+    yaw = torch.linspace(-3.0, 3.0, 16, dtype=torch.float64)
+    x_next, aux_next = step(x, u, aux, PARAMS)
+    xr, auxr = rotate_about_z(x, aux, yaw)
+    xr_next, auxr_next = step(xr, u, auxr, PARAMS)  # inputs live in the body frame: unchanged
+    expected_x, expected_aux = rotate_about_z(x_next, aux_next, yaw)
+    assert torch.allclose(xr_next, expected_x, atol=1e-12)
+    assert torch.allclose(auxr_next, expected_aux, atol=1e-12)
+    # A turn by 2 pi is the identity on positions and velocities, -q on the attitude.
+    full, _ = rotate_about_z(x, aux, torch.tensor(2 * math.pi, dtype=torch.float64))
+    assert torch.allclose(full[:, POS], x[:, POS], atol=1e-12)
+    assert torch.allclose(full[:, QUAT], -x[:, QUAT], atol=1e-12)

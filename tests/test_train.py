@@ -18,7 +18,14 @@ import numpy as np
 import pytest
 import torch
 
-from slungload.config import ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
+from slungload.config import (
+    LossWeights,
+    ModelConfig,
+    TrainConfig,
+    VehicleParams,
+    WindowConfig,
+    to_dict,
+)
 from slungload.data import load_dataset
 from slungload.fileio import write_json, write_npz, write_splits
 from slungload.loss import LOSS_VARIANTS, compute_loss
@@ -275,9 +282,15 @@ def test_load_checkpoint_reproduces_the_logged_validation_loss(dataset, tmp_path
     with torch.no_grad():
         pred = loaded.model(val.states[:, :m], val.inputs[:, :m], val.inputs[:, m:])
         terms = compute_loss(
-            pred, val.states, val.inputs, val.aux,
-            history=m, params=loaded.params, weights=loaded.weights, variant=loaded.variant,
-        )  # fmt: skip
+            pred,
+            val.states,
+            val.inputs,
+            val.aux,
+            history=m,
+            params=loaded.params,
+            weights=loaded.weights,
+            variant=loaded.variant,
+        )
     assert float(terms.total) == pytest.approx(run.best_val_loss, rel=1e-4)
 
     again = load_checkpoint(run.best_checkpoint).model
@@ -336,10 +349,27 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
     """Lightning's "ddp" re-launches the command line, so run it as ``python -m``."""
     out = tmp_path / "ddp"
     cmd = [
-        sys.executable, "-m", "slungload.train", "--data", str(data_dir), "--out", str(out),
-        "--preset", "quick", "--device", "cpu", "--devices", "2", "--threads", "1", "--quiet",
-        "--history", str(SMALL.history), "--horizon", str(SMALL.horizon),
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "slungload.train",
+        "--data",
+        str(data_dir),
+        "--out",
+        str(out),
+        "--preset",
+        "quick",
+        "--device",
+        "cpu",
+        "--devices",
+        "2",
+        "--threads",
+        "1",
+        "--quiet",
+        "--history",
+        str(SMALL.history),
+        "--horizon",
+        str(SMALL.horizon),
+    ]
     env = {**os.environ, "SLUNGLOAD_CACHE": str(tmp_path / "cache")}
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=env)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
@@ -349,3 +379,38 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
     assert len(epoch_values(read_metrics(out), "train/total")) == summary["epochs"]
     assert load_checkpoint(out).variant == "proposed"
     assert done.stdout.count("epochs in") == 1  # only rank 0 reports
+
+
+def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
+    from slungload.model import Prediction
+    from slungload.train import _turned
+
+    w = dataset.splits["train"][torch.arange(4)]
+    m = dataset.window.history
+    batch = (w.states.double(), w.inputs.double(), w.aux.double())
+    torch.manual_seed(3)
+    turned = _turned(batch)
+    assert not torch.allclose(turned[0][..., POS], batch[0][..., POS])
+    assert torch.equal(turned[1], batch[1])  # thrust and body rates are body-frame quantities
+    for part in (VEL, LOAD_POS):
+        torch.testing.assert_close(
+            turned[0][..., part].norm(dim=-1), batch[0][..., part].norm(dim=-1)
+        )
+
+    def physics_term(states, inputs, aux):
+        # The truth as the "prediction": what is left is the paper's model's own error.
+        pred = Prediction(states[:, m:], torch.zeros_like(states[:, m:]))
+        return compute_loss(
+            pred,
+            states,
+            inputs,
+            aux,
+            history=m,
+            params=dataset.params,
+            weights=LossWeights(),
+            variant="proposed",
+        ).physics
+
+    original = physics_term(*batch)
+    assert original > 0
+    torch.testing.assert_close(physics_term(*turned), original, rtol=1e-9, atol=1e-12)

@@ -154,6 +154,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         data=args.data,
         preset=args.preset,
         seeds=_seed_range(args.seeds),
+        flights=args.flights,
         workers=args.workers,
         device=args.device,
         timing=not args.no_timing,
@@ -280,6 +281,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="default (CPU, ~25 min), quick (smoke test) or paper",
     )
     p.add_argument("--seeds", default="0", help="training seeds: N, A..B or A,B (default 0)")
+    p.add_argument(
+        "--flights",
+        type=int,
+        default=48,
+        help="flights to simulate when no --data is given (default 48, the paper's)",
+    )
     p.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
     p.add_argument("--device", default="cpu", choices=("auto", "cpu", "cuda"))
     p.add_argument("--no-timing", action="store_true", help="skip the inference-time benchmark")

@@ -48,12 +48,14 @@ def reproduce(
     variants: Sequence[str] = PAPER_VARIANTS,
     workers: int = 2,
     sim_seed: int = 0,
+    flights: int = 48,
     device: str = "cpu",
     timing: bool = True,
     progress: bool = True,
 ) -> Reproduction:
-    """Simulate the default dataset (unless ``data`` is given), train every variant for every
-    seed, evaluate them with the physics-only predictor at N = 25 and 50, write the report.
+    """Simulate the default dataset (unless ``data`` is given; ``flights`` and ``sim_seed`` set
+    its size and seed), train every variant for every seed, evaluate them with the physics-only
+    predictor at N = 25 and 50, write the report.
 
     Layout of ``out``: ``data/`` (if simulated), ``runs/<variant>-s<seed>/``, ``report/``.
     Existing finished runs (with a ``run.json``) are kept, so an interrupted call can be re-run.
@@ -70,7 +72,9 @@ def reproduce(
     if data is None:
         data = out / "data"
         if not (data / "train.txt").is_file():
-            simulate_dataset(data, seed=sim_seed, workers=workers, progress=progress)
+            simulate_dataset(
+                data, flights=flights, seed=sim_seed, workers=workers, progress=progress
+            )
     data = Path(data)
     seconds["simulate"] = time.perf_counter() - start
 

@@ -141,3 +141,26 @@ def quat_continuous(q: Tensor) -> Tensor:
     sign = torch.ones_like(q[..., :, 0])
     sign[..., 1:] = 1.0 - 2.0 * flips.to(q.dtype)
     return q * sign.unsqueeze(-1)
+
+
+def rotate_about_z(states: Tensor, aux: Tensor, yaw: Tensor) -> tuple[Tensor, Tensor]:
+    """Turn the whole scene about the world's vertical axis by ``yaw`` rad.
+
+    A symmetry of the dynamics (gravity is along z; thrust and body rates live in the body
+    frame, so inputs are unchanged): positions, velocities, the load state and the attitude turn
+    together. states (..., 13), aux (..., 6), yaw broadcastable to states.shape[:-1].
+    """
+    yaw = torch.as_tensor(yaw, dtype=states.dtype, device=states.device)
+    yaw = yaw.expand(states.shape[:-1])
+    c, s = torch.cos(yaw).unsqueeze(-1), torch.sin(yaw).unsqueeze(-1)
+
+    def turn(vec: Tensor) -> Tensor:  # (..., 3)
+        x, y, z = vec[..., :1], vec[..., 1:2], vec[..., 2:]
+        return torch.cat([c * x - s * y, s * x + c * y, z], dim=-1)
+
+    half = 0.5 * yaw.unsqueeze(-1)
+    zero = torch.zeros_like(half)
+    q_yaw = torch.cat([torch.cos(half), zero, zero, torch.sin(half)], dim=-1)
+    p, v, q, p_load = split_state(states)
+    out = join_state(turn(p), turn(v), quat_mul(q_yaw, q), turn(p_load))
+    return out, torch.cat([turn(aux[..., LOAD_VEL]), turn(aux[..., LOAD_RATE])], dim=-1)

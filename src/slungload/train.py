@@ -84,7 +84,7 @@ from .data import Dataset, load_dataset
 from .fileio import atomic_path, write_json
 from .loss import compute_loss, model_config_for
 from .model import Prediction, SlungLoadNet, with_unit_quaternion
-from .state import GROUPS, QUAT, quat_error
+from .state import GROUPS, QUAT, quat_error, rotate_about_z
 from .windows import Windows
 
 CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
@@ -117,6 +117,9 @@ class TrainExtras:
     max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
     val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
     max_bad_steps: int = 10  # consecutive non-finite training losses before giving up
+    # Turn every training window about the vertical by a random yaw (a symmetry of the physics:
+    # ``state.rotate_about_z``): the network meets each maneuver at every heading.
+    augment_yaw: bool = False
 
     def __post_init__(self) -> None:
         if self.warmup_epochs < 0:
@@ -381,6 +384,8 @@ class SlungLoadModule(L.LightningModule):
             )
 
     def training_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> Tensor | None:
+        if self.extras.augment_yaw:
+            batch = _turned(batch)
         terms, _ = self._loss_terms(batch)
         loss = terms["total"]
         bad = ~torch.isfinite(loss.detach())
@@ -455,6 +460,16 @@ class SlungLoadModule(L.LightningModule):
 
     def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         checkpoint[CKPT_KEY] = self.meta
+
+
+def _turned(batch: tuple[Tensor, Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    """The batch turned about z by a yaw per window, uniform in [-pi, pi) (so a level
+    attitude keeps w >= 0, as in the data). Drawn from torch's generator, which
+    ``on_train_batch_start`` reseeds per batch: resumed runs turn the same way."""
+    states, inputs, aux = batch
+    yaw = (2.0 * torch.rand(len(states), 1, device=states.device) - 1.0) * math.pi  # (B, 1)
+    states, aux = rotate_about_z(states, aux, yaw.to(states.dtype))
+    return states, inputs, aux
 
 
 def _warmup_cosine(warmup: int, total: int, floor: float):
