@@ -30,6 +30,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "evaluate": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
     "report": ("write_report",),
     "experiment": ("Reproduction", "reproduce"),
+    "export": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
+    "benchmark": ("BenchmarkResult", "benchmark"),
 }  # fmt: skip
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 

@@ -165,6 +165,26 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    from .export import export
+
+    result = export(args.run, args.out, format=args.format, horizon=args.horizon)
+    print(result.summary())
+    return 0
+
+
+def cmd_benchmark(args: argparse.Namespace) -> int:
+    from .benchmark import benchmark
+    from .fileio import write_text
+
+    result = benchmark(args.run, quick=args.quick, threads=args.threads, train=not args.no_train)
+    table = result.markdown()
+    if args.out:
+        write_text(args.out, table)
+    print(table)
+    return 0
+
+
 def _seed_range(text: str) -> tuple[int, ...]:
     """'3' -> (3,); '1..3' -> (1, 2, 3); '0,4' -> (0, 4)."""
     try:
@@ -292,6 +312,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-timing", action="store_true", help="skip the inference-time benchmark")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("export", help="export a trained model to ONNX with a JSON sidecar")
+    p.add_argument("run", type=Path, metavar="RUN_DIR", help="run folder or .ckpt")
+    p.add_argument("--out", required=True, type=Path, help="model file to write (.onnx)")
+    p.add_argument("--format", default="onnx", choices=("onnx",))
+    p.add_argument("--horizon", type=int, help="predicted steps N (default: the run's)")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("benchmark", help="latency, throughput and training speed")
+    p.add_argument(
+        "run",
+        nargs="?",
+        type=Path,
+        metavar="RUN_DIR",
+        help="a trained run (default: a paper-size network with random weights)",
+    )
+    p.add_argument("--quick", action="store_true", help="fewer repeats (about a minute)")
+    p.add_argument("--threads", type=int, default=1, help="inference threads (default 1)")
+    p.add_argument("--no-train", action="store_true", help="skip the training throughput")
+    p.add_argument("--out", type=Path, help="also write the markdown table here")
+    p.set_defaults(func=cmd_benchmark)
 
     return parser
 

@@ -322,7 +322,10 @@ def _stacked_lstm_weights(lstm: nn.LSTM) -> list[tuple[Tensor, Tensor]]:
 def _lstm_cell(x: Tensor, h: Tensor, c: Tensor, w: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
     """One LSTM step, PyTorch's gate order (i, f, g, o): x (B, in), h, c (B, H) -> h', c'."""
     gates = torch.addmm(b, torch.cat([x, h], dim=-1), w)  # (B, 4H)
-    i, f, g, o = gates.chunk(4, dim=-1)  # (B, H) each
+    # Slices at constant offsets (the same views as ``chunk``): an exported graph then holds
+    # four Slice nodes instead of recomputing the chunk size from the shape at every step.
+    hidden = int(w.shape[1]) // 4
+    i, f, g, o = (gates[:, k * hidden : (k + 1) * hidden] for k in range(4))  # (B, H) each
     c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
     return torch.sigmoid(o) * torch.tanh(c), c
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from .config import VehicleParams, WindowConfig
 from .model import SlungLoadNet, with_unit_quaternion
@@ -34,7 +34,9 @@ from .state import (
     quat_wxyz_to_xyzw,
     quat_xyzw_to_wxyz,
 )
-from .train import load_checkpoint
+
+# No Lightning here (``train`` is imported inside ``from_checkpoint`` only): ``export``'s
+# runtime predictor shares this module's checks and must load without the training stack.
 
 HISTORY_DIM = STATE_DIM + INPUT_DIM  # 17 columns: x_k then u_k
 
@@ -54,6 +56,24 @@ def states_from_file(states: Tensor) -> Tensor:
     return out
 
 
+class FileLayoutNet(nn.Module):
+    """The network behind file-layout arrays: what ``Predictor`` runs and ``export`` writes.
+
+    history (B, M, 17) rows x_k, u_k with q x-y-z-w; future_inputs (B, N, 4) u_M ... u_{M+N-1}
+    -> states (B, N, 13) x_M ... x_{M+N-1}, q x-y-z-w with unit norm. The slack outputs are
+    dropped.
+    """
+
+    def __init__(self, model: SlungLoadNet) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, history: Tensor, future_inputs: Tensor) -> Tensor:
+        x_hist = states_from_file(history[..., :STATE_DIM])
+        pred = self.model(x_hist, history[..., STATE_DIM:], future_inputs)
+        return states_to_file(with_unit_quaternion(pred.states))
+
+
 @dataclass
 class Predictor:
     """A trained network predicting N future states from M past states and inputs."""
@@ -63,10 +83,16 @@ class Predictor:
     params: VehicleParams
     variant: str
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+    network: FileLayoutNet = field(init=False, repr=False)  # ``model`` behind file layouts
+
+    def __post_init__(self) -> None:
+        self.network = FileLayoutNet(self.model)
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, *, device: str | torch.device = "cpu") -> Predictor:
         """Load a run folder (its ``best.ckpt``) or a ``.ckpt`` written by ``train``."""
+        from .train import load_checkpoint  # Lightning is imported only when needed
+
         loaded = load_checkpoint(path)
         device = torch.device(device)
         return cls(
@@ -85,25 +111,37 @@ class Predictor:
         future_inputs (N, 4) or (B, N, 4): T (N), omega (rad/s) at steps M ... M+N-1.
         Returns (N, 13) or (B, N, 13) float64 states, quaternion unit and x-y-z-w.
         """
-        hist = np.asarray(history)
-        fut = np.asarray(future_inputs)
-        single = hist.ndim == 2
-        _check(hist, fut)
-        if single:
-            hist, fut = hist[None], fut[None]
+        hist, fut, single = check_inputs(history, future_inputs)
         dtype = next(self.model.parameters()).dtype
         with torch.inference_mode():
             h = torch.as_tensor(hist, dtype=dtype, device=self.device)
             u_future = torch.as_tensor(fut, dtype=dtype, device=self.device)
-            x_hist = states_from_file(h[..., :STATE_DIM])
-            u_hist = h[..., STATE_DIM:]
-            pred = self.model(x_hist, u_hist, u_future)
-            states = states_to_file(with_unit_quaternion(pred.states))
-        out = states.cpu().double().numpy()
-        return out[0] if single else out
+            states = self.network(h, u_future)
+        return unbatch(states.cpu().numpy(), single)
 
 
-def _check(history: np.ndarray, future: np.ndarray) -> None:
+def check_inputs(
+    history: np.ndarray, future_inputs: np.ndarray, *, caller: str = "Predictor.predict"
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Check ``predict``'s arguments; return them batched, (B, M, 17) and (B, N, 4), and
+    whether they came unbatched. Errors start with ``caller`` and show expected and actual
+    shapes."""
+    hist = np.asarray(history)
+    fut = np.asarray(future_inputs)
+    _check(hist, fut, caller)
+    single = hist.ndim == 2
+    if single:
+        hist, fut = hist[None], fut[None]
+    return hist, fut, single
+
+
+def unbatch(states: np.ndarray, single: bool) -> np.ndarray:
+    """Network output (B, N, 13) -> float64, (N, 13) when the call was unbatched."""
+    out = np.asarray(states, dtype=np.float64)
+    return out[0] if single else out
+
+
+def _check(history: np.ndarray, future: np.ndarray, caller: str) -> None:
     """Shape and value checks with the expected and the actual shapes in the message."""
     expected = (
         f"expected history (M, {HISTORY_DIM}) with future_inputs (N, {INPUT_DIM}), or "
@@ -120,9 +158,9 @@ def _check(history: np.ndarray, future: np.ndarray) -> None:
         and (history.ndim == 2 or history.shape[0] == future.shape[0])
     )
     if not ok:
-        raise ValueError(f"Predictor.predict: {expected}; {got}")
+        raise ValueError(f"{caller}: {expected}; {got}")
     for name, arr in (("history", history), ("future_inputs", future)):
         if not np.issubdtype(arr.dtype, np.number):
-            raise ValueError(f"Predictor.predict: {name} has dtype {arr.dtype}, expected numbers")
+            raise ValueError(f"{caller}: {name} has dtype {arr.dtype}, expected numbers")
         if not np.isfinite(arr).all():
-            raise ValueError(f"Predictor.predict: {name} holds NaN or infinite values")
+            raise ValueError(f"{caller}: {name} holds NaN or infinite values")

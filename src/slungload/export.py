@@ -1,0 +1,437 @@
+"""ONNX export of a trained network, and its runtime predictor on ONNX Runtime.
+
+    result = export("runs/proposed", "model-n25.onnx", horizon=25)  # + model-n25.json
+    predictor = OnnxPredictor("model-n25.onnx")
+    states = predictor.predict(history, future_inputs)  # (N, 13), as predictor.Predictor
+
+The ONNX file is self-contained: it takes and returns the **file layout** of
+``predictor.Predictor`` (quaternions x-y-z-w, physical units) and holds the normalisation, the
+quaternion reordering and sign continuity, and the final unit-norm projection
+(``predictor.FileLayoutNet`` is what gets exported). Inputs and outputs, float32::
+
+    history        (batch, M, 17)  rows x_k, u_k for k = 0 ... M-1 (any M >= 1)
+    future_inputs  (batch, N, 4)   u_M ... u_{M+N-1}; N is fixed per file
+    states         (batch, N, 13)  x_M ... x_{M+N-1}
+
+N is fixed per file because the exporter unrolls the decoder's recursion (export one file per
+horizon); batch and M are dynamic. A JSON sidecar beside the model (same name, ``.json``)
+describes the columns, units, shapes, the quaternion convention, every config of the run and
+the package version; ``OnnxPredictor`` refuses a model whose file, inputs, outputs or state
+layout disagree with its sidecar.
+
+Runtime path: ``OnnxPredictor`` needs numpy, onnxruntime and the package's ``predictor`` checks;
+it never imports Lightning or ``train`` (``export`` does, lazily, to read checkpoints).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from .config import to_dict
+from .fileio import atomic_path, write_json
+from .predictor import (
+    HISTORY_DIM,
+    FileLayoutNet,
+    Predictor,
+    check_inputs,
+    states_to_file,
+    unbatch,
+)
+from .state import (
+    GROUP_UNITS,
+    GROUPS,
+    INPUT_DIM,
+    INPUT_NAMES,
+    RATES,
+    STATE_DIM,
+    STATE_NAMES,
+    THRUST,
+)
+
+FORMAT = "slungload-onnx"
+FORMAT_VERSION = 1  # bump when the graph's inputs/outputs or the sidecar change incompatibly
+OPSET = 17
+HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
+PARITY_TOLERANCE = 1e-4  # max |ONNX - eager| accepted by the export-time check
+
+
+class OnnxModelError(ValueError):
+    """An exported model that cannot be used: missing, altered or inconsistent sidecar."""
+
+
+# --- what the files mean -----------------------------------------------------------------
+
+
+def state_columns() -> list[str]:
+    """Names of the 13 state columns in the file layout (quaternion x-y-z-w), from state.py."""
+    import torch  # the runtime path imports torch through ``predictor`` anyway
+
+    order = states_to_file(torch.arange(STATE_DIM, dtype=torch.float64)).long().tolist()
+    return [STATE_NAMES[i] for i in order]
+
+
+def state_units() -> list[str]:
+    """Unit of each state column (same order as ``state_columns``)."""
+    units = [""] * STATE_DIM
+    for group, cols in GROUPS.items():
+        for i in range(cols.start, cols.stop):
+            units[i] = GROUP_UNITS[group]
+    return units
+
+
+def input_units() -> list[str]:
+    """Unit of each input column: thrust in N, body rates in rad/s."""
+    units = [""] * INPUT_DIM
+    for i in range(THRUST.start, THRUST.stop):
+        units[i] = "N"
+    for i in range(RATES.start, RATES.stop):
+        units[i] = "rad/s"
+    return units
+
+
+def sidecar_path(model_path: str | Path) -> Path:
+    """The JSON sidecar of an exported model: same name, ``.json``."""
+    return Path(model_path).with_suffix(".json")
+
+
+def _layout() -> dict[str, Any]:
+    cols = state_columns()
+    return {
+        "state_columns": cols,
+        "state_units": state_units(),
+        "input_columns": list(INPUT_NAMES),
+        "input_units": input_units(),
+        "history_columns": cols + list(INPUT_NAMES),
+        "quaternion": "x-y-z-w (as in the data files), body -> world, unit norm on output",
+        "frame": "world z up, gravity -g e3",
+    }
+
+
+def _io_spec(history: int | str, horizon: int) -> dict[str, Any]:
+    return {
+        "inputs": [
+            {"name": HISTORY_INPUT, "shape": ["batch", history, HISTORY_DIM], "dtype": "float32"},
+            {"name": FUTURE_INPUT, "shape": ["batch", horizon, INPUT_DIM], "dtype": "float32"},
+        ],
+        "outputs": [
+            {"name": STATES_OUTPUT, "shape": ["batch", horizon, STATE_DIM], "dtype": "float32"}
+        ],
+    }
+
+
+# --- export ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    """What ``export`` wrote."""
+
+    model: Path  # the .onnx file
+    sidecar: Path  # its JSON description
+    horizon: int  # N, fixed in the file
+    history: int  # M the network was trained with (the file accepts any M >= 1)
+    opset: int
+    max_abs_diff: float  # max |ONNX Runtime - eager torch| on the export-time check inputs
+    seconds: float  # wall-clock time of the export and check
+
+    def summary(self) -> str:
+        return (
+            f"{self.model} (+ {self.sidecar.name}): N = {self.horizon}, opset {self.opset}, "
+            f"max |onnx - torch| = {self.max_abs_diff:.2e}, {self.seconds:.1f} s"
+        )
+
+
+def export(
+    run_or_ckpt: str | Path | Predictor,
+    out: str | Path,
+    *,
+    format: str = "onnx",
+    horizon: int | None = None,
+    opset: int = OPSET,
+) -> ExportResult:
+    """Write ``out`` (ONNX) and its sidecar ``out.with_suffix('.json')``.
+
+    run_or_ckpt: a run folder (its ``best.ckpt``), a ``.ckpt`` written by ``train``, or a
+    loaded ``Predictor``. horizon: N fixed in the file (default: the N it was trained with).
+    The export is checked against the eager network with ONNX Runtime before it is kept;
+    a disagreement above ``PARITY_TOLERANCE`` raises ``OnnxModelError``.
+    """
+    if format != "onnx":
+        raise ValueError(f"export: unknown format {format!r}; only 'onnx' is supported")
+    start = time.perf_counter()
+    predictor, configs, source = _load(run_or_ckpt)
+    n = predictor.window.horizon if horizon is None else int(horizon)
+    if n < 1:
+        raise ValueError(f"export: horizon must be >= 1, got {n}")
+    m = predictor.window.history
+    out = Path(out)
+    model = predictor.model.cpu().eval()
+    net = FileLayoutNet(model).eval()
+    history, future = sample_inputs(predictor, batch=2, horizon=n)
+
+    with atomic_path(out) as tmp:
+        _torch_export(net, history, future, tmp, opset)
+        session = ort.InferenceSession(str(tmp), session_options(1), providers=_CPU)
+        got = session.run(None, {HISTORY_INPUT: history, FUTURE_INPUT: future})[0]
+        want = predictor.predict(history, future).astype(np.float32)
+        diff = float(np.abs(got - want).max())
+        if not diff <= PARITY_TOLERANCE:
+            raise OnnxModelError(
+                f"{out}: exported model disagrees with the eager network by {diff:.3g} "
+                f"(> {PARITY_TOLERANCE}); not written"
+            )
+        digest = _sha256(tmp)
+    sidecar = sidecar_path(out)
+    write_json(
+        sidecar,
+        {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "package_version": _package_version(),
+            "model_file": out.name,
+            "model_sha256": digest,
+            "history": m,
+            "horizon": n,
+            **_io_spec("history", n),
+            "layout": _layout(),
+            "variant": predictor.variant,
+            "configs": configs,
+            "source": source,
+            "export": {
+                "opset": opset,
+                "torch": _version("torch"),
+                "onnx": _version("onnx"),
+                "onnxruntime": ort.__version__,
+                "max_abs_diff_vs_torch": diff,
+            },
+        },
+    )
+    return ExportResult(out, sidecar, n, m, opset, diff, time.perf_counter() - start)
+
+
+def _load(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], str]:
+    """A predictor, the configs to record and a description of where it came from."""
+    if isinstance(source, Predictor):
+        if source.device.type != "cpu":  # export on the CPU without moving the caller's model
+            model = copy.deepcopy(source.model).cpu()
+            source = Predictor(model, source.window, source.params, source.variant)
+        configs = {
+            "model": to_dict(source.model.config),
+            "window": to_dict(source.window),
+            "params": to_dict(source.params),
+        }
+        return source, configs, "in-memory Predictor"
+    from .train import load_checkpoint  # Lightning: only the export side needs it
+
+    loaded = load_checkpoint(source)
+    predictor = Predictor(loaded.model.eval(), loaded.window, loaded.params, loaded.variant)
+    configs = {
+        "model": to_dict(loaded.model_config),
+        "window": to_dict(loaded.window),
+        "params": to_dict(loaded.params),
+        "weights": to_dict(loaded.weights),
+        "train": to_dict(loaded.train_config),
+    }
+    return predictor, configs, str(loaded.path)
+
+
+def _torch_export(net: Any, history: np.ndarray, future: np.ndarray, path: Path, opset: int):
+    """TorchScript-based exporter (``dynamo=False``: the dynamo one needs onnxscript).
+
+    The tracer unrolls the decoder loop, so N is fixed by ``future``'s shape; batch and M are
+    declared dynamic.
+    """
+    import torch
+
+    args = (torch.from_numpy(history), torch.from_numpy(future))
+    with warnings.catch_warnings(), torch.no_grad():
+        # The tracer warns about Python-side shape checks and its own deprecation; both are
+        # expected (shapes are declared below, and the result is checked with ONNX Runtime).
+        warnings.simplefilter("ignore")
+        torch.onnx.export(
+            net,
+            args,
+            str(path),
+            dynamo=False,
+            opset_version=opset,
+            input_names=[HISTORY_INPUT, FUTURE_INPUT],
+            output_names=[STATES_OUTPUT],
+            dynamic_axes={
+                HISTORY_INPUT: {0: "batch", 1: "history"},
+                FUTURE_INPUT: {0: "batch"},
+                STATES_OUTPUT: {0: "batch"},
+            },
+        )
+
+
+def sample_inputs(
+    predictor: Predictor, *, batch: int = 2, horizon: int | None = None, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Plausible float32 file-layout inputs around the network's normalisation statistics.
+
+    history (batch, M, 17) and future_inputs (batch, N, 4): states and inputs drawn around the
+    fitted means with half the fitted spread, unit quaternions, a random arena position. Used
+    to trace the export and to check it; not a substitute for real windows.
+    """
+    import torch
+
+    model = predictor.model
+    m = predictor.window.history
+    n = predictor.window.horizon if horizon is None else horizon
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        x = model.state_mean + 0.5 * model.state_std * torch.randn(
+            batch, m, STATE_DIM, generator=gen
+        )
+        x = x + model.origin(torch.randn(batch, 1, STATE_DIM, generator=gen))
+        u = model.input_mean + 0.5 * model.input_std * torch.randn(
+            batch, m + n, INPUT_DIM, generator=gen
+        )
+    x = x.double()
+    x = states_to_file(_unit_quaternions(x))
+    history = torch.cat([x, u[:, :m].double()], dim=-1)
+    return history.float().numpy(), u[:, m:].float().numpy()
+
+
+def _unit_quaternions(x: Any) -> Any:
+    from .state import QUAT, quat_normalize
+
+    out = x.clone()
+    out[..., QUAT] = quat_normalize(x[..., QUAT])
+    return out
+
+
+# --- runtime -----------------------------------------------------------------------------
+
+_CPU = ["CPUExecutionProvider"]
+
+
+def session_options(threads: int = 1) -> ort.SessionOptions:
+    """ONNX Runtime options for small, latency-bound graphs.
+
+    All graph optimisations (constant folding, GELU and Gemm fusions), ``threads`` intra-op
+    threads, sequential execution (the graph is a chain: parallel execution only adds
+    scheduling).
+    """
+    so = ort.SessionOptions()
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.log_severity_level = 3  # errors only
+    return so
+
+
+class OnnxPredictor:
+    """An exported network on ONNX Runtime, with ``Predictor``'s ``predict`` call.
+
+    Loading checks the model file against its sidecar (format version, checksum, input and
+    output names and shapes, state layout) and refuses a mismatch with ``OnnxModelError``.
+    """
+
+    def __init__(self, path: str | Path, *, threads: int = 1) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"exported model {self.path} does not exist")
+        self.meta = read_sidecar(self.path)
+        try:
+            self.session = ort.InferenceSession(
+                str(self.path), session_options(threads), providers=_CPU
+            )
+        except Exception as exc:  # ORT raises its own exception types for unreadable files
+            raise OnnxModelError(f"{self.path}: not a loadable ONNX model ({exc})") from exc
+        _check_session(self.path, self.session, self.meta)
+        self.horizon: int = self.meta["horizon"]
+        self.history: int = self.meta["history"]  # M it was trained with; any M >= 1 works
+
+    def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
+        """Predict the next N states, as ``Predictor.predict``.
+
+        history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout; N must
+        be this file's horizon. Returns (N, 13) or (B, N, 13) float64, unit quaternion x-y-z-w.
+        """
+        hist, fut, single = check_inputs(history, future_inputs, caller="OnnxPredictor.predict")
+        if fut.shape[1] != self.horizon:
+            raise ValueError(
+                f"OnnxPredictor.predict: {self.path} is exported for N = {self.horizon} future "
+                f"inputs, got {fut.shape[1]} (export one file per horizon)"
+            )
+        feeds = {
+            HISTORY_INPUT: np.ascontiguousarray(hist, dtype=np.float32),
+            FUTURE_INPUT: np.ascontiguousarray(fut, dtype=np.float32),
+        }
+        return unbatch(self.session.run(None, feeds)[0], single)
+
+
+def read_sidecar(model_path: str | Path) -> dict[str, Any]:
+    """The sidecar of ``model_path``, checked for format, version, checksum and layout."""
+    model_path = Path(model_path)
+    path = sidecar_path(model_path)
+    if not path.is_file():
+        raise OnnxModelError(f"{model_path}: its sidecar {path.name} is missing")
+    try:
+        meta = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise OnnxModelError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise OnnxModelError(f"{path}: not a slungload ONNX sidecar (format != {FORMAT!r})")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise OnnxModelError(
+            f"{path}: sidecar format version {meta.get('format_version')}, this package reads "
+            f"{FORMAT_VERSION}; re-export the model"
+        )
+    if meta.get("model_sha256") != _sha256(model_path):
+        raise OnnxModelError(
+            f"{model_path}: the file does not match its sidecar {path.name} (checksum differs); "
+            "was it replaced or damaged?"
+        )
+    layout = meta.get("layout", {})
+    expected = _layout()
+    for key in ("state_columns", "input_columns", "history_columns"):
+        if layout.get(key) != expected[key]:
+            raise OnnxModelError(
+                f"{path}: {key} {layout.get(key)} differ from this package's {expected[key]}"
+            )
+    for key in ("history", "horizon"):
+        if not isinstance(meta.get(key), int) or meta[key] < 1:
+            raise OnnxModelError(f"{path}: '{key}' must be a positive integer")
+    return meta
+
+
+def _check_session(path: Path, session: ort.InferenceSession, meta: dict[str, Any]) -> None:
+    """The graph's inputs and outputs must be the ones the sidecar describes."""
+    spec = _io_spec("history", meta["horizon"])
+    for kind, actual in (("inputs", session.get_inputs()), ("outputs", session.get_outputs())):
+        want = [(s["name"], s["shape"]) for s in spec[kind]]
+        declared = [(s.get("name"), s.get("shape")) for s in meta.get(kind, [])]
+        got = [(a.name, list(a.shape)) for a in actual]
+        if declared != want or got != want:
+            raise OnnxModelError(
+                f"{path}: graph {kind} {got} and sidecar {kind} {declared} must both be {want}"
+            )
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _package_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def _version(module: str) -> str:
+    import importlib
+
+    return str(getattr(importlib.import_module(module), "__version__", "unknown"))

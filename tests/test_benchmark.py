@@ -1,0 +1,81 @@
+"""The benchmark's result structure on a tiny network (no speed is asserted)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from slungload.benchmark import (
+    BACKENDS,
+    PAPER_LATENCY_MS,
+    BenchmarkResult,
+    benchmark,
+    file_inputs,
+    physics_windows,
+)
+from slungload.config import ModelConfig, WindowConfig
+from slungload.state import QUAT
+
+torch.set_num_threads(1)
+
+TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
+
+
+@pytest.fixture(scope="module")
+def result() -> BenchmarkResult:
+    return benchmark(
+        quick=True,
+        horizons=(4, 6),
+        history=5,
+        batches=(8,),
+        repeats=4,
+        train_windows=40,
+        train_threads=(1,),
+        model_config=TINY,
+    )
+
+
+def test_every_backend_is_measured_at_every_horizon(result: BenchmarkResult):
+    assert {(x.backend, x.horizon) for x in result.latency} == {
+        (b, n) for b in BACKENDS for n in (4, 6)
+    }
+    assert {(x.backend, x.horizon, x.batch) for x in result.throughput} == {
+        (b, n, 8) for b in BACKENDS for n in (4, 6)
+    }
+    for x in result.latency:
+        assert x.threads == 1 and x.history == 5 and x.repeats == 4
+        assert 0 < x.median_ms <= x.p90_ms and x.std_ms >= 0 and x.cpu_median_ms >= 0
+    for x in result.throughput:
+        assert x.windows_per_s > 0 and x.median_s > 0
+
+
+def test_training_speed_and_parity(result: BenchmarkResult):
+    assert len(result.training) == 1
+    t = result.training[0]
+    assert t.variant == "proposed" and t.horizon == 4 and t.threads == 1
+    assert t.windows_measured == 40 and not t.extrapolated
+    assert t.windows_per_s > 0 and t.epoch_s == pytest.approx(40 / t.windows_per_s)
+    assert set(result.parity) == {4, 6} and max(result.parity.values()) <= 1e-4
+
+
+def test_markdown_and_dict(result: BenchmarkResult):
+    text = result.markdown()
+    for backend in BACKENDS:
+        assert f"| {backend} | 4 |" in text
+    assert "windows/s" in text and "1.00x" in text  # eager against itself
+    json.dumps(result.to_dict())  # plain data only
+    # The paper's figures appear only at the horizons the paper reports.
+    assert str(PAPER_LATENCY_MS["RTX 3090"][25]) not in text
+
+
+def test_physics_windows_are_physical():
+    windows = physics_windows(5, WindowConfig(history=4, horizon=3), seed=1)
+    assert len(windows) == 5 and torch.isfinite(windows.states).all()
+    norms = windows.states[..., QUAT].norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms))
+    history, future = file_inputs(windows)
+    assert history.shape == (5, 4, 17) and future.shape == (5, 3, 4)
+    np.testing.assert_allclose(np.linalg.norm(history[..., QUAT], axis=-1), 1.0, atol=1e-6)
