@@ -15,7 +15,7 @@ from slungload.model import with_unit_quaternion
 from slungload.physics import hover_thrust, rollout
 from slungload.predictor import Predictor
 from slungload.state import QUAT, STATE_DIM, join_state
-from slungload.train import load_checkpoint, train
+from slungload.training import load_checkpoint, train
 from slungload.windows import make_windows
 
 torch.set_num_threads(1)

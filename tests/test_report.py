@@ -17,7 +17,7 @@ import torch
 from torch import Tensor, nn
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.evaluate import (
+from slungload.evaluation import (
     METRIC_KEYS,
     PAPER_RMSE_N50,
     PHYSICS,
@@ -232,7 +232,7 @@ def write_dataset(folder: Path) -> None:
 
 
 def test_evaluate_end_to_end(tmp_path, monkeypatch):
-    from slungload.train import train
+    from slungload.training import train
 
     monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"

@@ -27,10 +27,10 @@ from test_data import flight_arrays  # the analytic flights of the data tests
 from slungload.cli import main
 from slungload.config import ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.fileio import write_json, write_npz, write_splits
-from slungload.train import load_checkpoint, train
+from slungload.training import load_checkpoint, train
 
-# `slungload.train` the attribute is the function; the module is needed for monkeypatching.
-train_module = importlib.import_module("slungload.train")
+# `slungload.training` the attribute is the function; the module is needed for monkeypatching.
+train_module = importlib.import_module("slungload.training")
 torch.set_num_threads(1)
 
 SMALL = WindowConfig(history=6, horizon=4)
@@ -395,7 +395,7 @@ def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch,
 
 def _train_command(data: Path, out: Path, *extra: str) -> list[str]:
     return [
-        sys.executable, "-m", "slungload.train", "--data", str(data), "--out", str(out),
+        sys.executable, "-m", "slungload.training", "--data", str(data), "--out", str(out),
         "--preset", "quick", "--device", "cpu", "--threads", "1", "--quiet", *WINDOW_ARGS,
         *extra,
     ]  # fmt: skip

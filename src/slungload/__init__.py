@@ -24,14 +24,14 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "windows": ("Windows", "make_windows"),
     "model": ("Prediction", "SlungLoadNet", "count_parameters"),
     "loss": ("LOSS_VARIANTS", "LossTerms", "compute_loss", "model_config_for"),
-    "train": ("PRESETS", "LoadedModel", "Run", "TrainingDiverged", "TrainingInterrupted",
+    "training": ("PRESETS", "LoadedModel", "Run", "TrainingDiverged", "TrainingInterrupted",
               "load_checkpoint", "train"),
     "predictor": ("Predictor",),
-    "evaluate": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
+    "evaluation": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
     "report": ("write_report",),
     "experiment": ("Reproduction", "reproduce"),
-    "export": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
-    "benchmark": ("BenchmarkResult", "benchmark"),
+    "deploy": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
+    "benchmarks": ("BenchmarkResult", "benchmark"),
 }  # fmt: skip
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 

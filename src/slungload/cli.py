@@ -107,7 +107,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from lightning.pytorch.utilities import rank_zero_only
 
     from .config import WindowConfig
-    from .train import train
+    from .training import train
 
     run = train(
         args.data,
@@ -130,7 +130,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .evaluate import evaluate
+    from .evaluation import evaluate
 
     evaluate(
         args.runs,
@@ -166,7 +166,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .export import export
+    from .deploy import export
 
     result = export(args.run, args.out, format=args.format, horizon=args.horizon)
     print(result.summary())
@@ -174,7 +174,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
-    from .benchmark import benchmark
+    from .benchmarks import benchmark
     from .fileio import write_text
 
     result = benchmark(args.run, quick=args.quick, threads=args.threads, train=not args.no_train)
@@ -207,7 +207,7 @@ def _choices(kind: str) -> list[str]:
     if kind == "variants":
         from .loss import LOSS_VARIANTS as names
     else:
-        from .train import PRESETS as names
+        from .training import PRESETS as names
     return sorted(names)
 
 

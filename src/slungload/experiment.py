@@ -16,10 +16,10 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from .evaluate import Report, evaluate
+from .evaluation import Report, evaluate
 from .loss import LOSS_VARIANTS
 from .sim import simulate_dataset
-from .train import Run, train
+from .training import Run, train
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
 

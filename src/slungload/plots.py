@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from .evaluate import PHYSICS, Curve, Example
+from .evaluation import PHYSICS, Curve, Example
 from .fileio import atomic_path
 from .state import GROUP_UNITS, GROUPS, LOAD_POS, POS
 

@@ -91,7 +91,7 @@ class Predictor:
     @classmethod
     def from_checkpoint(cls, path: str | Path, *, device: str | torch.device = "cpu") -> Predictor:
         """Load a run folder (its ``best.ckpt``) or a ``.ckpt`` written by ``train``."""
-        from .train import load_checkpoint  # Lightning is imported only when needed
+        from .training import load_checkpoint  # Lightning is imported only when needed
 
         loaded = load_checkpoint(path)
         device = torch.device(device)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from . import plots
 from .config import to_dict
-from .evaluate import (
+from .evaluation import (
     COMBINED,
     METRIC_KEYS,
     PAPER_MODEL_NAMES,

@@ -31,7 +31,7 @@ from slungload.fileio import write_json, write_npz, write_splits
 from slungload.loss import LOSS_VARIANTS, compute_loss
 from slungload.physics import hover_thrust, rollout
 from slungload.state import LOAD_POS, POS, QUAT, RATES, THRUST, VEL, join_state, quat_wxyz_to_xyzw
-from slungload.train import (
+from slungload.training import (
     PRESETS,
     EpochBatches,
     Preset,
@@ -351,7 +351,7 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
     cmd = [
         sys.executable,
         "-m",
-        "slungload.train",
+        "slungload.training",
         "--data",
         str(data_dir),
         "--out",
@@ -383,7 +383,7 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
 
 def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
     from slungload.model import Prediction
-    from slungload.train import _turned
+    from slungload.training import _turned
 
     w = dataset.splits["train"][torch.arange(4)]
     m = dataset.window.history

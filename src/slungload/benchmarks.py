@@ -44,7 +44,7 @@ from torch import Tensor
 
 from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
 from .data import estimate_load_state
-from .export import OnnxPredictor, export
+from .deploy import OnnxPredictor, export
 from .loss import compute_loss, model_config_for
 from .model import SlungLoadNet, count_parameters
 from .physics import hover_thrust, rollout

@@ -2,7 +2,7 @@
 
 One entry function, ``train(data, out=...) -> Run``, and its inverse for the trained file,
 ``load_checkpoint(path) -> LoadedModel``. Read top to bottom: presets, batches, the Lightning
-module, checkpoints, ``train``, the ``python -m slungload.train`` entry point.
+module, checkpoints, ``train``, the ``python -m slungload.training`` entry point.
 
 A run folder holds::
 
@@ -28,7 +28,7 @@ CPU runs with the same seed and no wall-clock budget give identical weights. A p
 
 Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
 re-launches the running command once per extra process, so call ``train`` from a script or
-the command line (``python -m slungload.train`` or ``slungload train``), not from a notebook.
+the command line (``python -m slungload.training`` or ``slungload train``), not from a notebook.
 Each process takes an equal share of every epoch's windows.
 """
 
@@ -998,13 +998,13 @@ def _quiet_lightning(quiet: bool) -> Iterator[None]:
                 logging.getLogger(name).setLevel(level)
 
 
-# --- python -m slungload.train -----------------------------------------------------------
+# --- python -m slungload.training -----------------------------------------------------------
 
 
 def main(argv: list[str] | None = None) -> int:
     """Minimal command line (the full one is ``slungload train``); also the DDP re-launch
     target: Lightning starts every extra process with this same command line."""
-    p = argparse.ArgumentParser(prog="python -m slungload.train", description=main.__doc__)
+    p = argparse.ArgumentParser(prog="python -m slungload.training", description=main.__doc__)
     p.add_argument("--data", required=True, type=Path, help="dataset folder")
     p.add_argument("--out", required=True, type=Path, help="run folder")
     p.add_argument("--variant", default="proposed")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from slungload.benchmark import (
+from slungload.benchmarks import (
     BACKENDS,
     PAPER_LATENCY_MS,
     BenchmarkResult,

@@ -231,7 +231,7 @@ def _load(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], st
             "params": to_dict(source.params),
         }
         return source, configs, "in-memory Predictor"
-    from .train import load_checkpoint  # Lightning: only the export side needs it
+    from .training import load_checkpoint  # Lightning: only the export side needs it
 
     loaded = load_checkpoint(source)
     predictor = Predictor(loaded.model.eval(), loaded.window, loaded.params, loaded.variant)

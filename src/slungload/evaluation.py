@@ -41,7 +41,7 @@ from .config import VehicleParams, WindowConfig, to_dict
 from .data import load_dataset
 from .physics import rollout
 from .state import GROUPS, QUAT, quat_error, quat_normalize
-from .train import LoadedModel, load_checkpoint
+from .training import LoadedModel, load_checkpoint
 from .windows import Windows, make_windows
 
 COMBINED = "combined"

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 
 from slungload.config import VehicleParams, WindowConfig
-from slungload.evaluate import (
+from slungload.evaluation import (
     COMBINED,
     PHYSICS,
     Candidate,
