@@ -395,7 +395,7 @@ def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch,
 
 def _train_command(data: Path, out: Path, *extra: str) -> list[str]:
     return [
-        sys.executable, "-m", "slungload.training", "--data", str(data), "--out", str(out),
+        sys.executable, "-m", "slungload.cli", "train", "--data", str(data), "--out", str(out),
         "--preset", "quick", "--device", "cpu", "--threads", "1", "--quiet", *WINDOW_ARGS,
         *extra,
     ]  # fmt: skip

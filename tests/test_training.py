@@ -351,7 +351,8 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
     cmd = [
         sys.executable,
         "-m",
-        "slungload.training",
+        "slungload.cli",
+        "train",
         "--data",
         str(data_dir),
         "--out",

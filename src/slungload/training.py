@@ -2,7 +2,7 @@
 
 One entry function, ``train(data, out=...) -> Run``, and its inverse for the trained file,
 ``load_checkpoint(path) -> LoadedModel``. Read top to bottom: presets, batches, the Lightning
-module, checkpoints, ``train``, the ``python -m slungload.training`` entry point.
+module, checkpoints, ``train``. Its command line is ``slungload train`` (cli.py).
 
 A run folder holds::
 
@@ -28,13 +28,12 @@ CPU runs with the same seed and no wall-clock budget give identical weights. A p
 
 Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
 re-launches the running command once per extra process, so call ``train`` from a script or
-the command line (``python -m slungload.training`` or ``slungload train``), not from a notebook.
+the command line (``slungload train`` or ``python -m slungload.cli train``), not from a notebook.
 Each process takes an equal share of every epoch's windows.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import csv
 import dataclasses
@@ -66,7 +65,7 @@ from lightning.pytorch.loggers import CSVLogger, TensorBoardLogger
 from lightning.pytorch.loggers.csv_logs import ExperimentWriter
 from lightning.pytorch.loggers.logger import rank_zero_experiment
 from lightning.pytorch.plugins.io import TorchCheckpointIO
-from lightning.pytorch.utilities import rank_zero_only, rank_zero_warn
+from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from torch import Tensor
 from torch.utils.data import DataLoader, Sampler
@@ -996,52 +995,3 @@ def _quiet_lightning(quiet: bool) -> Iterator[None]:
         finally:
             for name, level in levels.items():
                 logging.getLogger(name).setLevel(level)
-
-
-# --- python -m slungload.training -----------------------------------------------------------
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Minimal command line (the full one is ``slungload train``); also the DDP re-launch
-    target: Lightning starts every extra process with this same command line."""
-    p = argparse.ArgumentParser(prog="python -m slungload.training", description=main.__doc__)
-    p.add_argument("--data", required=True, type=Path, help="dataset folder")
-    p.add_argument("--out", required=True, type=Path, help="run folder")
-    p.add_argument("--variant", default="proposed")
-    p.add_argument("--preset", default="default", choices=sorted(PRESETS))
-    p.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"))
-    p.add_argument("--devices", type=int, default=1, help="processes (DDP when > 1)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--epochs", type=int, default=None, help="override the preset's max epochs")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/last.ckpt")
-    p.add_argument("--history", type=int, default=50, metavar="M")
-    p.add_argument("--horizon", type=int, default=25, metavar="N")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads per process")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
-    try:
-        run = train(
-            args.data,
-            out=args.out,
-            variant=args.variant,
-            preset=args.preset,
-            device=args.device,
-            devices=args.devices,
-            seed=args.seed,
-            max_epochs=args.epochs,
-            resume=args.resume,
-            window=WindowConfig(history=args.history, horizon=args.horizon),
-            progress=not args.quiet,
-            num_threads=args.threads,
-        )
-    except TrainingInterrupted as exc:
-        if rank_zero_only.rank == 0:
-            print(f"{p.prog}: {exc}", file=sys.stderr)
-        return 128 + exc.signum  # the shell's convention for "ended by this signal"
-    if rank_zero_only.rank == 0:  # every DDP process runs this command
-        print(run.summary())
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
