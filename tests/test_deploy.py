@@ -6,14 +6,14 @@ import json
 import subprocess
 import sys
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from flights import swinging_flight
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data import Dataset, estimate_load_state
+from slungload.data import Dataset
 from slungload.deploy import (
     FORMAT_VERSION,
     OnnxModelError,
@@ -22,9 +22,8 @@ from slungload.deploy import (
     sidecar_path,
 )
 from slungload.model import SlungLoadNet
-from slungload.physics import hover_thrust, rollout
 from slungload.predictor import Predictor
-from slungload.state import QUAT, STATE_DIM, join_state
+from slungload.state import QUAT, STATE_DIM
 from slungload.training import train
 from slungload.windows import make_windows
 
@@ -32,26 +31,6 @@ torch.set_num_threads(1)
 
 PAPER = WindowConfig(history=50, horizon=25)
 WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
-
-
-def physics_flight(name: str, seed: int, steps: int) -> SimpleNamespace:
-    """One flight of the physics model (package layout): tilted, swinging, varying inputs."""
-    params = VehicleParams()
-    rng = np.random.default_rng(seed)
-    t = np.arange(steps) * params.dt
-    roll = rng.uniform(-0.3, 0.3)
-    q0 = torch.tensor([np.cos(roll), np.sin(roll), 0.0, 0.0], dtype=torch.float64)
-    p0 = torch.tensor(rng.uniform(-2, 2, 3))
-    swing = torch.tensor([rng.uniform(-0.2, 0.2), 0.0, -0.67])
-    x0 = join_state(p0, torch.zeros(3, dtype=torch.float64), q0, p0 + swing)
-    u = np.zeros((steps, 4))
-    u[:, 0] = hover_thrust(params) * (1 + 0.05 * np.sin(3 * t + seed))
-    u[:, 1:] = 0.3 * np.sin(2 * t[:, None] + rng.uniform(0, 6, 3))
-    after, _ = rollout(x0, torch.zeros(6, dtype=torch.float64), torch.from_numpy(u[:-1]), params)
-    states = torch.cat([x0[None], after]).numpy()
-    return SimpleNamespace(
-        name=name, states=states, inputs=u, aux=estimate_load_state(states, params)
-    )
 
 
 def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
@@ -65,7 +44,7 @@ def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
 def paper_predictor() -> Predictor:
     """The paper-size network, random weights, normalisation fitted on physics windows."""
     torch.manual_seed(0)
-    flights = [physics_flight(f"f{i}", i, 140) for i in range(3)]
+    flights = [swinging_flight(f"f{i}", i, 140) for i in range(3)]
     windows = make_windows(flights, WindowConfig(history=50, horizon=50))
     model = SlungLoadNet(ModelConfig())
     model.fit_normalization(windows.states, windows.inputs, origin_step=PAPER.history - 1)
@@ -80,7 +59,7 @@ def exported(paper_predictor: Predictor, tmp_path_factory: pytest.TempPathFactor
 
 @pytest.mark.parametrize("horizon", [25, 50])
 def test_exported_matches_eager_on_physics_windows(paper_predictor, exported, horizon: int):
-    flights = [physics_flight(f"t{i}", 100 + i, 50 + horizon + 20) for i in range(2)]
+    flights = [swinging_flight(f"t{i}", 100 + i, 50 + horizon + 20) for i in range(2)]
     windows = make_windows(flights, WindowConfig(history=50, horizon=horizon, stride=7))
     history = file_rows(windows.states[:, :50], windows.inputs[:, :50])  # (W, 50, 17)
     future = windows.inputs[:, 50:].double().numpy()  # (W, N, 4)
@@ -101,7 +80,7 @@ def test_exported_matches_eager_on_physics_windows(paper_predictor, exported, ho
 
 
 def test_history_length_is_dynamic(paper_predictor, exported):
-    flights = [physics_flight("h", 7, 120)]
+    flights = [swinging_flight("h", 7, 120)]
     windows = make_windows(flights, WindowConfig(history=30, horizon=25, stride=20))
     history = file_rows(windows.states[:, :30], windows.inputs[:, :30])  # M = 30, not 50
     future = windows.inputs[:, 30:].double().numpy()
@@ -192,7 +171,7 @@ def test_export_from_a_trained_run(tmp_path: Path):
     """A quick checkpoint exports with its own horizon and records every config."""
     small = WindowConfig(history=6, horizon=4)
     splits = {
-        split: make_windows([physics_flight(split, seed, 40)], small)
+        split: make_windows([swinging_flight(split, seed, 40)], small)
         for seed, split in enumerate(("train", "val", "test"))
     }
     dataset = Dataset(

@@ -9,6 +9,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 import torch
+from flights import roll_out_flight
 from torch import Tensor, nn
 
 from slungload.config import VehicleParams, WindowConfig
@@ -24,7 +25,7 @@ from slungload.evaluation import (
     metrics_from_errors,
     time_inference,
 )
-from slungload.physics import hover_thrust, rollout
+from slungload.physics import hover_thrust
 from slungload.state import GROUPS, LOAD_POS, POS, QUAT, quat_from_rotvec, quat_mul
 from slungload.windows import Windows, make_windows
 
@@ -53,10 +54,8 @@ def physics_flight(name: str, steps: int, seed: int) -> Flight:
     inputs = torch.zeros(steps, 4, dtype=torch.float64)
     inputs[:, 0] = hover_thrust(PARAMS) * (1 + 0.05 * torch.randn(steps, generator=g))
     inputs[:, 1:] = 0.3 * torch.randn(steps, 3, generator=g, dtype=torch.float64)
-    states, aux = rollout(x0, aux0, inputs[:-1], PARAMS)
-    states = torch.cat([x0[None], states])
-    aux = torch.cat([aux0[None], aux])
-    return Flight(name, states.numpy(), inputs.numpy(), aux.numpy())
+    states, aux = roll_out_flight(x0, aux0, inputs, PARAMS)
+    return Flight(name, states, inputs.numpy(), aux)
 
 
 @pytest.fixture(scope="module")

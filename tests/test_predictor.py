@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
+from flights import swinging_flight
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data import Dataset, estimate_load_state
+from slungload.data import Dataset
 from slungload.model import with_unit_quaternion
-from slungload.physics import hover_thrust, rollout
 from slungload.predictor import Predictor
-from slungload.state import QUAT, STATE_DIM, join_state
+from slungload.state import QUAT, STATE_DIM
 from slungload.training import load_checkpoint, train
 from slungload.windows import make_windows
 
@@ -26,27 +25,9 @@ M, N = SMALL.history, SMALL.horizon
 WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
 
 
-def physics_flight(name: str, seed: int, steps: int = 40) -> SimpleNamespace:
-    """One flight of the physics model (package layout), with tilted attitude and a swing."""
-    params = VehicleParams()
-    rng = np.random.default_rng(seed)
-    t = np.arange(steps) * params.dt
-    q0 = torch.tensor([np.cos(0.2), np.sin(0.2), 0.0, 0.0], dtype=torch.float64)  # 23 deg roll
-    p0 = torch.tensor(rng.uniform(-1, 1, 3))
-    x0 = join_state(p0, torch.zeros(3, dtype=torch.float64), q0, p0 + torch.tensor([0.1, 0, -0.69]))
-    u = np.zeros((steps, 4))
-    u[:, 0] = hover_thrust(params) * (1 + 0.05 * np.sin(3 * t + seed))
-    u[:, 1:] = 0.3 * np.sin(2 * t[:, None] + rng.uniform(0, 6, 3))
-    after, _ = rollout(x0, torch.zeros(6, dtype=torch.float64), torch.from_numpy(u[:-1]), params)
-    states = torch.cat([x0[None], after]).numpy()
-    return SimpleNamespace(
-        name=name, states=states, inputs=u, aux=estimate_load_state(states, params)
-    )
-
-
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
-    flights = {s: [physics_flight(f"{s}{i}", 10 * i + len(s)) for i in range(2)] for s in "abc"}
+    flights = {s: [swinging_flight(f"{s}{i}", 10 * i + len(s)) for i in range(2)] for s in "abc"}
     splits = dict(zip(("train", "val", "test"), flights.values(), strict=True))
     return Dataset(
         folder=tmp_path_factory.mktemp("memory"),

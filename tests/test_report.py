@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 import torch
+from flights import roll_out_flight
 from torch import Tensor, nn
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
@@ -29,7 +30,7 @@ from slungload.evaluation import (
     evaluate_predictors,
 )
 from slungload.fileio import write_json, write_npz, write_splits
-from slungload.physics import hover_thrust, rollout
+from slungload.physics import hover_thrust
 from slungload.report import write_report
 from slungload.state import GROUPS, LOAD_POS, POS, QUAT, VEL, quat_from_rotvec, quat_wxyz_to_xyzw
 from slungload.windows import make_windows
@@ -57,10 +58,8 @@ def physics_flight(name: str, steps: int, seed: int) -> Flight:
     inputs = torch.zeros(steps, 4, dtype=torch.float64)
     inputs[:, 0] = hover_thrust(PARAMS) * (1 + 0.03 * torch.randn(steps, generator=g))
     inputs[:, 1:] = 0.2 * torch.randn(steps, 3, generator=g, dtype=torch.float64)
-    states, aux = rollout(x0, aux0, inputs[:-1], PARAMS)
-    states = torch.cat([x0[None], states])
-    aux = torch.cat([aux0[None], aux])
-    return Flight(name, states.numpy(), inputs.numpy(), aux.numpy())
+    states, aux = roll_out_flight(x0, aux0, inputs, PARAMS)
+    return Flight(name, states, inputs.numpy(), aux)
 
 
 class Pred(NamedTuple):
