@@ -21,7 +21,10 @@ from slungload.state import QUAT
 
 torch.set_num_threads(1)
 
-TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
+# Three embedding and three head layers: the shape every backend (the compiled one too) takes.
+TINY = ModelConfig(
+    embed_sizes=(16, 16, 16), hidden_size=8, num_layers=1, head_sizes=(16, 16, 16), dropout=0
+)
 
 
 @pytest.fixture(scope="module")

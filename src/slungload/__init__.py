@@ -27,6 +27,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "training": ("PRESETS", "LoadedModel", "Run", "TrainingDiverged", "TrainingInterrupted",
               "load_checkpoint", "train"),
     "predictor": ("Predictor",),
+    "compiled": ("CompiledPredictor",),
     "evaluation": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
     "report": ("write_report",),
     "experiment": ("Reproduction", "reproduce"),

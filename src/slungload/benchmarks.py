@@ -5,9 +5,10 @@
 
 One run measures every backend on the same inputs (windows rolled out by the physics model):
 
-    torch eager    ``predictor.Predictor.predict`` (numpy in, numpy out)
-    torch script   the same network traced and frozen with TorchScript
-    onnxruntime    ``export.OnnxPredictor.predict`` on a file written by ``export.export``
+    torch eager     ``predictor.Predictor.predict`` (numpy in, numpy out)
+    torch script    the same network traced and frozen with TorchScript
+    onnxruntime     ``deploy.OnnxPredictor.predict`` on a file written by ``deploy.export``
+    numba compiled  ``compiled.CompiledPredictor.predict`` (one compiled call per window)
 
 all through numpy in and numpy out, so every number includes the facade's checks and the
 file-layout conversion a controller would pay. Latency: batch 1, M = 50, N = 25 and 50, on
@@ -17,7 +18,7 @@ paper-size network, proposed loss (physics term with slack), N = 25, batch 256, 
 ``train_windows`` windows (default 10,000, or a measured fraction extrapolated: ``quick``).
 
 Training is timed on a plain loop (forward, loss, backward, clipping, Adam step): the work of
-``train.SlungLoadModule.training_step`` without Lightning's own per-step bookkeeping.
+``training.SlungLoadModule.training_step`` without Lightning's own per-step bookkeeping.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ import onnxruntime as ort
 import torch
 from torch import Tensor
 
+from .compiled import CompiledPredictor
 from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
 from .data import estimate_load_state
 from .deploy import OnnxPredictor, export
@@ -52,8 +54,8 @@ from .predictor import FileLayoutNet, Predictor, check_inputs, states_to_file, u
 from .state import join_state, quat_from_rotvec
 from .windows import Windows, make_windows
 
-EAGER, SCRIPT, ONNX = "torch eager", "torch script", "onnxruntime"
-BACKENDS = (EAGER, SCRIPT, ONNX)
+EAGER, SCRIPT, ONNX, COMPILED = "torch eager", "torch script", "onnxruntime", "numba compiled"
+BACKENDS = (EAGER, SCRIPT, ONNX, COMPILED)
 # The paper's batch-1 inference times (Section IV), ms, by device and horizon N (M = 50).
 PAPER_LATENCY_MS = {
     "RTX 3090": {25: 10.76, 50: 21.24},
@@ -377,10 +379,12 @@ def benchmark(
     load_start, device, versions = os.getloadavg()[0], _device(), _versions()
     big = max(batches, default=1)
     predictor, source = _predictor(run, history, max(horizons), model_config, seed)
+    compiled = CompiledPredictor(predictor)  # compiles once (or loads Numba's cache)
     latency, throughput, parity = [], [], {}
     notes = [
         "All backends are called through numpy in / numpy out with the same checks "
-        "(Predictor.predict, OnnxPredictor.predict, or the traced network behind the same checks)."
+        "(Predictor.predict, OnnxPredictor.predict, CompiledPredictor.predict, or the traced "
+        "network behind the same checks)."
     ]
     with tempfile.TemporaryDirectory(prefix="slungload-bench-") as tmp, torch_threads(threads):
         for n in horizons:
@@ -392,6 +396,7 @@ def benchmark(
                 EAGER: predictor.predict,
                 SCRIPT: script_predict(predictor, hist, fut),
                 ONNX: OnnxPredictor(onnx_path, threads=threads).predict,
+                COMPILED: compiled.predict,
             }
             check = slice(0, 64)
             reference = predictor.predict(hist[check], fut[check])

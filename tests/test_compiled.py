@@ -1,0 +1,160 @@
+"""The Numba batch-1 predictor: its element-wise kernels against exact references, and its
+predictions against the eager network for every model mode."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from flights import swinging_flight
+
+from slungload.compiled import (
+    PARITY_TOLERANCE,
+    CompiledPredictor,
+    _exp,
+    _gelu,
+    _lstm_update,
+    fold,
+)
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.model import SlungLoadNet
+from slungload.predictor import Predictor
+from slungload.state import QUAT, STATE_DIM
+from slungload.windows import make_windows
+
+torch.set_num_threads(1)
+
+M = 50
+WXYZ_TO_XYZW = [1, 2, 3, 0]
+
+
+def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
+    s = states.double().numpy().copy()
+    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
+    return np.concatenate([s, inputs.double().numpy()], axis=-1)
+
+
+@pytest.fixture(scope="module")
+def flights():
+    return [swinging_flight(f"f{i}", i, 150) for i in range(3)]
+
+
+def predictor_for(config: ModelConfig, flights, seed: int = 0) -> Predictor:
+    torch.manual_seed(seed)
+    model = SlungLoadNet(config)
+    if config.normalize:
+        windows = make_windows(flights, WindowConfig(history=M, horizon=25))
+        model.fit_normalization(windows.states, windows.inputs, origin_step=M - 1)
+    return Predictor(model.eval(), WindowConfig(history=M, horizon=25), VehicleParams(), "x")
+
+
+def test_exp_matches_numpy_to_float32_precision():
+    x = np.linspace(-80.0, 80.0, 100_001).astype(np.float32)
+    got = x.copy()
+    _exp(got, np.empty(x.shape, np.int32), 0, x.size)
+    want = np.exp(x.astype(np.float64))
+    rel = np.abs(got - want) / want
+    assert rel.max() < 5e-7
+    # Only the requested range is touched.
+    part = x.copy()
+    _exp(part, np.empty(x.shape, np.int32), 10, 20)
+    np.testing.assert_array_equal(part[:10], x[:10])
+    np.testing.assert_array_equal(part[20:], x[20:])
+
+
+def test_gelu_matches_torch_exact_gelu():
+    x = np.linspace(-12.0, 12.0, 24_000).astype(np.float32).reshape(3, -1)
+    got = x.copy()
+    _gelu(got, np.empty(x.size, np.float32), np.empty(x.size, np.int32))
+    want = F.gelu(torch.from_numpy(x).double()).numpy()
+    assert np.abs(got - want).max() < 1e-6
+    assert got[0, 0] == pytest.approx(0.0, abs=1e-9) and got[-1, -1] == pytest.approx(12.0)
+
+
+def test_lstm_update_matches_torch_cell():
+    torch.manual_seed(1)
+    hidden = 20
+    gates = (4 * torch.randn(4 * hidden)).float()
+    c0 = torch.randn(hidden).float()
+    # torch's cell with identity input weights and zero recurrent weights gives gates = input.
+    cell = torch.nn.LSTMCell(4 * hidden, hidden).double()
+    with torch.no_grad():
+        cell.weight_ih.copy_(torch.eye(4 * hidden))
+        cell.weight_hh.zero_()
+        cell.bias_ih.zero_()
+        cell.bias_hh.zero_()
+        h_want, c_want = cell(
+            gates.double()[None], (torch.zeros(1, hidden).double(), c0.double()[None])
+        )
+    c, h = c0.numpy().copy(), np.zeros(hidden, np.float32)
+    _lstm_update(
+        gates.numpy(), c, h, np.empty(5 * hidden, np.float32), np.empty(5 * hidden, np.int32)
+    )
+    np.testing.assert_allclose(c, c_want[0].numpy(), atol=1e-6)
+    np.testing.assert_allclose(h, h_want[0].numpy(), atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "config",
+    [
+        ModelConfig(),
+        ModelConfig(slack=False, relative_positions=False),
+        ModelConfig(residual=False),
+        ModelConfig(normalize=False),
+    ],
+    ids=["default", "absolute-no-slack", "non-residual", "raw-units"],
+)
+@pytest.mark.parametrize("horizon", [25, 50])
+def test_predictions_match_the_eager_network(flights, config: ModelConfig, horizon: int):
+    predictor = predictor_for(config, flights)
+    compiled = CompiledPredictor(predictor)
+    test_flights = [swinging_flight(f"t{i}", 100 + i, M + horizon + 15) for i in range(2)]
+    windows = make_windows(test_flights, WindowConfig(history=M, horizon=horizon, stride=5))
+    history = file_rows(windows.states[:, :M], windows.inputs[:, :M])
+    future = windows.inputs[:, M:].double().numpy()
+    got, want = compiled.predict(history, future), predictor.predict(history, future)
+    assert got.shape == want.shape == (len(windows), horizon, STATE_DIM)
+    assert got.dtype == np.float64
+    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
+    np.testing.assert_allclose(np.linalg.norm(got[..., QUAT], axis=-1), 1.0, atol=1e-6)
+    # The predictions follow the inputs: a changed future moves them far more than the two
+    # paths disagree.
+    bumped = future.copy()
+    bumped[:, : horizon // 2] += [3.0, 1.0, -1.0, 0.5]
+    moved = compiled.predict(history, bumped)
+    np.testing.assert_allclose(moved, predictor.predict(history, bumped), atol=PARITY_TOLERANCE)
+    assert np.abs(moved - got).max() > 100 * np.abs(got - want).max()
+
+
+def test_quaternion_sign_jumps_and_scale_in_the_history_change_nothing(flights):
+    predictor = predictor_for(ModelConfig(), flights)
+    compiled = CompiledPredictor(predictor)
+    windows = make_windows([swinging_flight("t", 7, M + 40)], WindowConfig(history=M, horizon=25))
+    history = file_rows(windows.states[:1, :M], windows.inputs[:1, :M])[0]
+    future = windows.inputs[0, M:].double().numpy()
+    base = compiled.predict(history, future)
+    flipped = history.copy()
+    flipped[20:35, 6:10] *= -1.0  # q and -q: the same attitude
+    flipped[:, 6:10] *= 1.7  # not unit: normalised on the way in
+    np.testing.assert_allclose(compiled.predict(flipped, future), base, atol=1e-5)
+    np.testing.assert_allclose(predictor.predict(flipped, future), base, atol=PARITY_TOLERANCE)
+
+
+def test_unbatched_call_and_checks(flights):
+    compiled = CompiledPredictor(predictor_for(ModelConfig(), flights), warm_up=False)
+    history = np.zeros((M, 17))
+    history[:, 9] = 1.0
+    out = compiled.predict(history, np.zeros((7, 4)))
+    assert out.shape == (7, STATE_DIM) and np.isfinite(out).all()
+    with pytest.raises(ValueError, match=r"CompiledPredictor\.predict.*history"):
+        compiled.predict(np.zeros((M, 13)), np.zeros((7, 4)))
+    with pytest.raises(ValueError, match=r"CompiledPredictor\.predict"):
+        compiled.predict(history, np.full((7, 4), math.nan))
+
+
+def test_fold_refuses_other_layer_counts():
+    with pytest.raises(ValueError, match="three embedding"):
+        fold(SlungLoadNet(ModelConfig(embed_sizes=(64, 64))))
