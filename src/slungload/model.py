@@ -130,7 +130,10 @@ class OutputHead(nn.Module):
     """Decoder output (B, H) -> (B, 13 [+ 13 slack]).
 
     Linear -> Linear -> GELU -> Linear -> GELU -> Linear: the first two Linears have no
-    activation between them (this is what gives the paper's parameter count).
+    activation between them (this is what gives the paper's parameter count). Their product is
+    one (sizes[1], H) matrix, so ``joined`` multiplies them once per sequence and ``apply``
+    runs the decoder's steps through it: the same function with ~15x fewer multiply-adds in
+    that layer; gradients reach both Linears through the product.
     """
 
     def __init__(self, hidden: int, sizes: tuple[int, ...], out: int) -> None:
@@ -139,10 +142,24 @@ class OutputHead(nn.Module):
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairwise(widths))
 
     def forward(self, h: Tensor) -> Tensor:
-        h = self.layers[0](h)
-        for layer in self.layers[1:-1]:
-            h = F.gelu(layer(h))
-        return self.layers[-1](h)
+        return self.apply_joined(h, self.joined())
+
+    def joined(self) -> list[tuple[Tensor, Tensor]]:
+        """(weight, bias) per layer after the first two are multiplied (when there are more
+        than two layers; a head of one or two Linears is returned as it is)."""
+        pairs = [(layer.weight, layer.bias) for layer in self.layers]
+        if len(pairs) > 2:
+            (w0, b0), (w1, b1) = pairs[:2]
+            pairs[:2] = [(w1 @ w0, w1 @ b0 + b1)]
+        return pairs
+
+    def apply_joined(self, h: Tensor, joined: list[tuple[Tensor, Tensor]]) -> Tensor:
+        """The head on h (B, H) with weights from ``joined``."""
+        if len(self.layers) == 2:  # Linear -> Linear without an activation
+            return F.linear(F.linear(h, *joined[0]), *joined[1])
+        for weight, bias in joined[:-1]:
+            h = F.gelu(F.linear(h, weight, bias))
+        return F.linear(h, *joined[-1])
 
 
 class SlungLoadNet(nn.Module):
@@ -271,6 +288,7 @@ class SlungLoadNet(nn.Module):
         gain = self.delta_std / self.state_std if cfg.normalize else None  # (13,)
 
         state_weight = self.embed.state_weight()  # (13, E0)
+        head = self.head.joined()
         weights = _stacked_lstm_weights(self.decoder)  # per layer (in + H, 4H), (4H,)
         hs, cs = list(h.unbind(0)), list(c.unbind(0))  # layers x (B, H)
         z = z_hist[:, -1]  # (B, 13) last measured state, network units
@@ -284,7 +302,7 @@ class SlungLoadNet(nn.Module):
                     layer_in = F.dropout(layer_in, cfg.dropout, self.training)
                 hs[i], cs[i] = _lstm_cell(layer_in, hs[i], cs[i], w, b)
                 layer_in = hs[i]
-            y = self.head(layer_in)  # (B, 13 or 26)
+            y = self.head.apply_joined(layer_in, head)  # (B, 13 or 26)
             step = y[:, :STATE_DIM]  # (B, 13)
             if not cfg.residual:
                 z = step
