@@ -375,6 +375,9 @@ def test_cache_hit_invalidation_and_corruption(tmp_path):
         assert a.names == b.names and a.window == b.window
     np.testing.assert_array_equal(second.flights["b"].aux, first.flights["b"].aux)
     assert second.flights["a"].path == folder / "a.npz"
+    # The file holds the flights and the split lists, not the (much larger) windows.
+    stored = torch.load(first.cache_path, weights_only=True)["payload"]
+    assert stored["splits"] == {"train": ["a"], "val": [], "test": ["b"]}
 
     # Another window config or other constants: another cache file.
     other = load_dataset(folder, window=WindowConfig(10, 6), params=PARAMS, cache_dir=cache)

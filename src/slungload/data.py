@@ -415,11 +415,13 @@ _ARRAYS = ("time", "states", "inputs", "aux")
 
 
 def _to_payload(dataset: Dataset) -> dict:
+    """The flights and which split each belongs to. Windows are not stored: they are ~40x the
+    flights' size (every step repeated in M + N windows) and re-cut in well under a second."""
     flights = {
         n: {k: torch.from_numpy(getattr(f, k)) for k in _ARRAYS} for n, f in dataset.flights.items()
     }
-    splits = {s: w.to_payload() for s, w in dataset.splits.items()}
-    return {"flights": flights, "splits": splits, "notes": list(dataset.notes)}
+    members = {s: list(dataset.splits[s].names) for s in SPLITS}  # the flights, in order
+    return {"flights": flights, "splits": members, "notes": list(dataset.notes)}
 
 
 def _from_payload(payload: dict, common: dict, cache_path: Path) -> Dataset:
@@ -428,9 +430,10 @@ def _from_payload(payload: dict, common: dict, cache_path: Path) -> Dataset:
         name: Flight(name, folder / f"{name}.npz", *(f[k].numpy() for k in _ARRAYS))
         for name, f in payload["flights"].items()
     }
-    splits = {s: Windows.from_payload(payload["splits"][s]) for s in SPLITS}
-    if any(w.window != common["window"] for w in splits.values()):
-        raise ValueError(f"{cache_path}: windows of another configuration")
+    splits = {
+        s: make_windows([flights[str(n)] for n in payload["splits"][s]], common["window"])
+        for s in SPLITS
+    }
     notes = tuple(str(n) for n in payload["notes"])
     return Dataset(
         **common,

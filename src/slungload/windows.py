@@ -1,12 +1,14 @@
-"""Sliding windows cut from flights, and their on-disk cache.
+"""Sliding windows cut from flights, and the on-disk cache of prepared flights.
 
 A window is M + N consecutive steps of one flight: the first M are the history the network
 sees, the last N the future it predicts. Windows never cross flights. ``data.load_dataset``
 builds them per split; this module knows nothing about files or splits.
 
-The cache is a ``torch.save`` file of plain tensors, strings and dicts, read back with
-``weights_only=True``; its name is a hash of everything the windows depend on (see
-``cache_key``), so a stale cache is never read, only left behind.
+The cache (``data.load_dataset``) is a ``torch.save`` file of the validated flights with their
+load-state estimates and split lists, plain tensors, strings and dicts, read back with
+``weights_only=True``; windows are re-cut from them on loading. Its name is a hash of
+everything the windows depend on (see ``cache_key``), so a stale cache is never read, only
+left behind.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from .config import VehicleParams, WindowConfig, to_dict
 from .fileio import atomic_path
 
 # Bump when the windows or the cache layout change: old cache files are then never read.
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: flights only, no windows
 CACHE_ENV = "SLUNGLOAD_CACHE"
 
 
