@@ -13,7 +13,9 @@ import torch
 from slungload.config import VehicleParams
 from slungload.data import estimate_load_state
 from slungload.physics import hover_thrust, rollout
-from slungload.state import join_state
+from slungload.state import QUAT, join_state
+
+WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
 
 
 def roll_out_flight(
@@ -45,3 +47,10 @@ def swinging_flight(name: str, seed: int, steps: int = 40) -> SimpleNamespace:
     return SimpleNamespace(
         name=name, states=states, inputs=u, aux=estimate_load_state(states, params)
     )
+
+
+def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
+    """Package-layout states (..., T, 13) and inputs (..., T, 4) -> file rows (..., T, 17)."""
+    s = states.double().numpy().copy()
+    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
+    return np.concatenate([s, inputs.double().numpy()], axis=-1)

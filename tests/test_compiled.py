@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from flights import swinging_flight
+from flights import file_rows, swinging_flight
 
 from slungload.compiled import (
     PARITY_TOLERANCE,
@@ -28,13 +28,6 @@ from slungload.windows import make_windows
 torch.set_num_threads(1)
 
 M = 50
-WXYZ_TO_XYZW = [1, 2, 3, 0]
-
-
-def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
-    s = states.double().numpy().copy()
-    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
-    return np.concatenate([s, inputs.double().numpy()], axis=-1)
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from flights import swinging_flight
+from flights import file_rows, swinging_flight
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.data import Dataset
@@ -30,14 +30,6 @@ from slungload.windows import make_windows
 torch.set_num_threads(1)
 
 PAPER = WindowConfig(history=50, horizon=25)
-WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
-
-
-def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
-    """Package-layout states (..., T, 13) and inputs (..., T, 4) -> file rows (..., T, 17)."""
-    s = states.double().numpy().copy()
-    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
-    return np.concatenate([s, inputs.double().numpy()], axis=-1)
 
 
 @pytest.fixture(scope="module")

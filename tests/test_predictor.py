@@ -7,14 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from flights import swinging_flight
+from flights import WXYZ_TO_XYZW, file_rows, swinging_flight
 
+from slungload.checkpoints import load_checkpoint
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.data import Dataset
 from slungload.model import with_unit_quaternion
 from slungload.predictor import Predictor
 from slungload.state import QUAT, STATE_DIM
-from slungload.training import load_checkpoint, train
+from slungload.training import train
 from slungload.windows import make_windows
 
 torch.set_num_threads(1)
@@ -22,7 +23,6 @@ torch.set_num_threads(1)
 TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
 SMALL = WindowConfig(history=6, horizon=4)
 M, N = SMALL.history, SMALL.horizon
-WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's helpers
 
 
 @pytest.fixture(scope="module")
@@ -44,13 +44,6 @@ def run_dir(dataset: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("run")
     train(dataset, out=out, preset="quick", model_config=TINY, progress=False, num_threads=1)
     return out
-
-
-def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
-    """Package-layout states (..., T, 13) and inputs (..., T, 4) -> file rows (..., T, 17)."""
-    s = states.double().numpy().copy()
-    s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
-    return np.concatenate([s, inputs.double().numpy()], axis=-1)
 
 
 def test_predict_matches_the_eager_model(run_dir: Path, dataset: Dataset) -> None:

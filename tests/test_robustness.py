@@ -24,10 +24,12 @@ import pytest
 import torch
 from test_data import flight_arrays  # the analytic flights of the data tests
 
+from slungload.checkpoints import load_checkpoint
 from slungload.cli import main
 from slungload.config import ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.fileio import write_json, write_npz, write_splits
-from slungload.training import load_checkpoint, train
+from slungload.presets import PRESETS
+from slungload.training import train
 
 # `slungload.training` the attribute is the function; the module is needed for monkeypatching.
 train_module = importlib.import_module("slungload.training")
@@ -528,6 +530,6 @@ def test_persistently_non_finite_loss_stops_with_a_clear_message(capsys, tmp_pat
 
 
 def test_gradient_clipping_is_on_by_default_and_off_only_in_the_paper_preset():
-    clip = {name: preset.config.grad_clip for name, preset in train_module.PRESETS.items()}
+    clip = {name: preset.config.grad_clip for name, preset in PRESETS.items()}
     assert clip.pop("paper") == 0.0
     assert all(value > 0 for value in clip.values()), clip

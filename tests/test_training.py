@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 import torch
 
+from slungload.batches import EpochBatches
+from slungload.checkpoints import load_checkpoint
 from slungload.config import (
     LossWeights,
     ModelConfig,
@@ -30,16 +32,9 @@ from slungload.data import load_dataset
 from slungload.fileio import write_json, write_npz, write_splits
 from slungload.loss import LOSS_VARIANTS, compute_loss
 from slungload.physics import hover_thrust, rollout
+from slungload.presets import PRESETS, Preset, TrainExtras
 from slungload.state import LOAD_POS, POS, QUAT, RATES, THRUST, VEL, join_state, quat_wxyz_to_xyzw
-from slungload.training import (
-    PRESETS,
-    EpochBatches,
-    Preset,
-    TrainExtras,
-    _warmup_cosine,
-    load_checkpoint,
-    train,
-)
+from slungload.training import _warmup_cosine, train
 
 torch.set_num_threads(1)
 
@@ -383,14 +378,14 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
 
 
 def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
+    from slungload.batches import augment_yaw
     from slungload.model import Prediction
-    from slungload.training import _turned
 
     w = dataset.splits["train"][torch.arange(4)]
     m = dataset.window.history
     batch = (w.states.double(), w.inputs.double(), w.aux.double())
     torch.manual_seed(3)
-    turned = _turned(batch)
+    turned = augment_yaw(batch)
     assert not torch.allclose(turned[0][..., POS], batch[0][..., POS])
     assert torch.equal(turned[1], batch[1])  # thrust and body rates are body-frame quantities
     for part in (VEL, LOAD_POS):

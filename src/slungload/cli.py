@@ -207,7 +207,7 @@ def _choices(kind: str) -> list[str]:
     if kind == "variants":
         from .loss import LOSS_VARIANTS as names
     else:
-        from .training import PRESETS as names
+        from .presets import PRESETS as names
     return sorted(names)
 
 

@@ -20,7 +20,7 @@ the package version; ``OnnxPredictor`` refuses a model whose file, inputs, outpu
 layout disagree with its sidecar.
 
 Runtime path: ``OnnxPredictor`` needs numpy, onnxruntime and the package's ``predictor`` checks;
-it never imports Lightning or ``train`` (``export`` does, lazily, to read checkpoints).
+it never imports Lightning or ``training`` (checkpoints are read with torch alone).
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from .checkpoints import load_checkpoint
 from .config import to_dict
 from .fileio import atomic_path, write_json
 from .predictor import (
@@ -231,8 +232,6 @@ def _load(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], st
             "params": to_dict(source.params),
         }
         return source, configs, "in-memory Predictor"
-    from .training import load_checkpoint  # Lightning: only the export side needs it
-
     loaded = load_checkpoint(source)
     predictor = Predictor(loaded.model.eval(), loaded.window, loaded.params, loaded.variant)
     configs = {

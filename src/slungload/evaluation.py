@@ -37,11 +37,11 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from .checkpoints import LoadedModel, load_checkpoint
 from .config import VehicleParams, WindowConfig, to_dict
 from .data import load_dataset
 from .physics import rollout
 from .state import GROUPS, QUAT, quat_error, quat_normalize
-from .training import LoadedModel, load_checkpoint
 from .windows import Windows, make_windows
 
 COMBINED = "combined"

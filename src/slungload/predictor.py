@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from .checkpoints import load_checkpoint
 from .config import VehicleParams, WindowConfig
 from .model import SlungLoadNet, with_unit_quaternion
 from .state import (
@@ -35,8 +36,8 @@ from .state import (
     quat_xyzw_to_wxyz,
 )
 
-# No Lightning here (``train`` is imported inside ``from_checkpoint`` only): ``export``'s
-# runtime predictor shares this module's checks and must load without the training stack.
+# No Lightning here (``checkpoints`` reads files with torch alone): ``export``'s runtime
+# predictor shares this module's checks and must load without the training stack.
 
 HISTORY_DIM = STATE_DIM + INPUT_DIM  # 17 columns: x_k then u_k
 
@@ -91,8 +92,6 @@ class Predictor:
     @classmethod
     def from_checkpoint(cls, path: str | Path, *, device: str | torch.device = "cpu") -> Predictor:
         """Load a run folder (its ``best.ckpt``) or a ``.ckpt`` written by ``train``."""
-        from .training import load_checkpoint  # Lightning is imported only when needed
-
         loaded = load_checkpoint(path)
         device = torch.device(device)
         return cls(

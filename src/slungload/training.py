@@ -1,8 +1,9 @@
-"""Training: the network and its loss in a Lightning module, presets, checkpoints, resume.
+"""Training: the network and its loss in a Lightning module, presets, resume, signals.
 
-One entry function, ``train(data, out=...) -> Run``, and its inverse for the trained file,
-``load_checkpoint(path) -> LoadedModel``. Read top to bottom: presets, batches, the Lightning
-module, checkpoints, ``train``. Its command line is ``slungload train`` (cli.py).
+One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
+``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
+``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
+signals, ``train``. Its command line is ``slungload train`` (cli.py).
 
 A run folder holds::
 
@@ -39,14 +40,12 @@ import csv
 import dataclasses
 import logging
 import math
-import re
 import signal
 import sys
 import threading
 import time
 import warnings
-import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from datetime import timedelta
 from pathlib import Path
@@ -68,27 +67,18 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from lightning.pytorch.utilities import rank_zero_warn
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 from torch import Tensor
-from torch.utils.data import DataLoader, Sampler
 
-from .config import (
-    LossWeights,
-    ModelConfig,
-    TrainConfig,
-    VehicleParams,
-    WindowConfig,
-    from_dict,
-    to_dict,
-)
+from .batches import WindowData, augment_yaw
+from .checkpoints import BEST, CKPT_FORMAT, CKPT_KEY, LAST, check_resumable
+from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
 from .data import Dataset, load_dataset
 from .fileio import atomic_path, write_json
 from .loss import compute_loss, model_config_for
 from .model import Prediction, SlungLoadNet, with_unit_quaternion
-from .state import GROUPS, QUAT, quat_error, rotate_about_z
-from .windows import Windows
+from .presets import Preset, TrainExtras, get_preset
+from .state import GROUPS, QUAT, quat_error
 
-CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
-CKPT_FORMAT = 1  # bump when the embedded dict changes incompatibly
-BEST, LAST, RUN_JSON = "best.ckpt", "last.ckpt", "run.json"
+RUN_JSON = "run.json"
 MONITOR = "val/total"  # drives early stopping and the best checkpoint
 
 
@@ -105,207 +95,6 @@ class TrainingDiverged(ValueError):
 
 
 # --- presets -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TrainExtras:
-    """Training options beyond ``config.TrainConfig`` (candidates to move into it)."""
-
-    warmup_epochs: int = 0  # epochs of linear lr warm-up before the cosine decay
-    min_lr_ratio: float = 0.0  # lr at the end of the cosine decay, as a fraction of lr
-    max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
-    val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
-    max_bad_steps: int = 10  # consecutive non-finite training losses before giving up
-    # Turn every training window about the vertical by a random yaw (a symmetry of the physics:
-    # ``state.rotate_about_z``): the network meets each maneuver at every heading.
-    augment_yaw: bool = False
-
-    def __post_init__(self) -> None:
-        if self.warmup_epochs < 0:
-            raise ValueError(f"warmup_epochs must be >= 0, got {self.warmup_epochs}")
-        if not 0.0 <= self.min_lr_ratio <= 1.0:
-            raise ValueError(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio}")
-        if self.max_time is not None and self.max_time <= 0:
-            raise ValueError(f"max_time must be > 0 s, got {self.max_time}")
-        if self.val_windows is not None and self.val_windows < 1:
-            raise ValueError(f"val_windows must be >= 1, got {self.val_windows}")
-        if self.max_bad_steps < 1:
-            raise ValueError(f"max_bad_steps must be >= 1, got {self.max_bad_steps}")
-
-
-@dataclass(frozen=True)
-class Preset:
-    """A named optimisation schedule: ``TrainConfig`` plus ``TrainExtras``."""
-
-    name: str
-    config: TrainConfig
-    extras: TrainExtras = TrainExtras()
-    description: str = ""
-
-
-PRESETS: dict[str, Preset] = {
-    "paper": Preset(
-        "paper",
-        TrainConfig(
-            lr=1e-4, weight_decay=0.05, batch_size=256, max_epochs=3000, patience=50, grad_clip=0.0
-        ),
-        description="the paper: Adam 1e-4, L2 0.05, batch 256, <= 3000 epochs, patience 50",
-    ),
-    # For a 2-core CPU, one thread per run, two runs side by side (measured, docs/training.md):
-    # the paper-size model costs ~2.8 ms per window and training step at batch 64, so an epoch
-    # of 2,048 windows plus 1,024 validation windows takes ~7 s alone and ~10 s with a second
-    # run beside it; 45 epochs fit in ~8 min, and max_time caps a run at 10 min whatever the
-    # machine, so three variants two at a time finish within ~20 min.
-    "default": Preset(
-        "default",
-        TrainConfig(
-            lr=1e-3,
-            weight_decay=0.05,
-            optimizer="adamw",
-            batch_size=64,
-            max_epochs=45,
-            patience=12,
-            windows_per_epoch=2048,
-            lr_schedule="cosine",
-        ),
-        TrainExtras(warmup_epochs=3, min_lr_ratio=0.05, max_time=600.0, val_windows=1024),
-        description="CPU budget: AdamW 1e-3, warm-up + cosine, 2048 windows/epoch, <= 10 min",
-    ),
-    "quick": Preset(
-        "quick",
-        TrainConfig(
-            lr=1e-3,
-            weight_decay=0.0,
-            batch_size=32,
-            max_epochs=2,
-            patience=2,
-            windows_per_epoch=128,
-        ),
-        TrainExtras(val_windows=64),
-        description="smoke test: 2 epochs of 128 windows, seconds",
-    ),
-}
-
-
-def get_preset(preset: str | Preset) -> Preset:
-    """A preset by name (``PRESETS``), or the given ``Preset`` itself."""
-    if isinstance(preset, Preset):
-        return preset
-    if preset not in PRESETS:
-        raise ValueError(f"unknown training preset {preset!r}; choose from {sorted(PRESETS)}")
-    return PRESETS[preset]
-
-
-# --- batches -----------------------------------------------------------------------------
-
-
-class WindowTensors(torch.utils.data.Dataset):
-    """Windows as a map-style dataset indexed by a whole batch of indices at once.
-
-    ``dataset[idx]`` with an index tensor (B,) -> states (B, M+N, 13), inputs (B, M+N, 4),
-    aux (B, M+N, 6): one gather per tensor instead of B item lookups and a collate.
-    """
-
-    def __init__(self, windows: Windows) -> None:
-        self.tensors = (windows.states, windows.inputs, windows.aux)
-
-    def __len__(self) -> int:
-        return len(self.tensors[0])
-
-    def __getitem__(self, index: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        return tuple(t[index] for t in self.tensors)  # type: ignore[return-value]
-
-
-class EpochBatches(Sampler[Tensor]):
-    """Index batches of one epoch, drawn from ``(seed, epoch)`` and split over processes.
-
-    shuffle=True: a random permutation (several back to back if ``num_samples`` > n), cut to
-    ``num_samples``; shuffle=False: 0 .. n-1 in order. Process ``rank`` of ``world_size`` takes
-    every world_size-th index of an equal-length prefix, so all processes run the same number
-    of batches (DDP needs that). Lightning calls ``set_epoch`` before each epoch.
-    """
-
-    def __init__(
-        self,
-        n: int,
-        batch_size: int,
-        *,
-        num_samples: int | None = None,
-        shuffle: bool = True,
-        seed: int = 0,
-        rank: int = 0,
-        world_size: int = 1,
-    ) -> None:
-        if n < 1:
-            raise ValueError("EpochBatches: no windows to draw from")
-        self.n, self.batch_size, self.shuffle, self.seed = n, batch_size, shuffle, seed
-        self.num_samples = num_samples if num_samples is not None else n
-        self.rank, self.world_size = rank, world_size
-        self.epoch = 0
-        if self.num_samples < world_size:
-            raise ValueError(f"EpochBatches: {self.num_samples} windows for {world_size} processes")
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
-    def _indices(self) -> Tensor:
-        if not self.shuffle:
-            idx = torch.arange(self.n)[: self.num_samples]
-        else:
-            seed = int(np.random.SeedSequence([self.seed, self.epoch]).generate_state(1)[0])
-            gen = torch.Generator().manual_seed(seed)
-            reps = math.ceil(self.num_samples / self.n)
-            idx = torch.cat([torch.randperm(self.n, generator=gen) for _ in range(reps)])
-            idx = idx[: self.num_samples]
-        share = len(idx) // self.world_size
-        return idx[: share * self.world_size][self.rank :: self.world_size]
-
-    def __iter__(self) -> Iterator[Tensor]:
-        yield from self._indices().split(self.batch_size)
-
-    def __len__(self) -> int:
-        share = self.num_samples // self.world_size
-        return math.ceil(share / self.batch_size)
-
-
-class WindowData(L.LightningDataModule):
-    """Training and validation loaders over ``Windows`` tensors, in the main process."""
-
-    def __init__(self, train: Windows, val: Windows, config: TrainConfig, extras: TrainExtras):
-        super().__init__()
-        if len(train) == 0 or len(val) == 0:
-            raise ValueError(
-                f"training needs windows in both splits; got train {len(train)}, val {len(val)}"
-            )
-        self.train_windows, self.config = train, config
-        if extras.val_windows is not None and extras.val_windows < len(val):
-            gen = torch.Generator().manual_seed(config.seed)
-            pick = torch.randperm(len(val), generator=gen)[: extras.val_windows]
-            val = val[pick.sort().values]
-        self.val_windows = val
-
-    def _loader(self, windows: Windows, *, train: bool) -> DataLoader:
-        trainer = self.trainer
-        rank, world = (trainer.global_rank, trainer.world_size) if trainer else (0, 1)
-        sampler = EpochBatches(
-            len(windows),
-            self.config.batch_size,
-            num_samples=self.config.windows_per_epoch if train else None,
-            shuffle=train,
-            seed=self.config.seed,
-            rank=rank,
-            world_size=world,
-        )
-        return DataLoader(WindowTensors(windows), batch_size=None, sampler=sampler)
-
-    def train_dataloader(self) -> DataLoader:
-        return self._loader(self.train_windows, train=True)
-
-    def val_dataloader(self) -> DataLoader:
-        return self._loader(self.val_windows, train=False)
-
-
-# --- the Lightning module ----------------------------------------------------------------
 
 
 def _terms(loss_terms: Any) -> dict[str, Tensor]:
@@ -384,7 +173,7 @@ class SlungLoadModule(L.LightningModule):
 
     def training_step(self, batch: tuple[Tensor, Tensor, Tensor], batch_idx: int) -> Tensor | None:
         if self.extras.augment_yaw:
-            batch = _turned(batch)
+            batch = augment_yaw(batch)
         terms, _ = self._loss_terms(batch)
         loss = terms["total"]
         bad = ~torch.isfinite(loss.detach())
@@ -461,16 +250,6 @@ class SlungLoadModule(L.LightningModule):
         checkpoint[CKPT_KEY] = self.meta
 
 
-def _turned(batch: tuple[Tensor, Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
-    """The batch turned about z by a yaw per window, uniform in [-pi, pi) (so a level
-    attitude keeps w >= 0, as in the data). Drawn from torch's generator, which
-    ``on_train_batch_start`` reseeds per batch: resumed runs turn the same way."""
-    states, inputs, aux = batch
-    yaw = (2.0 * torch.rand(len(states), 1, device=states.device) - 1.0) * math.pi  # (B, 1)
-    states, aux = rotate_about_z(states, aux, yaw.to(states.dtype))
-    return states, inputs, aux
-
-
 def _warmup_cosine(warmup: int, total: int, floor: float):
     """lr factor at optimiser step s: linear 0 -> 1 over ``warmup`` steps, then cosine to
     ``floor`` at ``total``. A plain function, so LambdaLR's state stays a plain dict."""
@@ -484,7 +263,7 @@ def _warmup_cosine(warmup: int, total: int, floor: float):
     return factor
 
 
-# --- checkpoints -------------------------------------------------------------------------
+# --- checkpoint writing and signals ------------------------------------------------------
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
@@ -551,143 +330,6 @@ def _sigint_as_sigterm() -> Iterator[list[int]]:
         yield received
     finally:
         signal.signal(signal.SIGINT, previous)
-
-
-@dataclass(frozen=True)
-class LoadedModel:
-    """A trained network rebuilt from a checkpoint, in eval mode on the CPU."""
-
-    model: SlungLoadNet
-    variant: str
-    window: WindowConfig
-    params: VehicleParams
-    model_config: ModelConfig
-    weights: LossWeights
-    train_config: TrainConfig
-    meta: dict[str, Any]  # everything embedded in the file (plain dicts)
-    path: Path
-
-
-def checkpoint_path(path: str | Path) -> Path:
-    """A ``.ckpt`` file as given, or a run folder's ``best.ckpt``."""
-    path = Path(path).expanduser()
-    if path.is_dir():
-        path = path / BEST
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} does not exist")
-    return path
-
-
-def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu") -> LoadedModel:
-    """Rebuild the network of a slungload checkpoint (a ``.ckpt``, or a run folder's best).
-
-    Loads with ``torch.load(weights_only=True)``: no arbitrary object is ever unpickled.
-    Raises ``ValueError`` naming the file if it is not a slungload checkpoint.
-    """
-    path = checkpoint_path(path)
-    ckpt, meta = _read_checkpoint(path, map_location)
-    try:
-        model_config = from_dict(ModelConfig, meta["model"])
-        net = SlungLoadNet(model_config)
-        prefix = "net."
-        state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
-        net.load_state_dict(state)
-        loaded = LoadedModel(
-            model=net.eval(),
-            variant=str(meta["variant"]),
-            window=from_dict(WindowConfig, meta["window"]),
-            params=from_dict(VehicleParams, meta["params"]),
-            model_config=model_config,
-            weights=from_dict(LossWeights, meta["weights"]),
-            train_config=from_dict(TrainConfig, meta["train"]),
-            meta=meta,
-            path=path,
-        )
-    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise ValueError(
-            f"{path}: {_written_by(meta)} does not fit this slungload {_version()} "
-            f"({type(exc).__name__}: {_first_line(exc)})"
-        ) from exc
-    return loaded
-
-
-def _read_checkpoint(path: Path, map_location: Any = "cpu") -> tuple[dict, dict[str, Any]]:
-    """The checkpoint dict and its embedded configs, loaded with ``weights_only=True``."""
-    if not zipfile.is_zipfile(path):  # torch.load would try any other bytes as a raw pickle
-        raise ValueError(
-            f"{path}: not a readable checkpoint (not a torch zip archive: truncated, or "
-            "another format)"
-        )
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # zip, pickle or format errors all mean the same to the caller
-        if "Weights only load failed" in str(exc):
-            # torch's message is a paragraph on how to allow it; keep only what was refused.
-            found = re.search(r"GLOBAL ([\w.]+)", str(exc))
-            what = f"it calls {found.group(1)}" if found else _first_line(exc)
-            raise ValueError(
-                f"{path}: holds pickled Python objects beyond tensors and plain data, which "
-                f"are refused, never unpickled ({what})"
-            ) from None
-        raise ValueError(
-            f"{path}: not a readable checkpoint ({type(exc).__name__}: {_first_line(exc)})"
-        ) from exc
-    meta = ckpt.get(CKPT_KEY) if isinstance(ckpt, dict) else None
-    if not isinstance(meta, dict) or not isinstance(ckpt.get("state_dict"), Mapping):
-        raise ValueError(f"{path}: not a slungload checkpoint (no '{CKPT_KEY}' configs inside)")
-    if meta.get("format") != CKPT_FORMAT:
-        raise ValueError(
-            f"{path}: {_written_by(meta)} uses checkpoint format {meta.get('format')!r}; "
-            f"this slungload {_version()} reads format {CKPT_FORMAT}"
-        )
-    return ckpt, meta
-
-
-def _version() -> str:
-    from . import __version__
-
-    return __version__
-
-
-def _written_by(meta: dict[str, Any]) -> str:
-    return f"checkpoint written by slungload {meta.get('package_version', '(unknown version)')}"
-
-
-def _first_line(exc: BaseException) -> str:
-    """An exception's message on one line: its first two lines, at most 300 characters."""
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    text = " ".join(lines[:2]) or type(exc).__name__
-    return text if len(text) <= 300 else text[:297] + "..."
-
-
-def _check_resumable(last: Path, meta: dict[str, Any]) -> None:
-    """Refuse to resume a run with other settings than it was started with, naming them."""
-    _, saved = _read_checkpoint(last)
-    # The epoch budget may be raised on resume, the data folder may have moved, and the same
-    # constants may come from vehicle.json or from options.
-    free = {"package_version", "data", "params_source", "train.max_epochs"}
-    differ = [d for d in _differences(saved, meta) if d[0] not in free]
-    order = ["variant", "preset", "window", "params", "model", "weights", "train", "extras"]
-    differ.sort(
-        key=lambda d: order.index(d[0].split(".")[0]) if d[0].split(".")[0] in order else 99
-    )
-    if differ:
-        details = "; ".join(f"{k}: {a!r} -> {b!r}" for k, a, b in differ[:8])
-        details += f"; and {len(differ) - 8} more" if len(differ) > 8 else ""
-        raise ValueError(
-            f"cannot resume {last}: it was started with other settings ({details}); "
-            "resume with the same options or start a new run folder"
-        )
-
-
-def _differences(a: Any, b: Any, prefix: str = "") -> list[tuple[str, Any, Any]]:
-    """(dotted key, a's value, b's value) wherever two nested dicts differ."""
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for key in sorted(set(a) | set(b), key=str):
-            out += _differences(a.get(key), b.get(key), f"{prefix}{key}.")
-        return out
-    return [] if a == b else [(prefix.rstrip("."), a, b)]
 
 
 # --- train -------------------------------------------------------------------------------
@@ -820,7 +462,7 @@ def train(
         "data": str(dataset.folder),
     }
     if resume:
-        _check_resumable(last, meta)
+        check_resumable(last, meta)
     module = SlungLoadModule(
         net,
         variant=variant,
@@ -831,7 +473,9 @@ def train(
         extras=extras,
         meta=meta,
     )
-    datamodule = WindowData(train_windows, dataset.splits["val"], config, extras)
+    datamodule = WindowData(
+        train_windows, dataset.splits["val"], config, val_windows=extras.val_windows
+    )
 
     best_cb = ModelCheckpoint(
         dirpath=out,
