@@ -508,7 +508,7 @@ def test_non_finite_loss_steps_are_skipped_and_counted(tmp_path, monkeypatch):
         run = train(data, out=tmp_path / "run", preset="quick", window=SMALL, model_config=TINY,
                     progress=False, num_threads=1)  # fmt: skip
     assert run.skipped_steps == sum(1 for i in calls if i % 3 == 1) > 0
-    assert "steps skipped (loss not finite)" in run.summary()
+    assert "steps skipped (loss or gradients not finite)" in run.summary()
     assert np.isfinite(run.best_val_loss)
     assert all(torch.isfinite(w).all() for w in _weights(run.last_checkpoint).values())
     rows = csv.DictReader((tmp_path / "run" / "csv" / "metrics.csv").open())
@@ -516,6 +516,29 @@ def test_non_finite_loss_steps_are_skipped_and_counted(tmp_path, monkeypatch):
               if r.get("train/skipped_steps")]  # fmt: skip
     assert sum(s for s, _ in logged) == run.skipped_steps
     assert all(np.isfinite(total) for _, total in logged)  # the skipped steps are not averaged in
+
+
+@pytest.mark.filterwarnings("ignore:non-finite gradients")  # one is checked below
+def test_non_finite_gradients_of_a_finite_loss_are_dropped(tmp_path, monkeypatch):
+    original = train_module.compute_loss
+    calls: list[int] = []
+
+    def compute_loss(pred, *args, **kwargs):
+        terms = original(pred, *args, **kwargs)
+        if torch.is_grad_enabled():
+            calls.append(len(calls))
+            if calls[-1] % 3 == 1:  # + sqrt(0): the value is unchanged, the gradient is NaN
+                return terms._replace(total=terms.total + (pred.states * 0.0).sum().sqrt())
+        return terms
+
+    monkeypatch.setattr(train_module, "compute_loss", compute_loss)
+    data = make_dataset(tmp_path / "ds")
+    with pytest.warns(UserWarning, match="non-finite gradients at epoch 0"):
+        run = train(data, out=tmp_path / "run", preset="quick", window=SMALL, model_config=TINY,
+                    progress=False, num_threads=1)  # fmt: skip
+    assert run.skipped_steps == sum(1 for i in calls if i % 3 == 1) > 0
+    assert np.isfinite(run.best_val_loss)
+    assert all(torch.isfinite(w).all() for w in _weights(run.last_checkpoint).values())
 
 
 @pytest.mark.filterwarnings("ignore:non-finite training loss")

@@ -199,6 +199,24 @@ class SlungLoadModule(L.LightningModule):
             return sum((p * 0.0).sum() for p in self.parameters())  # type: ignore[return-value]
         return None  # Lightning skips the backward pass and the weight update
 
+    def on_before_optimizer_step(self, optimizer: Any) -> None:
+        # A finite loss can still give non-finite gradients (an overflow in the backward pass);
+        # clipping would spread them into every weight. Drop them: as for a non-finite loss, the
+        # step then moves only the optimiser's momentum.
+        grads = [p.grad for p in self.parameters() if p.grad is not None]
+        if not grads:
+            return
+        bad = ~torch.stack([torch.isfinite(g).all() for g in grads]).all()
+        if self.trainer.world_size > 1:  # every process must drop the same step
+            bad = self.trainer.strategy.reduce(bad.float(), reduce_op="sum") > 0
+        if not bad:
+            return
+        for g in grads:
+            g.zero_()
+        self.skipped_steps += 1
+        where = f"epoch {self.current_epoch}, step {self.global_step}"
+        rank_zero_warn(f"non-finite gradients at {where}: step skipped", category=UserWarning)
+
     def on_train_batch_start(self, batch: Any, batch_idx: int) -> None:
         # Dropout draws from torch's global generator, which a checkpoint does not hold (and
         # which the data loader draws from too): reseed it for every batch, so a run resumed at
@@ -227,9 +245,11 @@ class SlungLoadModule(L.LightningModule):
         sq_err = self.trainer.strategy.reduce(self._sq_err, reduce_op="sum")
         count = self.trainer.strategy.reduce(self._count, reduce_op="sum")
         rmse = (sq_err / count.clamp_min(1)).sqrt().float()
+        # Already summed over processes: sync_dist only averages equal values (and tells
+        # Lightning so).
         for i, name in enumerate(GROUPS):
-            self.log(f"val/rmse_{name}", rmse[i])
-        self.log("val/fit_rmse", rmse.sum(), prog_bar=True)
+            self.log(f"val/rmse_{name}", rmse[i], sync_dist=True)
+        self.log("val/fit_rmse", rmse.sum(), prog_bar=True, sync_dist=True)
 
     def configure_optimizers(self) -> Any:
         cfg, extras = self.config, self.extras
@@ -356,7 +376,7 @@ class Run:
         return {k: str(v) if isinstance(v, Path) else v for k, v in d.items()}
 
     def summary(self) -> str:
-        skipped = f"{self.skipped_steps} steps skipped (loss not finite); " * bool(
+        skipped = f"{self.skipped_steps} steps skipped (loss or gradients not finite); " * bool(
             self.skipped_steps
         )
         return (
