@@ -12,19 +12,22 @@ import torch
 from flights import roll_out_flight
 from torch import Tensor, nn
 
-from slungload.config import VehicleParams, WindowConfig
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.evaluation import (
     COMBINED,
     PHYSICS,
     Candidate,
     NetworkPredictor,
     PhysicsPredictor,
+    _compiled,
     evaluate_predictors,
     group_errors,
     horizon_windows,
     metrics_from_errors,
+    time_compiled,
     time_inference,
 )
+from slungload.model import SlungLoadNet
 from slungload.physics import hover_thrust
 from slungload.state import GROUPS, LOAD_POS, POS, QUAT, quat_from_rotvec, quat_mul
 from slungload.windows import Windows, make_windows
@@ -230,6 +233,24 @@ def test_timing_positive():
     assert t.threads == torch.get_num_threads() and (t.history, t.horizon) == (M, N)
     with pytest.raises(ValueError):
         time_inference(HoldNet(), windows_for_timing(), repeats=1)
+
+
+def test_compiled_timing_for_networks_of_the_paper_shape_only():
+    shaped = ModelConfig(embed_sizes=(8, 8, 8), hidden_size=4, num_layers=2, head_sizes=(8, 8, 8))
+    net = SlungLoadNet(shaped).eval()
+    windows = windows_for_timing()
+    compiled = _compiled(net, windows.window, PARAMS)
+    assert compiled is not None
+    t = time_compiled(compiled, windows, repeats=5, warmup=1)
+    assert t.backend == "numba compiled" and t.threads == 1 and t.mean_ms > 0
+    assert (t.history, t.horizon, t.repeats) == (M, N, 5)
+    assert time_inference(net, windows, repeats=2, warmup=0).backend == "torch eager"
+    # Other layer structures, and stand-in modules, are timed eagerly only.
+    other = SlungLoadNet(
+        ModelConfig(embed_sizes=(8,), hidden_size=4, num_layers=1, head_sizes=(8,), dropout=0.0)
+    )
+    assert _compiled(other, windows.window, PARAMS) is None
+    assert _compiled(HoldNet(), windows.window, PARAMS) is None
 
 
 def windows_for_timing() -> Windows:

@@ -176,6 +176,7 @@ def test_timing_csv_matches_report(written, report):
     for row, t in zip(rows, report.timings, strict=True):
         assert float(row["mean_ms"]) == t.timing.mean_ms > 0
         assert math.isfinite(float(row["std_ms"])) and int(row["threads"]) >= 1
+        assert row["backend"] == "torch eager"  # stand-in networks: no compiled path
 
 
 def test_markdown_has_both_tables_ratios_and_figures(written, report):

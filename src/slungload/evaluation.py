@@ -37,9 +37,12 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from . import predictor as facade  # its ``Predictor`` is not this module's protocol of that name
 from .checkpoints import LoadedModel, load_checkpoint
+from .compiled import CompiledPredictor
 from .config import VehicleParams, WindowConfig, to_dict
 from .data import load_dataset
+from .model import SlungLoadNet
 from .physics import rollout
 from .state import GROUPS, QUAT, quat_error, quat_normalize
 from .windows import Windows, make_windows
@@ -283,6 +286,7 @@ class Timing:
     repeats: int
     threads: int  # torch.get_num_threads() during the measurement
     device: str  # e.g. "cpu (x86_64)" or the CUDA device name
+    backend: str = "torch eager"  # or "numba compiled" (``time_compiled``)
 
 
 def time_inference(
@@ -323,6 +327,48 @@ def time_inference(
         threads=torch.get_num_threads(),
         device=device_name(dev),
     )
+
+
+def time_compiled(
+    compiled: CompiledPredictor, windows: Windows, *, repeats: int = 100, warmup: int = 10
+) -> Timing:
+    """Time ``compiled.predict`` on the first window of ``windows`` (batch 1, one thread),
+    numpy in and out in the file layout, as a controller calls it."""
+    if repeats < 2:
+        raise ValueError(f"time_compiled: repeats must be >= 2, got {repeats}")
+    if len(windows) == 0:
+        raise ValueError("time_compiled: no window to time on")
+    m = windows.window.history
+    w = windows[0]
+    history = torch.cat([facade.states_to_file(w.states[:, :m]), w.inputs[:, :m]], -1)[0].numpy()
+    future = w.inputs[0, m:].numpy()
+    times = []
+    with torch.inference_mode():
+        for i in range(warmup + repeats):
+            t0 = time.perf_counter()
+            compiled.predict(history, future)
+            if i >= warmup:
+                times.append(1e3 * (time.perf_counter() - t0))
+    return Timing(
+        history=m,
+        horizon=windows.window.horizon,
+        mean_ms=statistics.fmean(times),
+        std_ms=statistics.stdev(times),
+        repeats=repeats,
+        threads=1,
+        device=device_name(torch.device("cpu")),
+        backend="numba compiled",
+    )
+
+
+def _compiled(model: nn.Module | None, window: WindowConfig, params: VehicleParams):
+    """A ``CompiledPredictor`` for a network it supports, else None (then only eager timing)."""
+    if not isinstance(model, SlungLoadNet):
+        return None
+    try:
+        return CompiledPredictor(facade.Predictor(model, window, params, "timing"))
+    except ValueError:  # another layer structure than the paper's
+        return None
 
 
 def device_name(device: torch.device) -> str:
@@ -583,6 +629,11 @@ def evaluate_predictors(
                 continue
             for n in horizons:
                 t = time_inference(c.model, windows[n], repeats=timing_repeats, device=device)
+                timings.append(TimingResult(c.label, c.seed, t))
+            # The batch-1 deployment path (one CPU thread) beside the eager network.
+            compiled = _compiled(c.model, windows[horizons[0]].window, params)
+            for n in horizons if compiled is not None else ():
+                t = time_compiled(compiled, windows[n], repeats=timing_repeats)
                 timings.append(TimingResult(c.label, c.seed, t))
 
     test_flights = windows[horizons[0]].names

@@ -142,12 +142,13 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
                 rows.append(row)
             paths.append(_write_csv(out / f"mae_{_slug(label)}_N{n}.csv", header, rows))
 
-    header = ["label", "seed", "history", "horizon", "mean_ms", "std_ms", "repeats", "threads",
-              "device"]  # fmt: skip
+    header = ["label", "seed", "backend", "history", "horizon", "mean_ms", "std_ms", "repeats",
+              "threads", "device"]  # fmt: skip
     rows = [
         [
             t.label,
             _blank(t.seed),
+            t.timing.backend,
             t.timing.history,
             t.timing.horizon,
             t.timing.mean_ms,
@@ -345,16 +346,22 @@ def _timing_section(report: Report) -> list[str]:
     lines = ["## Inference time, batch 1", ""]
     if report.timings:
         lines += [
-            "| model | seed | M | N | mean (ms) | std (ms) | calls | threads | device |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| model | seed | backend | M | N | mean (ms) | std (ms) | calls | threads | device |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for t in report.timings:
             tm = t.timing
             lines.append(
-                f"| {t.label} | {_dash(t.seed)} | {tm.history} | {tm.horizon} "
+                f"| {t.label} | {_dash(t.seed)} | {tm.backend} | {tm.history} | {tm.horizon} "
                 f"| {tm.mean_ms:.2f} | {tm.std_ms:.2f} | {tm.repeats} | {tm.threads} "
                 f"| {tm.device} |"
             )
+        lines += [
+            "",
+            "`torch eager`: the network as trained, called on tensors (as the paper timed its own "
+            "code). `numba compiled`: `CompiledPredictor.predict`, the batch-1 deployment path, "
+            "numpy in and out on one CPU thread (`docs/deployment.md`).",
+        ]
     else:
         lines.append("Not measured (timing was switched off).")
     lines += [
