@@ -99,6 +99,3 @@ def get_preset(preset: str | Preset) -> Preset:
     if preset not in PRESETS:
         raise ValueError(f"unknown training preset {preset!r}; choose from {sorted(PRESETS)}")
     return PRESETS[preset]
-
-
-# --- the Lightning module ----------------------------------------------------------------

@@ -74,27 +74,22 @@ def write_figures(report: Report, folder: Path) -> list[tuple[str, Path]]:
     """All figures; returns (caption, path) pairs in display order."""
     n = max(report.horizons)
     out: list[tuple[str, Path]] = []
+
+    def mae_figure(labels: Sequence[str], name: str, caption: str) -> None:
+        curves = {label: report.curves[label][n] for label in labels}
+        path = plots.plot_mae(
+            curves, folder / name, dt=report.dt, training_horizon=report.training_horizon
+        )
+        out.append((f"MAE per horizon step, {caption} (N = {n})", path))
+
     ref = reference_label(report)
     for other in report.labels:
-        if ref is None or other == ref:
-            continue
-        curves = {ref: report.curves[ref][n], other: report.curves[other][n]}
-        path = plots.plot_mae(
-            curves,
-            folder / f"mae_{_slug(ref)}_vs_{_slug(other)}_N{n}.png",
-            dt=report.dt,
-            training_horizon=report.training_horizon,
-        )
-        out.append((f"MAE per horizon step, {ref} vs {other} (N = {n})", path))
+        if ref is not None and other != ref:
+            mae_figure(
+                [ref, other], f"mae_{_slug(ref)}_vs_{_slug(other)}_N{n}.png", f"{ref} vs {other}"
+            )
     if len(report.labels) > 2 or ref is None:
-        curves = {la: report.curves[la][n] for la in report.labels}
-        path = plots.plot_mae(
-            curves,
-            folder / f"mae_all_N{n}.png",
-            dt=report.dt,
-            training_horizon=report.training_horizon,
-        )
-        out.append((f"MAE per horizon step, all models (N = {n})", path))
+        mae_figure(report.labels, f"mae_all_N{n}.png", "all models")
     if report.example is not None:
         ex = report.example
         path = plots.plot_prediction(
