@@ -429,3 +429,16 @@ def test_summary(tmp_path):
     assert lo == pytest.approx(0.7) and hi == pytest.approx(0.7)
     table = summary.to_table()
     assert "override" in table and "61.9 %" in table and "swing angle" in table
+
+
+def test_summary_names_maneuvers_missing_from_training(tmp_path):
+    names = ["xy_step", "xy_step_04", "roll_35_00", "roll_35_01", "baf_fast_01"]
+    folder = make_dataset(tmp_path / "ds", dict.fromkeys(names, 40))
+    splits = {"train": ["xy_step", "baf_fast_01"], "val": ["xy_step_04"], "test": ["roll_35_00"]}
+    write_splits(folder, splits)
+    summary = summarize(folder, window=SMALL, params=PARAMS)
+    assert summary.unseen == {"val": (), "test": ("roll_35",)}
+    assert "maneuvers not in train: test: roll_35" in summary.to_table()
+    write_splits(folder, {**splits, "train": [*splits["train"], "roll_35_01"]})
+    table = summarize(folder, window=SMALL, params=PARAMS).to_table()
+    assert "every maneuver of val and test also has flights in train" in table

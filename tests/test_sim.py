@@ -23,7 +23,7 @@ from slungload.sim import (
     simulate_flight,
 )
 from slungload.sim.aero import Aero, ou_wind
-from slungload.sim.dataset import SPLIT_FRACTIONS, split_flights, windows_of
+from slungload.sim.dataset import SPLIT_FRACTIONS, flight_plan, split_flights, windows_of
 from slungload.sim.plant import Plant, PlantParams
 from slungload.sim.sensors import Mocap
 
@@ -266,6 +266,32 @@ def test_split_fractions_near_paper():
     for split, share in SPLIT_FRACTIONS.items():
         got = sum(windows_of(steps[names.index(n)]) for n in splits[split]) / total
         assert got == pytest.approx(share, abs=0.03)
+
+
+def test_split_puts_every_maneuver_family_in_training():
+    # 48 flights of 14 families, as the default dataset: a random split left whole families
+    # (roll_35, baf_very_fast) out of training; the family-aware one must not, and must keep
+    # the paper's shares.
+    plan = flight_plan(48)
+    names, families = [n for _, n in plan], [f for f, _ in plan]
+    steps = list(np.random.default_rng(2).integers(197, 800, size=48))
+    total = sum(windows_of(s) for s in steps)
+    for seed in range(5):
+        splits = split_flights(names, steps, np.random.default_rng(seed), families)
+        assert sorted(sum(splits.values(), ())) == sorted(names)
+        trained = {families[names.index(n)] for n in splits["train"]}
+        assert trained == set(MANEUVERS)
+        for split, share in SPLIT_FRACTIONS.items():
+            got = sum(windows_of(steps[names.index(n)]) for n in splits[split]) / total
+            assert got == pytest.approx(share, abs=0.03)
+
+
+def test_family_split_of_three_flights_fills_every_split():
+    splits = split_flights(["a_00", "b_00", "c_00"], [300, 300, 300], np.random.default_rng(0),
+                           ["a", "b", "c"])  # fmt: skip
+    assert all(len(v) == 1 for v in splits.values())
+    with pytest.raises(ValueError, match="2 families for 3 flights"):
+        split_flights(["a", "b", "c"], [300] * 3, np.random.default_rng(0), ["a", "b"])
 
 
 def test_same_seed_same_bytes_any_workers(small_dataset, tmp_path):

@@ -11,6 +11,7 @@ never uses a sample after k.
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -470,6 +471,9 @@ class DatasetSummary:
     ranges: dict[str, tuple[float, float, float]]  # quantity -> (min, median, max)
     skipped: tuple[str, ...]  # flights shorter than one window
     notes: tuple[str, ...] = ()
+    # split -> maneuvers (``maneuver_of``) with no flight in training: a test on them measures
+    # extrapolation to new kinds of motion, not prediction of known ones
+    unseen: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def to_table(self) -> str:
         p, w = self.params, self.window
@@ -493,6 +497,13 @@ class DatasetSummary:
         lines += ["", f"{'quantity':<28}{'min':>9}{'median':>9}{'max':>9}"]
         for name, (lo, mid, hi) in self.ranges.items():
             lines.append(f"{name:<28}{lo:>9.3f}{mid:>9.3f}{hi:>9.3f}")
+        if "train" in self.splits:
+            lines.append("")
+            unseen = [f"{k}: {', '.join(v)}" for k, v in self.unseen.items() if v]
+            if unseen:
+                lines.append("maneuvers not in train: " + "; ".join(unseen))
+            else:
+                lines.append("every maneuver of val and test also has flights in train")
         if self.skipped:
             lines += [
                 "",
@@ -544,9 +555,20 @@ def summarize(
         if parts:
             values = np.concatenate(parts)
             ranges[key] = (float(values.min()), float(np.median(values)), float(values.max()))
+    trained = {maneuver_of(n) for n in names.get("train", ())}
+    unseen = {
+        split: tuple(sorted({maneuver_of(n) for n in split_names} - trained))
+        for split, split_names in names.items()
+        if split != "train" and "train" in names
+    }
     return DatasetSummary(
-        folder, params, source, window, splits, ranges, tuple(skipped), tuple(notes)
+        folder, params, source, window, splits, ranges, tuple(skipped), tuple(notes), unseen
     )
+
+
+def maneuver_of(flight: str) -> str:
+    """A flight's maneuver: its name without the repetition number ("xy_step_04" -> "xy_step")."""
+    return re.sub(r"_\d+$", "", flight)
 
 
 def _swing_deg(f: Flight) -> np.ndarray:

@@ -61,18 +61,35 @@ def windows_of(steps: int, window: int = WINDOW_STEPS) -> int:
 
 
 def split_flights(
-    names: list[str], steps: list[int], rng: np.random.Generator
+    names: list[str],
+    steps: list[int],
+    rng: np.random.Generator,
+    families: list[str] | None = None,
 ) -> dict[str, tuple[str, ...]]:
     """Assign whole flights to train/val/test so each split gets about its share of windows.
 
-    Flights in random order, longest first within the draw, each to the split furthest below
-    its target; every split gets at least one flight when there are three or more.
+    With ``families`` (the maneuver family of each flight), one flight of every family, drawn at
+    random, goes to training first: as in the authors' split, where every family has
+    repetitions in training, the test measures prediction on kinds of maneuver the network has
+    seen rather than extrapolation to new ones. The other flights, in random order and longest
+    first within the draw, each go to the split furthest below its target; every split gets
+    at least one flight when there are three or more.
     """
-    order = rng.permutation(len(names))
-    order = sorted(order, key=lambda i: -windows_of(steps[i]))
-    total = sum(windows_of(s) for s in steps) or 1
+    order = list(rng.permutation(len(names)))
     got = {s: 0 for s in SPLITS}
     out: dict[str, list[str]] = {s: [] for s in SPLITS}
+    if families is not None:
+        if len(families) != len(names):
+            raise ValueError(f"{len(families)} families for {len(names)} flights")
+        seen: set[str] = set()
+        for i in order:
+            if families[i] not in seen and len(names) - len(seen) > 2:
+                seen.add(families[i])
+                out["train"].append(names[i])
+                got["train"] += windows_of(steps[i])
+        order = [i for i in order if names[i] not in out["train"]]
+    total = sum(windows_of(s) for s in steps) or 1
+    order = sorted(order, key=lambda i: -windows_of(steps[i]))
     for rank, i in enumerate(order):
         empty = [s for s in SPLITS if not out[s]]
         if empty and len(order) - rank <= len(empty):
@@ -123,7 +140,8 @@ def simulate_dataset(
         steps = dict(_run(jobs, workers, progress))
         names = [name for _, name in plan]
         lengths = [steps[n] for n in names]
-        splits = split_flights(names, lengths, np.random.default_rng(split_seed))
+        families = [family for family, _ in plan]
+        splits = split_flights(names, lengths, np.random.default_rng(split_seed), families)
         write_splits(tmp, {k: list(v) for k, v in splits.items()})
         write_json(tmp / VEHICLE_FILE, _metadata(cfg, seed, flights))
         if out.exists():
