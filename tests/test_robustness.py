@@ -556,3 +556,35 @@ def test_gradient_clipping_is_on_by_default_and_off_only_in_the_paper_preset():
     clip = {name: preset.config.grad_clip for name, preset in PRESETS.items()}
     assert clip.pop("paper") == 0.0
     assert all(value > 0 for value in clip.values()), clip
+
+
+def _alive(pid: int) -> bool:
+    """Running (not gone, not a zombie waiting for its new parent to reap it)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
+def test_a_pool_worker_stops_when_reproduce_is_killed():
+    # A middle process starts a "worker" that watches it, prints the worker's pid and is then
+    # killed, as `kill <reproduce pid>` does; the orphaned worker must stop by itself.
+    worker = (
+        "import os, sys, time; from slungload.experiment import watch_parent; "
+        "watch_parent(int(sys.argv[1]), 0.05); time.sleep(60)"
+    )
+    middle = (
+        "import os, subprocess, sys, time; "
+        f"p = subprocess.Popen([sys.executable, '-c', {worker!r}, str(os.getpid())]); "
+        "print(p.pid, flush=True); time.sleep(60)"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", middle], stdout=subprocess.PIPE, text=True)
+    pid = int(parent.stdout.readline())
+    assert _alive(pid)
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 120  # the worker first imports torch (slow on a busy machine)
+    while _alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _alive(pid)

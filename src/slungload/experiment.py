@@ -8,6 +8,9 @@ both cores: the model is small and its decoder loop is latency-bound.
 from __future__ import annotations
 
 import multiprocessing
+import os
+import signal
+import threading
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -37,6 +40,31 @@ class Reproduction:
 
 def _train_job(job: dict) -> Run:
     return train(job.pop("data"), **job)
+
+
+def _pool_job(job: dict, parent: int) -> Run:
+    """``_train_job`` in a pool worker that stops when its parent goes.
+
+    A ``kill`` of ``reproduce`` reaches the parent only; its workers would train on as
+    orphans, using the cores and writing into the output folder. Each watches its parent and
+    sends itself SIGTERM, which makes a training run save last.ckpt and stop.
+    """
+    watch_parent(parent)
+    return _train_job(job)
+
+
+def watch_parent(parent: int, interval: float = 1.0) -> threading.Thread:
+    """Send this process SIGTERM once it is no longer the child of process ``parent`` (checked
+    every ``interval`` seconds, in a daemon thread; at once if that is already so)."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(interval)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    thread = threading.Thread(target=watch, name="watch-parent", daemon=True)
+    thread.start()
+    return thread
 
 
 def reproduce(
@@ -120,7 +148,7 @@ def _run_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
         # spawn: a forked child would inherit the parent's torch thread pools and locks.
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
-            futures = [pool.submit(_train_job, job) for job in jobs]
+            futures = [pool.submit(_pool_job, job, os.getpid()) for job in jobs]
             for future in as_completed(futures):
                 future.result()  # re-raise a failed run here
                 bar.update()
