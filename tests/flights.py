@@ -54,3 +54,20 @@ def file_rows(states: torch.Tensor, inputs: torch.Tensor) -> np.ndarray:
     s = states.double().numpy().copy()
     s[..., QUAT] = s[..., QUAT][..., WXYZ_TO_XYZW]
     return np.concatenate([s, inputs.double().numpy()], axis=-1)
+
+
+def stop_gracefully_on_sigterm(marker: str) -> str:
+    """A stand-in for a training run in a pool worker: writes ``marker`` once running, then
+    waits; SIGTERM makes it raise (as Lightning's graceful stop ends ``train`` with
+    ``TrainingInterrupted``) instead of killing the process."""
+    import signal
+    import time
+    from pathlib import Path
+
+    def on_sigterm(signum, frame):
+        raise RuntimeError("stopped by SIGTERM")
+
+    signal.signal(signal.SIGTERM, on_sigterm)
+    Path(marker).write_text("running")
+    time.sleep(120)
+    return "done"

@@ -567,24 +567,32 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
-def test_a_pool_worker_stops_when_reproduce_is_killed():
-    # A middle process starts a "worker" that watches it, prints the worker's pid and is then
-    # killed, as `kill <reproduce pid>` does; the orphaned worker must stop by itself.
-    worker = (
-        "import os, sys, time; from slungload.experiment import watch_parent; "
-        "watch_parent(int(sys.argv[1]), 0.05); time.sleep(60)"
+def test_a_pool_worker_stops_when_reproduce_is_killed(tmp_path):
+    # A parent runs a job in reproduce's pool (``worker_pool``, ``_pool_job``), prints the
+    # worker's pid and is killed, as `kill <reproduce pid>` does. The job stops on SIGTERM the
+    # way a training run does (it raises); the orphaned worker must then exit, not linger.
+    tests, marker = str(Path(__file__).parent), tmp_path / "running"
+    parent_code = (
+        "import os, sys, time\n"
+        f"sys.path.insert(0, {tests!r})\n"
+        "from flights import stop_gracefully_on_sigterm\n"
+        "from slungload.experiment import _pool_job, worker_pool\n"
+        "pool = worker_pool(1)\n"
+        f"pool.submit(_pool_job, {str(marker)!r}, os.getpid(), stop_gracefully_on_sigterm)\n"
+        "print(*pool._processes, flush=True)\n"
+        "time.sleep(120)\n"
     )
-    middle = (
-        "import os, subprocess, sys, time; "
-        f"p = subprocess.Popen([sys.executable, '-c', {worker!r}, str(os.getpid())]); "
-        "print(p.pid, flush=True); time.sleep(60)"
+    parent = subprocess.Popen(
+        [sys.executable, "-c", parent_code], stdout=subprocess.PIPE, text=True
     )
-    parent = subprocess.Popen([sys.executable, "-c", middle], stdout=subprocess.PIPE, text=True)
-    pid = int(parent.stdout.readline())
-    assert _alive(pid)
+    (pid,) = map(int, parent.stdout.readline().split())
+    deadline = time.monotonic() + 120  # the worker first imports torch (slow on a busy machine)
+    while not marker.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert marker.exists() and _alive(pid)
     parent.kill()
     parent.wait()
-    deadline = time.monotonic() + 120  # the worker first imports torch (slow on a busy machine)
+    deadline = time.monotonic() + 30
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(pid)

@@ -12,10 +12,11 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from tqdm.auto import tqdm
 
@@ -42,15 +43,20 @@ def _train_job(job: dict) -> Run:
     return train(job.pop("data"), **job)
 
 
-def _pool_job(job: dict, parent: int) -> Run:
-    """``_train_job`` in a pool worker that stops when its parent goes.
+def _pool_job(job: Any, parent: int, run: Callable[[Any], Any] = _train_job) -> Any:
+    """``run(job)`` (a training run) in a pool worker that stops when its parent goes.
 
     A ``kill`` of ``reproduce`` reaches the parent only; its workers would train on as
-    orphans, using the cores and writing into the output folder. Each watches its parent and
-    sends itself SIGTERM, which makes a training run save last.ckpt and stop.
+    orphans, using the cores and writing into the output folder. Each watches its parent from
+    its start (``watch_parent`` as the pool's initializer) and sends itself SIGTERM, which
+    makes a training run save last.ckpt and stop; the worker then exits here rather than wait
+    for work from a parent that is gone.
     """
-    watch_parent(parent)
-    return _train_job(job)
+    try:
+        return run(job)
+    finally:
+        if os.getppid() != parent:
+            os._exit(128 + signal.SIGTERM)
 
 
 def watch_parent(parent: int, interval: float = 1.0) -> threading.Thread:
@@ -136,6 +142,17 @@ def reproduce(
     return Reproduction(data, run_dirs, report, out / "report" / "report.md", seconds)
 
 
+def worker_pool(workers: int) -> ProcessPoolExecutor:
+    """Processes for training runs (``_pool_job``): spawned, since a forked child would
+    inherit the parent's torch thread pools and locks; each watches its parent from its start."""
+    return ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=watch_parent,
+        initargs=(os.getpid(),),
+    )
+
+
 def _run_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
     if not jobs:
         return
@@ -145,9 +162,7 @@ def _run_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
             _train_job(job)
             bar.update()
     else:
-        # spawn: a forked child would inherit the parent's torch thread pools and locks.
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+        with worker_pool(min(workers, len(jobs))) as pool:
             futures = [pool.submit(_pool_job, job, os.getpid()) for job in jobs]
             for future in as_completed(futures):
                 future.result()  # re-raise a failed run here
