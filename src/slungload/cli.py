@@ -298,7 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--preset",
         default="default",
         choices=_choices("presets"),
-        help="default (CPU, ~6 min a seed when idle), quick (smoke test) or paper",
+        help="default (CPU, ~10 min a seed when idle), quick (smoke test) or paper",
     )
     p.add_argument("--seeds", default="0", help="training seeds: N, A..B or A,B (default 0)")
     p.add_argument(
