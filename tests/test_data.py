@@ -435,7 +435,7 @@ def test_summary_names_maneuvers_missing_from_training(tmp_path):
     names = ["xy_step", "xy_step_04", "roll_35_00", "roll_35_01", "baf_fast_01"]
     folder = make_dataset(tmp_path / "ds", dict.fromkeys(names, 40))
     splits = {"train": ["xy_step", "baf_fast_01"], "val": ["xy_step_04"], "test": ["roll_35_00"]}
-    write_splits(folder, splits)
+    write_splits(folder, {**splits, "test": ["roll_35_00", "roll_35_01"]})
     summary = summarize(folder, window=SMALL, params=PARAMS)
     assert summary.unseen == {"val": (), "test": ("roll_35",)}
     assert "maneuvers not in train: test: roll_35" in summary.to_table()
