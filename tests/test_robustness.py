@@ -16,7 +16,9 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +30,7 @@ from slungload.checkpoints import load_checkpoint
 from slungload.cli import main
 from slungload.config import ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.fileio import write_json, write_npz, write_splits
-from slungload.presets import PRESETS
+from slungload.presets import PRESETS, Preset
 from slungload.training import train
 
 # `slungload.training` the attribute is the function; the module is needed for monkeypatching.
@@ -596,3 +598,33 @@ def test_a_pool_worker_stops_when_reproduce_is_killed(tmp_path):
     while _alive(pid) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _alive(pid)
+
+
+def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch):
+    # A SIGTERM that lands in the middle of an epoch's validation (seen in session 3) saves a
+    # checkpoint whose epoch has all its training batches and part of its validation; the
+    # resumed run skips the rest of that validation (Lightning does), so that epoch has no
+    # val/total, and the run must go on rather than fail the early-stopping check.
+    data = make_dataset(tmp_path / "ds", {"f0": 40, "f1": 40, "f2": 200, "f3": 40})
+    quick = PRESETS["quick"]
+    preset = Preset("all-val", quick.config, replace(quick.extras, val_windows=None))
+    args = dict(variant="proposed", preset=preset, max_epochs=3, window=SMALL,
+                model_config=TINY, progress=False, num_threads=1)  # fmt: skip
+    sent: list[int] = []
+
+    def on_validation_batch_start(self, batch, batch_idx, dataloader_idx=0):
+        if self.current_epoch == 1 and batch_idx == 1 and not sent:  # of 6 batches
+            sent.append(batch_idx)
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(train_module.SlungLoadModule, "on_validation_batch_start",
+                        on_validation_batch_start)  # fmt: skip
+    out = tmp_path / "run"
+    with pytest.raises(train_module.TrainingInterrupted, match="SIGTERM at epoch 1"):
+        train(data, out=out, **args)
+    assert sent
+    monkeypatch.undo()
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*could not find the monitored key")
+        run = train(data, out=out, resume=True, **args)
+    assert run.epochs == 3 and (out / "run.json").is_file()

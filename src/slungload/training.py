@@ -512,7 +512,10 @@ def train(
     last_cb = ModelCheckpoint(
         dirpath=out, filename=LAST.removesuffix(".ckpt"), save_top_k=1, enable_version_counter=False
     )
-    stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience)
+    # strict=False: a run stopped by a signal in the middle of validation resumes past that
+    # epoch's validation (Lightning does not rerun it), so that one epoch has no val/total;
+    # the check skips it instead of failing the resumed run.
+    stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience, strict=False)
     interrupt_cb = SaveOnInterrupt(last)
     callbacks = [best_cb, last_cb, stop_cb, interrupt_cb]
     start = time.perf_counter()
