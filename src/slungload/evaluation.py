@@ -309,20 +309,12 @@ def time_inference(
     sync: Callable[[], None] = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
     model.eval()
     model.to(dev)
-    times = []
-    with torch.inference_mode():
-        for i in range(warmup + repeats):
-            sync()
-            t0 = time.perf_counter()
-            model(*args)
-            sync()
-            if i >= warmup:
-                times.append(1e3 * (time.perf_counter() - t0))
+    mean_ms, std_ms = _time_calls(lambda: model(*args), repeats, warmup, sync)
     return Timing(
         history=m,
         horizon=windows.window.horizon,
-        mean_ms=statistics.fmean(times),
-        std_ms=statistics.stdev(times),
+        mean_ms=mean_ms,
+        std_ms=std_ms,
         repeats=repeats,
         threads=torch.get_num_threads(),
         device=device_name(dev),
@@ -342,23 +334,37 @@ def time_compiled(
     w = windows[0]
     history = torch.cat([facade.states_to_file(w.states[:, :m]), w.inputs[:, :m]], -1)[0].numpy()
     future = w.inputs[0, m:].numpy()
-    times = []
-    with torch.inference_mode():
-        for i in range(warmup + repeats):
-            t0 = time.perf_counter()
-            compiled.predict(history, future)
-            if i >= warmup:
-                times.append(1e3 * (time.perf_counter() - t0))
+    mean_ms, std_ms = _time_calls(lambda: compiled.predict(history, future), repeats, warmup)
     return Timing(
         history=m,
         horizon=windows.window.horizon,
-        mean_ms=statistics.fmean(times),
-        std_ms=statistics.stdev(times),
+        mean_ms=mean_ms,
+        std_ms=std_ms,
         repeats=repeats,
         threads=1,
         device=device_name(torch.device("cpu")),
         backend="numba compiled",
     )
+
+
+def _time_calls(
+    call: Callable[[], object],
+    repeats: int,
+    warmup: int,
+    sync: Callable[[], None] = lambda: None,
+) -> tuple[float, float]:
+    """Mean and standard deviation, ms, of ``repeats`` calls after ``warmup`` untimed ones;
+    ``sync`` waits for the device before and after each call (CUDA runs asynchronously)."""
+    times = []
+    with torch.inference_mode():
+        for i in range(warmup + repeats):
+            sync()
+            t0 = time.perf_counter()
+            call()
+            sync()
+            if i >= warmup:
+                times.append(1e3 * (time.perf_counter() - t0))
+    return statistics.fmean(times), statistics.stdev(times)
 
 
 def _compiled(model: nn.Module | None, window: WindowConfig, params: VehicleParams):
