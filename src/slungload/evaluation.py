@@ -298,12 +298,8 @@ def time_inference(
     device: str | torch.device = "cpu",
 ) -> Timing:
     """Time ``model`` on the first window of ``windows`` (batch 1), after ``warmup`` calls."""
-    if repeats < 2:
-        raise ValueError(f"time_inference: repeats must be >= 2, got {repeats}")
-    if len(windows) == 0:
-        raise ValueError("time_inference: no window to time on")
-    m = windows.window.history
-    w = windows[0].to(device)
+    m, w = _timing_window("time_inference", windows, repeats)
+    w = w.to(device)
     args = (w.states[:, :m], w.inputs[:, :m], w.inputs[:, m:])
     dev = torch.device(device)
     sync: Callable[[], None] = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
@@ -326,12 +322,7 @@ def time_compiled(
 ) -> Timing:
     """Time ``compiled.predict`` on the first window of ``windows`` (batch 1, one thread),
     numpy in and out in the file layout, as a controller calls it."""
-    if repeats < 2:
-        raise ValueError(f"time_compiled: repeats must be >= 2, got {repeats}")
-    if len(windows) == 0:
-        raise ValueError("time_compiled: no window to time on")
-    m = windows.window.history
-    w = windows[0]
+    m, w = _timing_window("time_compiled", windows, repeats)
     history = torch.cat([facade.states_to_file(w.states[:, :m]), w.inputs[:, :m]], -1)[0].numpy()
     future = w.inputs[0, m:].numpy()
     mean_ms, std_ms = _time_calls(lambda: compiled.predict(history, future), repeats, warmup)
@@ -345,6 +336,15 @@ def time_compiled(
         device=device_name(torch.device("cpu")),
         backend="numba compiled",
     )
+
+
+def _timing_window(caller: str, windows: Windows, repeats: int) -> tuple[int, Windows]:
+    """History length M and the first window (batch 1) to time on, after checking both."""
+    if repeats < 2:
+        raise ValueError(f"{caller}: repeats must be >= 2, got {repeats}")
+    if len(windows) == 0:
+        raise ValueError(f"{caller}: no window to time on")
+    return windows.window.history, windows[0]
 
 
 def _time_calls(

@@ -81,13 +81,14 @@ def split_flights(
     if families is not None:
         if len(families) != len(names):
             raise ValueError(f"{len(families)} families for {len(names)} flights")
-        seen: set[str] = set()
+        first: dict[str, int] = {}  # family -> its flight drawn first
         for i in order:
-            if families[i] not in seen and len(names) - len(seen) > 2:
-                seen.add(families[i])
+            if families[i] not in first and len(names) - len(first) > 2:
+                first[families[i]] = i
                 out["train"].append(names[i])
                 got["train"] += windows_of(steps[i])
-        order = [i for i in order if names[i] not in out["train"]]
+        seeded = set(first.values())
+        order = [i for i in order if i not in seeded]
     total = sum(windows_of(s) for s in steps) or 1
     order = sorted(order, key=lambda i: -windows_of(steps[i]))
     for rank, i in enumerate(order):
