@@ -20,9 +20,9 @@ import torch
 import torch.nn.functional as F
 
 from slungload.config import VehicleParams, load_vehicle
-from slungload.data import estimate_load_state
-from slungload.model import (
-    Prediction,
+from slungload.data.flight import estimate_load_state
+from slungload.models.base import Prediction
+from slungload.models.lstm_attention import (
     SlungLoadNet,
     _check_shapes,
     _lstm_cell,
@@ -75,9 +75,9 @@ def physics_base_forward(params):
 
 
 def main(data: str, variant: str, out: str, seed: int = 0) -> None:
-    from slungload.evaluation import evaluate
-    from slungload.presets import PRESETS, Preset
-    from slungload.training import train
+    from slungload.evaluation.evaluator import evaluate
+    from slungload.training.presets import PRESETS, Preset
+    from slungload.training.trainer import train
 
     params = load_vehicle(data) or VehicleParams()
     SlungLoadNet.forward = physics_base_forward(params)

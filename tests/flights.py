@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from slungload.config import VehicleParams
-from slungload.data import estimate_load_state
+from slungload.data.flight import estimate_load_state
 from slungload.physics import hover_thrust, rollout
 from slungload.state import QUAT, join_state
 

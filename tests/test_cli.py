@@ -9,7 +9,7 @@ import math
 import pytest
 
 from slungload.cli import _seed_range, main
-from slungload.evaluation import PAPER_RMSE_N50
+from slungload.evaluation.results import PAPER_RMSE_N50
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str, str]:

@@ -11,7 +11,9 @@ import torch
 import torch.nn.functional as F
 from flights import file_rows, swinging_flight
 
-from slungload.compiled import (
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.data.windows import make_windows
+from slungload.deploy.compiled import (
     PARITY_TOLERANCE,
     CompiledPredictor,
     _exp,
@@ -19,11 +21,9 @@ from slungload.compiled import (
     _lstm_update,
     fold,
 )
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.model import SlungLoadNet
-from slungload.predictor import Predictor
+from slungload.deploy.predictor import Predictor
+from slungload.models.lstm_attention import SlungLoadNet
 from slungload.state import QUAT, STATE_DIM
-from slungload.windows import make_windows
 
 torch.set_num_threads(1)
 

@@ -15,15 +15,10 @@ import pytest
 import torch
 
 from slungload.config import VehicleParams, WindowConfig
-from slungload.data import (
-    DataWarning,
-    FlightFormatError,
-    estimate_load_state,
-    load_dataset,
-    read_flight,
-    read_splits,
-    summarize,
-)
+from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.flight import DataWarning, FlightFormatError, estimate_load_state
+from slungload.data.readers import read_flight
+from slungload.data.summary import summarize
 from slungload.fileio import write_npz, write_splits
 from slungload.state import LOAD_RATE, LOAD_VEL, QUAT
 

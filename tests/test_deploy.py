@@ -13,19 +13,19 @@ import torch
 from flights import file_rows, swinging_flight
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data import Dataset
-from slungload.deploy import (
+from slungload.data.dataset import Dataset
+from slungload.data.windows import make_windows
+from slungload.deploy.onnx import (
     FORMAT_VERSION,
     OnnxModelError,
     OnnxPredictor,
     export,
     sidecar_path,
 )
-from slungload.model import SlungLoadNet
-from slungload.predictor import Predictor
+from slungload.deploy.predictor import Predictor
+from slungload.models.lstm_attention import SlungLoadNet
 from slungload.state import QUAT, STATE_DIM
-from slungload.training import train
-from slungload.windows import make_windows
+from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 
@@ -148,7 +148,7 @@ def test_model_and_sidecar_mismatch_is_refused_naming_the_file(exported, tmp_pat
 def test_runtime_path_does_not_import_lightning(exported):
     code = (
         "import sys, numpy as np\n"
-        "from slungload.deploy import OnnxPredictor\n"
+        "from slungload.deploy.onnx import OnnxPredictor\n"
         f"p = OnnxPredictor({str(exported[25].model)!r})\n"
         "h = np.zeros((50, 17)); h[:, 9] = 1.0; h[:, 13] = 14.0\n"
         "assert p.predict(h, np.zeros((25, 4))).shape == (25, 13)\n"

@@ -13,24 +13,17 @@ from flights import roll_out_flight
 from torch import Tensor, nn
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.evaluation import (
-    COMBINED,
-    PHYSICS,
-    Candidate,
-    NetworkPredictor,
-    PhysicsPredictor,
-    _compiled,
-    evaluate_predictors,
-    group_errors,
-    horizon_windows,
-    metrics_from_errors,
-    time_compiled,
-    time_inference,
-)
-from slungload.model import SlungLoadNet
+from slungload.data.windows import Windows, make_windows
+from slungload.deploy.compiled import CompiledPredictor, unsupported
+from slungload.deploy.predictor import Predictor as Facade
+from slungload.deploy.timing import time_compiled, time_inference, time_models
+from slungload.evaluation.evaluator import Candidate, evaluate_predictors, horizon_windows
+from slungload.evaluation.metrics import COMBINED, group_errors, metrics_from_errors
+from slungload.evaluation.predictors import NetworkPredictor, PhysicsPredictor
+from slungload.evaluation.results import PHYSICS
+from slungload.models.lstm_attention import SlungLoadNet
 from slungload.physics import hover_thrust
 from slungload.state import GROUPS, LOAD_POS, POS, QUAT, quat_from_rotvec, quat_mul
-from slungload.windows import Windows, make_windows
 
 torch.set_num_threads(1)
 PARAMS = VehicleParams()
@@ -239,8 +232,8 @@ def test_compiled_timing_for_networks_of_the_paper_shape_only():
     shaped = ModelConfig(embed_sizes=(8, 8, 8), hidden_size=4, num_layers=2, head_sizes=(8, 8, 8))
     net = SlungLoadNet(shaped).eval()
     windows = windows_for_timing()
-    compiled = _compiled(net, windows.window, PARAMS)
-    assert compiled is not None
+    assert unsupported(net) is None
+    compiled = CompiledPredictor(Facade(net, windows.window, PARAMS, "timing"))
     t = time_compiled(compiled, windows, repeats=5, warmup=1)
     assert t.backend == "numba compiled" and t.threads == 1 and t.mean_ms > 0
     assert (t.history, t.horizon, t.repeats) == (M, N, 5)
@@ -249,8 +242,19 @@ def test_compiled_timing_for_networks_of_the_paper_shape_only():
     other = SlungLoadNet(
         ModelConfig(embed_sizes=(8,), hidden_size=4, num_layers=1, head_sizes=(8,), dropout=0.0)
     )
-    assert _compiled(other, windows.window, PARAMS) is None
-    assert _compiled(HoldNet(), windows.window, PARAMS) is None
+    assert "three embedding" in unsupported(other)
+    assert "does not support the 'HoldNet' architecture" in unsupported(HoldNet())
+    with pytest.raises(ValueError, match="HoldNet"):
+        CompiledPredictor(Facade(HoldNet(), windows.window, PARAMS, "timing"))
+    timings = time_models(
+        [("paper-shape", 0, net), ("other", 0, other)], {N: windows}, params=PARAMS, repeats=2
+    )
+    backends = [(t.label, t.timing.backend) for t in timings]
+    assert backends == [
+        ("paper-shape", "torch eager"),
+        ("paper-shape", "numba compiled"),
+        ("other", "torch eager"),
+    ]
 
 
 def windows_for_timing() -> Windows:
@@ -291,7 +295,6 @@ def test_evaluate_predictors_mean_and_std_across_seeds(flights):
         per_n,
         params=PARAMS,
         training_horizon=N,
-        timing=False,
     )
     assert report.labels == (PHYSICS, "proposed") and report.horizons == (N, 2 * N)
     assert len(report.results) == 6

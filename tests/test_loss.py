@@ -17,7 +17,8 @@ from slungload.loss import (
     physics_loss,
     physics_residual,
 )
-from slungload.model import Prediction, SlungLoadNet
+from slungload.models.base import Prediction
+from slungload.models.lstm_attention import SlungLoadNet
 from slungload.physics import hover_thrust, step
 from slungload.state import POS, QUAT, join_state, quat_from_rotvec
 

@@ -6,14 +6,9 @@ import pytest
 import torch
 
 from slungload.config import ModelConfig
-from slungload.model import (
-    STD_FLOOR,
-    Prediction,
-    SlungLoadNet,
-    count_parameters,
-    with_unit_quaternion,
-)
-from slungload.state import LOAD_POS, POS, QUAT, VEL, quat_normalize
+from slungload.models.base import Prediction, count_parameters
+from slungload.models.lstm_attention import STD_FLOOR, SlungLoadNet
+from slungload.state import LOAD_POS, POS, QUAT, VEL, quat_normalize, with_unit_quaternion
 
 torch.set_num_threads(1)
 
@@ -178,7 +173,7 @@ def test_single_row_equals_row_of_batch():
 
 def test_decoder_step_matches_torch_lstm():
     """The hand-written decoder step reproduces nn.LSTM on the same parameters."""
-    from slungload.model import _lstm_cell, _stacked_lstm_weights
+    from slungload.models.lstm_attention import _lstm_cell, _stacked_lstm_weights
 
     model = make_model()
     lstm = model.decoder

@@ -9,14 +9,13 @@ import pytest
 import torch
 from flights import WXYZ_TO_XYZW, file_rows, swinging_flight
 
-from slungload.checkpoints import load_checkpoint
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data import Dataset
-from slungload.model import with_unit_quaternion
-from slungload.predictor import Predictor
-from slungload.state import QUAT, STATE_DIM
-from slungload.training import train
-from slungload.windows import make_windows
+from slungload.data.dataset import Dataset
+from slungload.data.windows import make_windows
+from slungload.deploy.predictor import Predictor
+from slungload.models.checkpoints import load_checkpoint
+from slungload.state import QUAT, STATE_DIM, with_unit_quaternion
+from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 

@@ -17,7 +17,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from slungload.config import VehicleParams
-from slungload.data import DataWarning, FlightFormatError, read_flight
+from slungload.data.flight import DataWarning, FlightFormatError
+from slungload.data.readers import read_flight
 from slungload.fileio import FLIGHT_KEYS, write_npz
 from slungload.physics import step
 from slungload.state import LOAD_POS, POS, QUAT, VEL, join_state

@@ -18,22 +18,17 @@ from flights import roll_out_flight
 from torch import Tensor, nn
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.evaluation import (
-    METRIC_KEYS,
-    PAPER_RMSE_N50,
-    PHYSICS,
-    Candidate,
-    NetworkPredictor,
-    PhysicsPredictor,
-    Report,
-    evaluate,
-    evaluate_predictors,
-)
+from slungload.data.windows import make_windows
+from slungload.deploy.timing import time_models
+from slungload.evaluation.evaluator import Candidate, evaluate, evaluate_predictors
+from slungload.evaluation.metrics import METRIC_KEYS
+from slungload.evaluation.predictors import NetworkPredictor, PhysicsPredictor
+from slungload.evaluation.report import write_report
+from slungload.evaluation.results import PAPER_RMSE_N50, PHYSICS, Report
+from slungload.experiment import evaluate_runs
 from slungload.fileio import write_json, write_npz, write_splits
 from slungload.physics import hover_thrust
-from slungload.report import write_report
 from slungload.state import GROUPS, LOAD_POS, POS, QUAT, VEL, quat_from_rotvec, quat_wxyz_to_xyzw
-from slungload.windows import make_windows
 
 torch.set_num_threads(1)
 PARAMS = VehicleParams()
@@ -101,8 +96,7 @@ def report() -> Report:
         params=PARAMS,
         training_horizon=N,
         dataset="synthetic",
-        timing=True,
-        timing_repeats=3,
+        timer=lambda networks, w, params: time_models(networks, w, params=params, repeats=3),
         environment={"slungload": "test"},
     )
 
@@ -232,7 +226,7 @@ def write_dataset(folder: Path) -> None:
 
 
 def test_evaluate_end_to_end(tmp_path, monkeypatch):
-    from slungload.training import train
+    from slungload.training.trainer import train
 
     monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
     data = tmp_path / "data"
@@ -248,7 +242,7 @@ def test_evaluate_end_to_end(tmp_path, monkeypatch):
         progress=False,
     )
     out = tmp_path / "eval"
-    report = evaluate([run.out], out=out, horizons=(4, 8), timing_repeats=3, progress=False)
+    report = evaluate_runs([run.out], out=out, horizons=(4, 8), timing_repeats=3, progress=False)
     assert report.labels == (PHYSICS, "proposed") and report.training_horizon == 4
     assert report.test_flights == ("test_3", "test_4")
     windows = {(r.label, r.metrics.horizon): r.metrics.windows for r in report.results}

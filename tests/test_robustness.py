@@ -26,15 +26,16 @@ import pytest
 import torch
 from test_data import flight_arrays  # the analytic flights of the data tests
 
-from slungload.checkpoints import load_checkpoint
 from slungload.cli import main
 from slungload.config import ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.fileio import write_json, write_npz, write_splits
-from slungload.presets import PRESETS, Preset
-from slungload.training import train
+from slungload.models.checkpoints import load_checkpoint
+from slungload.training.presets import PRESETS, Preset
+from slungload.training.runtime import AtomicCheckpointIO
+from slungload.training.trainer import TrainingInterrupted, train
 
 # `slungload.training` the attribute is the function; the module is needed for monkeypatching.
-train_module = importlib.import_module("slungload.training")
+train_module = importlib.import_module("slungload.training.module")  # where the loss is called
 torch.set_num_threads(1)
 
 SMALL = WindowConfig(history=6, horizon=4)
@@ -306,7 +307,8 @@ def test_checkpoint_with_pickled_code_is_refused_and_never_run(capsys, tmp_path,
 
 
 def test_dataset_cache_with_pickled_code_is_rebuilt_never_run(tmp_path):
-    from slungload.data import DataWarning, load_dataset
+    from slungload.data.dataset import load_dataset
+    from slungload.data.flight import DataWarning
 
     marker = tmp_path / "code_ran"
     data = make_dataset(tmp_path / "ds")
@@ -389,7 +391,7 @@ def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch,
 
     monkeypatch.setattr(torch, "save", dies_half_way)
     with pytest.raises(KeyboardInterrupt):
-        train_module.AtomicCheckpointIO().save_checkpoint({"state_dict": {}}, path)
+        AtomicCheckpointIO().save_checkpoint({"state_dict": {}}, path)
     assert path.read_bytes() == before and load_checkpoint(path).variant == "proposed"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["last.ckpt"]
 
@@ -607,7 +609,7 @@ def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch):
     # val/total, and the run must go on rather than fail the early-stopping check.
     data = make_dataset(tmp_path / "ds", {"f0": 40, "f1": 40, "f2": 200, "f3": 40})
     quick = PRESETS["quick"]
-    preset = Preset("all-val", quick.config, replace(quick.extras, val_windows=None))
+    preset = Preset("all-val", replace(quick.config, val_windows=None))
     args = dict(variant="proposed", preset=preset, max_epochs=3, window=SMALL,
                 model_config=TINY, progress=False, num_threads=1)  # fmt: skip
     sent: list[int] = []
@@ -620,7 +622,7 @@ def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch):
     monkeypatch.setattr(train_module.SlungLoadModule, "on_validation_batch_start",
                         on_validation_batch_start)  # fmt: skip
     out = tmp_path / "run"
-    with pytest.raises(train_module.TrainingInterrupted, match="SIGTERM at epoch 1"):
+    with pytest.raises(TrainingInterrupted, match="SIGTERM at epoch 1"):
         train(data, out=out, **args)
     assert sent
     monkeypatch.undo()

@@ -15,8 +15,12 @@ from slungload.config import load_vehicle
 from slungload.fileio import FLIGHT_KEYS, read_npz
 from slungload.sim import (
     MANEUVERS,
+    Controller,
     Effects,
     Maneuver,
+    Measurement,
+    PIDController,
+    Reference,
     SimConfig,
     make_maneuver,
     simulate_dataset,
@@ -194,6 +198,114 @@ def test_controller_tracks_a_step():
     p_final = flight.truth["p"][-30:].mean(0)
     np.testing.assert_allclose(p_final, [1.0, -0.5, 1.8], atol=0.1)
     assert np.isfinite(flight.arrays["T_ref"]).all()
+
+
+class HoverRecorder:
+    """Constant hover thrust (mQ + mL) g N and zero rates; records what each call received."""
+
+    def __init__(self, cfg: SimConfig) -> None:
+        self.thrust = cfg.total_mass * cfg.gravity
+        self.calls: list[tuple[Measurement, Reference, int]] = []
+
+    def __call__(
+        self, measurement: Measurement, reference: Reference, k: int
+    ) -> tuple[float, np.ndarray]:
+        self.calls.append((measurement, reference, k))
+        return self.thrust, np.zeros(3)
+
+
+def test_pid_controller_meets_the_controller_protocol():
+    cfg = SimConfig()
+    pid = PIDController(cfg)
+    assert isinstance(pid, Controller)
+    assert isinstance(HoverRecorder(cfg), Controller)
+    assert not isinstance(object(), Controller)
+    # The protocol call runs the same law as ``command`` on the step's row of the reference.
+    ref = Reference(np.ones((4, 3)), np.zeros((4, 3)), np.zeros((4, 3)), np.full(4, 0.2))
+    meas = Measurement(0.0, np.array([0.9, 1.0, 1.1]), np.zeros(3), np.array([1.0, 0, 0, 0]),
+                       np.eye(3), np.array([0.9, 1.0, 0.4]))  # fmt: skip
+    thrust, rates = pid(meas, ref, 2)
+    thrust_c, rates_c = PIDController(cfg).command(
+        np.ones(3), np.zeros(3), np.zeros(3), 0.2, meas.p, meas.v, np.eye(3)
+    )
+    assert isinstance(thrust, float) and rates.shape == (3,)
+    assert thrust == thrust_c and np.array_equal(rates, rates_c)
+
+
+def test_custom_controller_flies_once_per_step_with_si_arrays():
+    steps, cfg = 20, IDEAL
+    ctrl = HoverRecorder(cfg)
+    flight = simulate_flight("fast_8_lap_plane", seed=1, config=cfg, steps=steps, controller=ctrl)
+    h, warm = cfg.control_dt, round(cfg.warmup / cfg.control_dt)
+    total = warm + steps
+    assert [k for _, _, k in ctrl.calls] == list(range(total))  # once per step, warm-up included
+    for meas, ref, k in ctrl.calls:
+        assert meas.t == pytest.approx((k - warm) * h, abs=1e-12)  # s; recording starts at 0
+        assert meas.p.shape == meas.v.shape == meas.p_load.shape == (3,)
+        assert meas.q_wxyz.shape == (4,) and meas.rotation.shape == (3, 3)
+        assert ref.position.shape == ref.velocity.shape == ref.acceleration.shape == (total, 3)
+        assert ref.yaw.shape == (total,)
+        assert ref is ctrl.calls[0][1]  # the whole flight's reference, the same every step
+        # Hover at rest (ideal plant): metres, m/s, the load a cable length below, R of q.
+        np.testing.assert_allclose(meas.p, [0.0, 0.0, cfg.hover_z], atol=1e-3)
+        np.testing.assert_allclose(meas.v, 0.0, atol=1e-2)
+        np.testing.assert_allclose(meas.p - meas.p_load, [0, 0, cfg.cable_length], atol=1e-3)
+        np.testing.assert_allclose(meas.q_wxyz, [1.0, 0.0, 0.0, 0.0], atol=1e-3)
+        np.testing.assert_allclose(meas.rotation @ meas.rotation.T, np.eye(3), atol=1e-12)
+        # Read-only: what the controller is handed is what gets recorded.
+        with pytest.raises(ValueError, match="read-only"):
+            meas.p[0] = 0.0
+        with pytest.raises(ValueError, match="read-only"):
+            ref.position[k] = 0.0
+    # the recorded commands are the controller's, the recorded measurements what it saw
+    np.testing.assert_array_equal(flight.arrays["T_ref"], ctrl.thrust)
+    np.testing.assert_array_equal(flight.arrays["w_ref"], 0.0)
+    seen = np.stack([m.p for m, _, k in ctrl.calls if k >= warm])
+    np.testing.assert_array_equal(flight.arrays["p"], seen)
+    assert flight.steps == steps
+
+
+def test_default_controller_is_the_config_pid():
+    cfg = SimConfig()
+    default = simulate_flight("fast_8_lap_plane", seed=4, config=cfg, steps=30)
+    pid = simulate_flight("fast_8_lap_plane", seed=4, config=cfg, steps=30,
+                          controller=PIDController(cfg))  # fmt: skip
+    for kind in ("arrays", "truth"):
+        a, b = getattr(default, kind), getattr(pid, kind)
+        assert set(a) == set(b)
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=f"{kind}[{key}]")
+
+
+@pytest.mark.parametrize(
+    ("command", "match"),
+    [
+        ((math.nan, np.zeros(3)), r"non-finite command at step 40 \(recorded step 7\)"),
+        ((14.0, np.array([0.0, math.inf, 0.0])), r"non-finite command at step 40"),
+        ((14.0, np.zeros(2)), r"step 40 .*shape \(3,\)"),
+    ],
+)
+def test_bad_controller_command_raises_before_the_plant(command, match, monkeypatch):
+    cfg = IDEAL
+    warm = round(cfg.warmup / cfg.control_dt)
+    assert warm == 33  # the step numbers in ``match``
+
+    def controller(measurement: Measurement, reference: Reference, k: int):
+        return command if k == warm + 7 else (cfg.total_mass * cfg.gravity, np.zeros(3))
+
+    sent = []
+    advance = Plant.advance
+
+    def spy(self, thrust, rates, wind):
+        sent.append((thrust, np.array(rates)))
+        advance(self, thrust, rates, wind)
+
+    monkeypatch.setattr(Plant, "advance", spy)
+    assert isinstance(controller, Controller)  # a plain function meets the protocol too
+    with pytest.raises(ValueError, match=match):
+        simulate_flight("xy_step", seed=0, config=cfg, steps=10, controller=controller)
+    assert len(sent) == warm + 7  # steps 0 .. 39 reached the plant, step 40 did not
+    assert all(math.isfinite(t) and r.shape == (3,) for t, r in sent)
 
 
 def test_maneuver_registry_and_randomisation():

@@ -18,8 +18,6 @@ import numpy as np
 import pytest
 import torch
 
-from slungload.batches import EpochBatches
-from slungload.checkpoints import load_checkpoint
 from slungload.config import (
     LossWeights,
     ModelConfig,
@@ -28,13 +26,16 @@ from slungload.config import (
     WindowConfig,
     to_dict,
 )
-from slungload.data import load_dataset
+from slungload.data.dataset import load_dataset
 from slungload.fileio import write_json, write_npz, write_splits
 from slungload.loss import LOSS_VARIANTS, compute_loss
+from slungload.models.checkpoints import load_checkpoint
 from slungload.physics import hover_thrust, rollout
-from slungload.presets import PRESETS, Preset, TrainExtras
 from slungload.state import LOAD_POS, POS, QUAT, RATES, THRUST, VEL, join_state, quat_wxyz_to_xyzw
-from slungload.training import _warmup_cosine, train
+from slungload.training.batches import EpochBatches
+from slungload.training.module import _warmup_cosine
+from slungload.training.presets import PRESETS, Preset
+from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 
@@ -194,9 +195,14 @@ def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path) -> None:
     cosine = Preset(
         "cosine",
         dataclasses.replace(
-            PRESETS["quick"].config, max_epochs=5, patience=100, lr_schedule="cosine"
+            PRESETS["quick"].config,
+            max_epochs=5,
+            patience=100,
+            lr_schedule="cosine",
+            warmup_epochs=2,
+            min_lr_ratio=0.0,
+            val_windows=16,
         ),
-        TrainExtras(warmup_epochs=2, min_lr_ratio=0.0, val_windows=16),
     )
     quick(tmp_path / "run", dataset, preset=cosine)
     lrs = epoch_values(read_metrics(tmp_path / "run"), "lr-Adam")
@@ -265,7 +271,7 @@ def test_resume_continues_the_epoch_count_and_matches_one_long_run(dataset, tmp_
 
 def test_load_checkpoint_reproduces_the_logged_validation_loss(dataset, tmp_path: Path) -> None:
     run = quick(tmp_path / "run", dataset)
-    assert len(dataset.splits["val"]) <= PRESETS["quick"].extras.val_windows  # all are used
+    assert len(dataset.splits["val"]) <= PRESETS["quick"].config.val_windows  # all are used
     loaded = load_checkpoint(tmp_path / "run")  # the folder means best.ckpt
     assert loaded.path == run.best_checkpoint
     assert not loaded.model.training
@@ -378,8 +384,8 @@ def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
 
 
 def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
-    from slungload.batches import augment_yaw
-    from slungload.model import Prediction
+    from slungload.models.base import Prediction
+    from slungload.training.batches import augment_yaw
 
     w = dataset.splits["train"][torch.arange(4)]
     m = dataset.window.history

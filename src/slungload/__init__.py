@@ -10,30 +10,36 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from ._version import __version__
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     "config": ("LossWeights", "ModelConfig", "TrainConfig", "VehicleParams", "WindowConfig",
                "load_vehicle"),
     "state": ("GROUPS", "INPUT_DIM", "STATE_DIM", "quat_error"),
     "physics": ("rollout", "step"),
-    "sim": ("Effects", "MANEUVERS", "SimConfig", "SimulatedDataset", "simulate_dataset",
-            "simulate_flight"),
-    "data": ("Dataset", "DatasetError", "DatasetSummary", "Flight", "FlightFormatError",
-             "estimate_load_state", "load_dataset", "read_flight", "read_splits", "summarize"),
-    "windows": ("Windows", "make_windows"),
-    "model": ("Prediction", "SlungLoadNet", "count_parameters"),
+    "sim": ("Controller", "Effects", "MANEUVERS", "Measurement", "PIDController", "SimConfig",
+            "SimulatedDataset", "simulate_dataset", "simulate_flight"),
+    "data.flight": ("DatasetError", "Flight", "FlightFormatError", "estimate_load_state"),
+    "data.readers": ("READERS", "read_flight"),
+    "data.dataset": ("Dataset", "load_dataset", "read_splits"),
+    "data.summary": ("DatasetSummary", "summarize"),
+    "data.windows": ("Windows", "make_windows"),
+    "models": ("MODELS", "LoadedModel", "Prediction", "SlungLoadNet", "build", "count_parameters",
+               "load_checkpoint"),
     "loss": ("LOSS_VARIANTS", "LossTerms", "compute_loss", "model_config_for"),
-    "checkpoints": ("LoadedModel", "load_checkpoint"),
-    "presets": ("PRESETS", "Preset", "TrainExtras"),
-    "training": ("Run", "TrainingDiverged", "TrainingInterrupted", "train"),
-    "predictor": ("Predictor",),
-    "compiled": ("CompiledPredictor",),
-    "evaluation": ("NetworkPredictor", "PhysicsPredictor", "Report", "evaluate", "time_inference"),
-    "report": ("write_report",),
-    "experiment": ("Reproduction", "reproduce"),
-    "deploy": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
-    "benchmarks": ("BenchmarkResult", "benchmark"),
+    "training.presets": ("PRESETS", "Preset"),
+    "training.module": ("TrainingDiverged",),
+    "training.trainer": ("Run", "TrainingInterrupted", "train"),
+    "evaluation.predictors": ("NetworkPredictor", "PhysicsPredictor"),
+    "evaluation.results": ("Report",),
+    "evaluation.evaluator": ("evaluate",),
+    "evaluation.report": ("write_report",),
+    "deploy.predictor": ("Predictor",),
+    "deploy.compiled": ("CompiledPredictor",),
+    "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
+    "deploy.timing": ("time_inference",),
+    "deploy.benchmarks": ("BenchmarkResult", "benchmark"),
+    "experiment": ("Reproduction", "evaluate_runs", "reproduce"),
 }  # fmt: skip
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 

@@ -11,6 +11,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from ._version import __version__
+
 USER_ERRORS = (
     ValueError,
     FileNotFoundError,
@@ -68,7 +70,7 @@ def _resolve_params(folder: Path, args: argparse.Namespace):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .data import summarize
+    from .data.summary import summarize
     from .sim import Effects, SimConfig, simulate_dataset
 
     off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
@@ -95,7 +97,7 @@ def cmd_maneuvers(args: argparse.Namespace) -> int:
 
 def cmd_inspect(args: argparse.Namespace) -> int:
     from .config import WindowConfig
-    from .data import summarize
+    from .data.summary import summarize
 
     window = WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride)
     summary = summarize(args.data, window=window, params=_resolve_params(Path(args.data), args))
@@ -107,7 +109,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from lightning.pytorch.utilities import rank_zero_only
 
     from .config import WindowConfig
-    from .training import train
+    from .training.trainer import train
 
     run = train(
         args.data,
@@ -130,9 +132,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from .evaluation import evaluate
+    from .experiment import evaluate_runs
 
-    evaluate(
+    evaluate_runs(
         args.runs,
         data=args.data,
         out=args.out,
@@ -166,7 +168,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from .deploy import export
+    from .deploy.onnx import export
 
     result = export(args.run, args.out, format=args.format, horizon=args.horizon)
     print(result.summary())
@@ -174,7 +176,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
-    from .benchmarks import benchmark
+    from .deploy.benchmarks import benchmark
     from .fileio import write_text
 
     result = benchmark(args.run, quick=args.quick, threads=args.threads, train=not args.no_train)
@@ -207,7 +209,7 @@ def _choices(kind: str) -> list[str]:
     if kind == "variants":
         from .loss import LOSS_VARIANTS as names
     else:
-        from .presets import PRESETS as names
+        from .training.presets import PRESETS as names
     return sorted(names)
 
 
@@ -218,8 +220,6 @@ def _effect_names() -> tuple[str, ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-
     parser = argparse.ArgumentParser(
         prog="slungload",
         description="Learn and predict the motion of a quadrotor carrying a cable-slung load.",

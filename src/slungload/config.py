@@ -66,9 +66,11 @@ class WindowConfig:
 class ModelConfig:
     """Sizes of the LSTM encoder-decoder with Bahdanau attention.
 
-    The defaults give the paper's 238,906 parameters.
+    The defaults give the paper's 238,906 parameters. ``architecture`` names the network in
+    ``models.MODELS``; a checkpoint written before it existed is the paper's network.
     """
 
+    architecture: str = "lstm-attention"  # a name in models.MODELS
     embed_sizes: tuple[int, ...] = (100, 200, 300)  # input embedding Linear widths
     hidden_size: int = 20  # LSTM hidden units
     num_layers: int = 3  # LSTM layers (encoder and decoder)
@@ -102,7 +104,7 @@ class LossWeights:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Optimisation schedule."""
+    """One training run's optimisation schedule and safeguards (a preset names one)."""
 
     lr: float = 1e-4  # Adam learning rate
     weight_decay: float = 0.05  # weight decay (an L2 term for "adam", decoupled for "adamw")
@@ -117,8 +119,26 @@ class TrainConfig:
     lr_schedule: str = "constant"  # "constant" or "cosine"
     grad_clip: float = 1.0  # max gradient norm (0 disables)
     seed: int = 0
+    warmup_epochs: int = 0  # epochs of linear lr warm-up before the cosine decay
+    min_lr_ratio: float = 0.0  # lr at the end of the cosine decay, as a fraction of lr
+    max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
+    val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
+    max_bad_steps: int = 10  # consecutive non-finite training losses before giving up
+    # Turn every training window about the vertical by a random yaw (a symmetry of the physics:
+    # ``state.rotate_about_z``): the network meets each maneuver at every heading.
+    augment_yaw: bool = False
 
     def __post_init__(self) -> None:
+        if self.warmup_epochs < 0:
+            raise ValueError(f"warmup_epochs must be >= 0, got {self.warmup_epochs}")
+        if not 0.0 <= self.min_lr_ratio <= 1.0:
+            raise ValueError(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio}")
+        if self.max_time is not None and self.max_time <= 0:
+            raise ValueError(f"max_time must be > 0 s, got {self.max_time}")
+        if self.val_windows is not None and self.val_windows < 1:
+            raise ValueError(f"val_windows must be >= 1, got {self.val_windows}")
+        if self.max_bad_steps < 1:
+            raise ValueError(f"max_bad_steps must be >= 1, got {self.max_bad_steps}")
         if self.optimizer not in ("adam", "adamw"):
             raise ValueError(
                 f"TrainConfig.optimizer must be 'adam' or 'adamw', got {self.optimizer!r}"

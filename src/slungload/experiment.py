@@ -20,10 +20,12 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from .evaluation import Report, evaluate
+from .deploy.timing import time_models
+from .evaluation.evaluator import evaluate
+from .evaluation.results import Report
 from .loss import LOSS_VARIANTS
 from .sim import simulate_dataset
-from .training import Run, train
+from .training.trainer import Run, train
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
 
@@ -137,9 +139,33 @@ def reproduce(
     seconds["train"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    report = evaluate(run_dirs, data=data, out=out / "report", timing=timing, progress=progress)
+    report = evaluate_runs(
+        run_dirs, data=data, out=out / "report", timing=timing, progress=progress
+    )
     seconds["evaluate"] = time.perf_counter() - start
     return Reproduction(data, run_dirs, report, out / "report" / "report.md", seconds)
+
+
+def evaluate_runs(
+    runs: Sequence[str | Path],
+    *,
+    timing: bool = True,
+    timing_repeats: int = 100,
+    device: str = "cpu",
+    **options: Any,
+) -> Report:
+    """``evaluation.evaluate`` with, if ``timing``, the batch-1 time of every network (eager
+    on ``device`` and the compiled predictor, ``timing_repeats`` calls each) in its report.
+    ``options`` go to ``evaluate`` (data, out, horizons, include_physics, progress, ...)."""
+    timer = None
+    if timing:
+
+        def timer(networks, windows, params):  # an evaluator.Timer
+            return time_models(
+                networks, windows, params=params, repeats=timing_repeats, device=device
+            )
+
+    return evaluate(runs, timer=timer, device=device, **options)
 
 
 def worker_pool(workers: int) -> ProcessPoolExecutor:

@@ -27,7 +27,7 @@ import torch
 from torch import Tensor
 
 from .config import LossWeights, ModelConfig, VehicleParams
-from .model import Prediction
+from .models.base import Prediction
 from .physics import step
 from .state import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL, quat_error
 

@@ -164,3 +164,10 @@ def rotate_about_z(states: Tensor, aux: Tensor, yaw: Tensor) -> tuple[Tensor, Te
     p, v, q, p_load = split_state(states)
     out = join_state(turn(p), turn(v), quat_mul(q_yaw, q), turn(p_load))
     return out, torch.cat([turn(aux[..., LOAD_VEL]), turn(aux[..., LOAD_RATE])], dim=-1)
+
+
+def with_unit_quaternion(states: Tensor) -> Tensor:
+    """States (..., 13) with the quaternion block scaled to unit norm (for evaluation)."""
+    out = states.clone()
+    out[..., QUAT] = quat_normalize(states[..., QUAT])
+    return out

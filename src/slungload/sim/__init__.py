@@ -6,15 +6,20 @@ model has something to learn beyond ``physics.py``. See ``docs/simulator.md``.
 """
 
 from .config import Effects, SimConfig
+from .controller import Controller, Measurement, PIDController
 from .dataset import SimulatedDataset, simulate_dataset, vehicle_params
 from .flight import Flight, simulate_flight
-from .maneuvers import MANEUVERS, Maneuver, make_maneuver
+from .maneuvers import MANEUVERS, Maneuver, Reference, make_maneuver
 
 __all__ = [
     "MANEUVERS",
+    "Controller",
     "Effects",
     "Flight",
     "Maneuver",
+    "Measurement",
+    "PIDController",
+    "Reference",
     "SimConfig",
     "SimulatedDataset",
     "make_maneuver",

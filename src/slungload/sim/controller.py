@@ -1,19 +1,72 @@
-"""Offboard position controller: reference + noisy measurements -> (thrust, body-rate) commands.
+"""Offboard controllers: the contract a controller meets (``Controller``) and the default PID.
 
-A geometric PID controller on the total mass mQ + mL (the load is treated as a disturbance):
-the desired force F = m (a_ref + Kp e_p + Kd e_v + Ki int e_p + g e3) gives the thrust command
-T = F . R e3 and the desired thrust axis F / |F|; the body-rate command is proportional to the
-attitude error between the measured and the desired attitude (with the reference yaw). Runs once
-per control period h.
+Contract (``Controller``): called once per control step (period h = ``SimConfig.control_dt``)
+with the step's noisy ``Measurement``, the flight's whole ``Reference`` and the step index k;
+returns the thrust command T, N, and the body-rate command omega (3,), rad/s, held by the plant
+for one period. Any callable with that signature qualifies (a plain function does too).
+
+Default (``PIDController``): a geometric PID controller on the total mass mQ + mL (the load is
+treated as a disturbance): the desired force F = m (a_ref + Kp e_p + Kd e_v + Ki int e_p + g e3)
+gives the thrust command T = F . R e3 and the desired thrust axis F / |F|; the body-rate command
+is proportional to the attitude error between the measured and the desired attitude (with the
+reference yaw).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from .config import SimConfig
+from .maneuvers import Reference
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the flight controller measures at one control step (motion capture, world frame).
+
+    The arrays are noisy when ``Effects.mocap_noise`` is on, and the velocity is the filtered
+    estimate when ``Effects.velocity_filter`` is on (the truth otherwise); the simulator hands
+    them over read-only, since the same arrays are recorded afterwards.
+    """
+
+    t: float  # s, time of the step; negative during the warm-up hover, 0 at the first record
+    p: np.ndarray  # (3,) m, vehicle position
+    v: np.ndarray  # (3,) m/s, vehicle velocity (estimate)
+    q_wxyz: np.ndarray  # (4,) unit quaternion w-x-y-z, body -> world
+    rotation: np.ndarray  # (3, 3) rotation matrix of q_wxyz, body -> world (columns: body axes)
+    p_load: np.ndarray  # (3,) m, load (cube centre) position
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """An offboard controller: (measurement, reference, step) -> (thrust N, body rates rad/s).
+
+    ``simulate_flight`` calls it exactly once per control step k = 0 .. K-1, in order, with the
+    period h = ``SimConfig.control_dt``; K counts the warm-up hover (``SimConfig.warmup``, where
+    ``measurement.t`` < 0 and the reference holds the start point) plus the recorded steps.
+
+    measurement: the step's ``Measurement`` (t s; p m, v m/s, p_load m, (3,); q_wxyz (4,);
+        rotation (3, 3) body -> world).
+    reference: the *whole* flight's ``Reference``, rows 0 .. K-1 at times t + (j - k) h:
+        position (K, 3) m, velocity (K, 3) m/s, acceleration (K, 3) m/s^2, yaw (K,) rad (world
+        frame). Row k is this step's reference; rows k+1 .. K-1 are the look-ahead a predictive
+        controller needs (it ends with the flight: hold the last row beyond it). Read-only.
+    k: the step index into ``reference`` (0-based, warm-up included).
+
+    Returns (T, omega): the collective thrust command T, N (a finite float; the plant clips the
+    achieved thrust to [0, ``SimConfig.max_thrust``]), and the body-rate command omega, (3,)
+    rad/s in body axes. Both are held for one period; a non-finite command makes
+    ``simulate_flight`` raise ``ValueError``. A controller may keep state (the PID's integral),
+    so use a fresh one per flight.
+    """
+
+    def __call__(
+        self, measurement: Measurement, reference: Reference, k: int
+    ) -> tuple[float, np.ndarray]: ...
 
 
 def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
@@ -27,8 +80,11 @@ def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
     return axis * (0.5 * angle / s)
 
 
-class Controller:
-    """Stateful (integral term) offboard controller; call once per control step."""
+class PIDController:
+    """The default controller (see the module): stateful (integral term), one per flight.
+
+    Meets the ``Controller`` contract; ``command`` is the same law on plain arrays.
+    """
 
     def __init__(self, cfg: SimConfig) -> None:
         self.mass = cfg.total_mass
@@ -46,6 +102,20 @@ class Controller:
         self.integral = np.zeros(3)
 
     def __call__(
+        self, measurement: Measurement, reference: Reference, k: int
+    ) -> tuple[float, np.ndarray]:
+        """One control step (the ``Controller`` contract): tracks reference row k, no look-ahead."""
+        return self.command(
+            reference.position[k],
+            reference.velocity[k],
+            reference.acceleration[k],
+            reference.yaw[k],
+            measurement.p,
+            measurement.v,
+            measurement.rotation,
+        )
+
+    def command(
         self,
         p_ref: np.ndarray,
         v_ref: np.ndarray,

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .aero import ou_wind
 from .config import SimConfig
-from .controller import Controller
+from .controller import Controller, Measurement, PIDController
 from .maneuvers import Maneuver, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
 from .sensors import Mocap
@@ -41,12 +42,20 @@ def simulate_flight(
     seed: int | np.random.SeedSequence = 0,
     config: SimConfig | None = None,
     steps: int | None = None,
+    controller: Controller | None = None,
 ) -> Flight:
     """Simulate one flight of a maneuver (a registered name or a ``Maneuver``).
 
     seed: integer or SeedSequence; it draws the maneuver's parameters, the plant's
     imperfections, the wind and the sensor noise from independent streams. steps overrides the
-    maneuver's length (recorded control steps). Returns a ``Flight`` with float64 arrays.
+    maneuver's length (recorded control steps). controller: what flies it, called once per
+    control step as the ``Controller`` contract states (warm-up included); None flies a fresh
+    ``PIDController`` of the config (the default flights). A stateful controller should be a
+    fresh one per flight. Returns a ``Flight`` with float64 arrays; ``arrays["T_ref"]`` and
+    ``arrays["w_ref"]`` are the controller's commands.
+
+    Raises ``ValueError`` when the controller returns a non-finite thrust or rates, or rates
+    not of shape (3,), naming the step, before the command reaches the plant.
     """
     cfg = config or SimConfig()
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
@@ -63,9 +72,11 @@ def simulate_flight(
     plant = Plant(cfg, PlantParams.draw(cfg, s_plant))
     hover = plant.p
     ref = sample_reference(man, times, hover)
+    for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
+        a.flags.writeable = False  # every step sees the same reference: no controller edits it
     wind = ou_wind(cfg, total, s_wind)
     mocap = Mocap(cfg, s_sens)
-    ctrl = Controller(cfg)
+    ctrl = PIDController(cfg) if controller is None else controller
 
     rec = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3))}
     rec.update(w_ref=np.empty((n, 3)), T_ref=np.empty((n, 1)))
@@ -76,9 +87,9 @@ def simulate_flight(
         p, v, q, pl = plant.p, plant.v, plant.q, plant.p_load
         p_m, v_m, q_m, pl_m = mocap.measure(p, v, q, pl)
         rot_m = _rotmat(q_m)
-        thrust, rates = ctrl(
-            ref.position[k], ref.velocity[k], ref.acceleration[k], ref.yaw[k], p_m, v_m, rot_m
-        )
+        # Read-only views: the same arrays are recorded below (and the mocap keeps some).
+        meas = Measurement(float(times[k]), *map(_read_only, (p_m, v_m, q_m, rot_m, pl_m)))
+        thrust, rates = _checked(ctrl(meas, ref, k), k, warm)
         i = k - warm
         if i >= 0:
             rec["p"][i], rec["v"][i], rec["q"][i], rec["p_load"][i] = p_m, v_m, q_m, pl_m
@@ -100,6 +111,34 @@ def simulate_flight(
         "T_ref": rec["T_ref"],
     }
     return Flight(man.name, arrays, truth, plant.params)
+
+
+def _checked(command: tuple[float, np.ndarray], k: int, warm: int) -> tuple[float, np.ndarray]:
+    """A controller's (T N, omega (3,) rad/s) as (float, own float64 copy), or ValueError.
+
+    Checked here so that a NaN never reaches MuJoCo (it would poison the state silently). The
+    copy matters: the plant holds the rates across periods (latency), so a controller reusing
+    its output buffer must not change a command already sent.
+    """
+    thrust, rates = command
+    thrust = float(thrust)
+    rates = np.array(rates, dtype=float)
+    when = f"step {k} (" + ("warm-up)" if k < warm else f"recorded step {k - warm})")
+    if rates.shape != (3,):
+        raise ValueError(f"controller at {when}: body rates need shape (3,), got {rates.shape}")
+    if not (math.isfinite(thrust) and np.isfinite(rates).all()):
+        raise ValueError(
+            f"controller returned a non-finite command at {when}: "
+            f"thrust {thrust} N, body rates {rates.tolist()} rad/s"
+        )
+    return thrust, rates
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """A read-only view of ``a`` (``a`` itself stays writeable)."""
+    view = a.view()
+    view.flags.writeable = False
+    return view
 
 
 def _rotmat(q: np.ndarray) -> np.ndarray:

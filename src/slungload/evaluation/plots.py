@@ -20,9 +20,10 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
-from .evaluation import PHYSICS, Curve, Example
-from .fileio import atomic_path
-from .state import GROUP_UNITS, GROUPS, LOAD_POS, POS
+from ..fileio import atomic_path
+from ..state import GROUP_UNITS, GROUPS, LOAD_POS, POS
+from .metrics import Curve
+from .results import PHYSICS, Example
 
 GROUP_TITLES = {
     "position": "vehicle position",

@@ -23,7 +23,6 @@ Training is timed on a plain loop (forward, loss, backward, clipping, Adam step)
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
 import os
@@ -43,27 +42,28 @@ import onnxruntime as ort
 import torch
 from torch import Tensor
 
+from .._version import __version__
+from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
+from ..data.flight import estimate_load_state
+from ..data.windows import Windows, make_windows
+from ..evaluation.machine import cpu_model
+from ..evaluation.results import PAPER_TIMING
+from ..loss import compute_loss, model_config_for
+from ..models.base import count_parameters
+from ..models.lstm_attention import SlungLoadNet
+from ..physics import hover_thrust, rollout
+from ..state import join_state, quat_from_rotvec
 from .compiled import CompiledPredictor
-from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
-from .data import estimate_load_state
-from .deploy import OnnxPredictor, export
-from .loss import compute_loss, model_config_for
-from .model import SlungLoadNet, count_parameters
-from .physics import hover_thrust, rollout
+from .onnx import OnnxPredictor, export
 from .predictor import FileLayoutNet, Predictor, check_inputs, states_to_file, unbatch
-from .state import join_state, quat_from_rotvec
-from .windows import Windows, make_windows
+from .timing import time_calls
 
 EAGER, SCRIPT, ONNX, COMPILED = "torch eager", "torch script", "onnxruntime", "numba compiled"
 BACKENDS = (EAGER, SCRIPT, ONNX, COMPILED)
-# The paper's batch-1 inference times (Section IV), ms, by device and horizon N (M = 50).
-PAPER_LATENCY_MS = {
-    "RTX 3090": {25: 10.76, 50: 21.24},
-    "Jetson Orin Nano": {25: 59.0, 50: 115.0},
-}
 # Targets of this project's issue (CPU, one thread for latency, the whole 2-core machine for
 # training); reported beside the measurements, never asserted.
 TARGET_LATENCY_MS = {25: 1.0, 50: 2.0}
+PAPER_DEVICES = ("NVIDIA RTX 3090", "NVIDIA Jetson Orin Nano")  # columns of the latency table
 PAPER_WINDOW = WindowConfig(history=50, horizon=25)  # M, N of the training benchmark
 TARGET_TRAIN_S = 6.0  # s to train the paper-size model through 10,000 windows
 
@@ -239,30 +239,13 @@ def torch_threads(n: int) -> Iterator[None]:
         torch.set_num_threads(before)
 
 
-def _time_calls(
-    fn: Callable[[int], Any], repeats: int, warmup: int
-) -> tuple[list[float], list[float]]:
-    """Wall-clock and calling-thread CPU seconds of ``fn(i)`` for i = 0 ... repeats-1, after
-    ``warmup`` calls. On one thread the two agree on an idle machine; on a shared one the CPU
-    time excludes the time other processes held the core."""
-    for i in range(warmup):
-        fn(i)
-    wall, cpu = [], []
-    for i in range(repeats):
-        t0, c0 = time.perf_counter(), time.thread_time()
-        fn(i)
-        cpu.append(time.thread_time() - c0)
-        wall.append(time.perf_counter() - t0)
-    return wall, cpu
-
-
 def measure_latency(
     backend: str, fn: PredictFn, history: np.ndarray, future: np.ndarray, *, threads: int,
     repeats: int, warmup: int,
 ) -> Latency:  # fmt: skip
     """Batch-1 calls cycling over the windows of ``history`` (W, M, 17) / ``future``."""
     count = len(history)
-    wall, cpu = _time_calls(lambda i: fn(history[i % count], future[i % count]), repeats, warmup)
+    wall, cpu = time_calls(lambda i: fn(history[i % count], future[i % count]), repeats, warmup)
     ms = np.array(wall) * 1e3
     return Latency(
         backend,
@@ -282,7 +265,7 @@ def measure_throughput(
     repeats: int,
 ) -> Throughput:  # fmt: skip
     """Calls on the whole batch ``history`` (B, M, 17) / ``future`` (B, N, 4)."""
-    wall, _ = _time_calls(lambda i: fn(history, future), repeats, warmup=1)
+    wall, _ = time_calls(lambda i: fn(history, future), repeats, warmup=1)
     median = statistics.median(wall)
     batch = len(history)
     return Throughput(backend, future.shape[1], batch, threads, median, batch / median, repeats)
@@ -465,20 +448,20 @@ def _predictor(
 
 
 def _device() -> str:
-    """CPU model and core count (Linux /proc/cpuinfo, else ``platform``)."""
-    name = platform.processor() or platform.machine()
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-                break
-    return f"{name}, {os.cpu_count()} cores"
+    """CPU model and core count."""
+    return f"{cpu_model() or platform.machine()}, {os.cpu_count()} cores"
+
+
+def _paper_ms(device: str, history: int, horizon: int) -> float | None:
+    """The paper's Table II mean time on ``device`` at (M, N), ms, or None."""
+    for t in PAPER_TIMING:
+        if (t.device, t.history, t.horizon) == (device, history, horizon):
+            return t.mean_ms
+    return None
 
 
 def _versions() -> dict[str, str]:
     import onnx
-
-    from . import __version__
 
     return {
         "slungload": __version__,
@@ -514,7 +497,7 @@ def _markdown(r: BenchmarkResult) -> str:
     ]
     eager = {(x.horizon,): x.median_ms for x in r.latency if x.backend == EAGER}
     for x in r.latency:
-        paper = [PAPER_LATENCY_MS[d].get(x.horizon) for d in ("RTX 3090", "Jetson Orin Nano")]
+        paper = [_paper_ms(d, x.history, x.horizon) for d in PAPER_DEVICES]
         base = eager.get((x.horizon,))
         speedup = _ratio(base, x.median_ms) if base else "-"
         lines.append(

@@ -2,7 +2,9 @@
 
 A checkpoint is a Lightning checkpoint (written by ``training.train``) that embeds every
 config as plain dicts under the key ``CKPT_KEY``, so ``load_checkpoint`` rebuilds the model
-from the file alone. Files are read with ``torch.load(weights_only=True)``: no arbitrary
+from the file alone: ``ModelConfig.architecture`` names its class in ``models.MODELS`` (an
+unknown name is an error naming it; a checkpoint without the name is the paper's network).
+Files are read with ``torch.load(weights_only=True)``: no arbitrary
 object is ever unpickled, and reading needs torch only, not Lightning. A file that is not a
 readable slungload checkpoint of this ``CKPT_FORMAT`` raises ``ValueError`` naming the file.
 """
@@ -17,9 +19,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import nn
 
-from .config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, from_dict
-from .model import SlungLoadNet
+from .._version import __version__
+from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, from_dict
+from .registry import build
 
 CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
 CKPT_FORMAT = 1  # bump when the embedded dict changes incompatibly
@@ -30,7 +34,7 @@ BEST, LAST = "best.ckpt", "last.ckpt"  # a run folder's best and latest checkpoi
 class LoadedModel:
     """A trained network rebuilt from a checkpoint, in eval mode on the CPU."""
 
-    model: SlungLoadNet
+    model: nn.Module  # a registered architecture (``model.architecture`` names it)
     variant: str
     window: WindowConfig
     params: VehicleParams
@@ -60,8 +64,11 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
     path = checkpoint_path(path)
     ckpt, meta = _read_checkpoint(path, map_location)
     try:
+        # A checkpoint written before architectures had names has no "architecture" key: its
+        # ModelConfig takes the default, the paper's network, which is what it holds.
         model_config = from_dict(ModelConfig, meta["model"])
-        net = SlungLoadNet(model_config)
+        params = from_dict(VehicleParams, meta["params"])
+        net = build(model_config, params)
         prefix = "net."
         state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
         net.load_state_dict(state)
@@ -69,7 +76,7 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
             model=net.eval(),
             variant=str(meta["variant"]),
             window=from_dict(WindowConfig, meta["window"]),
-            params=from_dict(VehicleParams, meta["params"]),
+            params=params,
             model_config=model_config,
             weights=from_dict(LossWeights, meta["weights"]),
             train_config=from_dict(TrainConfig, meta["train"]),
@@ -113,12 +120,20 @@ def _read_checkpoint(path: Path, map_location: Any = "cpu") -> tuple[dict, dict[
             f"{path}: {_written_by(meta)} uses checkpoint format {meta.get('format')!r}; "
             f"this slungload {_version()} reads format {CKPT_FORMAT}"
         )
-    return ckpt, meta
+    return ckpt, _upgrade(meta)
+
+
+def _upgrade(meta: dict[str, Any]) -> dict[str, Any]:
+    """Configs of an older checkpoint in today's layout: the options that were kept beside
+    ``TrainConfig`` under "extras" are ``TrainConfig`` fields now."""
+    extras = meta.get("extras")
+    if isinstance(extras, dict) and isinstance(meta.get("train"), dict):
+        meta = {k: v for k, v in meta.items() if k != "extras"}
+        meta["train"] = {**meta["train"], **extras}
+    return meta
 
 
 def _version() -> str:
-    from . import __version__
-
     return __version__
 
 
@@ -140,7 +155,7 @@ def check_resumable(last: Path, meta: dict[str, Any]) -> None:
     # constants may come from vehicle.json or from options.
     free = {"package_version", "data", "params_source", "train.max_epochs"}
     differ = [d for d in _differences(saved, meta) if d[0] not in free]
-    order = ["variant", "preset", "window", "params", "model", "weights", "train", "extras"]
+    order = ["variant", "preset", "window", "params", "model", "weights", "train"]
     differ.sort(
         key=lambda d: order.index(d[0].split(".")[0]) if d[0].split(".")[0] in order else 99
     )

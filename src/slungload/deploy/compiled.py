@@ -36,12 +36,13 @@ import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
+from torch import nn
 
-from .model import SlungLoadNet
-from .predictor import Predictor, check_inputs, unbatch
-from .state import INPUT_DIM, STATE_DIM
+from ..models.lstm_attention import SlungLoadNet
+from ..state import INPUT_DIM, STATE_DIM
+from .predictor import PARITY_TOLERANCE, Predictor, check_inputs, unbatch
 
-PARITY_TOLERANCE = 1e-4  # max |compiled - eager| on real windows, physical units
+COMPILED_ARCHITECTURES = (SlungLoadNet.architecture,)  # what ``fold`` knows how to compile
 
 # FMA contraction only: no reassociation, so results do not depend on vector width choices.
 _FLAGS = {"contract"}
@@ -95,14 +96,31 @@ class FoldedWeights(NamedTuple):
     origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (model.origin)
 
 
-def fold(model: SlungLoadNet) -> FoldedWeights:
-    """Rearrange ``model``'s weights for the compiled pass (see the module doc)."""
+def unsupported(model: nn.Module) -> str | None:
+    """Why ``fold`` cannot compile ``model`` (its architecture or its layer structure), or
+    None when it can."""
+    name = getattr(model, "architecture", type(model).__name__)
+    if name not in COMPILED_ARCHITECTURES or not isinstance(model, SlungLoadNet):
+        return (
+            f"the compiled predictor does not support the {name!r} architecture (it supports "
+            f"{list(COMPILED_ARCHITECTURES)})"
+        )
     cfg = model.config
     if len(cfg.embed_sizes) != 3 or len(cfg.head_sizes) != 3:
-        raise ValueError(
+        return (
             "CompiledPredictor supports three embedding and three head layers (the paper's "
             f"shape); got embed_sizes={cfg.embed_sizes}, head_sizes={cfg.head_sizes}"
         )
+    return None
+
+
+def fold(model: SlungLoadNet) -> FoldedWeights:
+    """Rearrange ``model``'s weights for the compiled pass (see the module doc); a model it
+    cannot compile is a ``ValueError`` naming why (``unsupported``)."""
+    reason = unsupported(model)
+    if reason is not None:
+        raise ValueError(reason)
+    cfg = model.config
     with torch.no_grad():
         d = {k: v.detach().double().cpu() for k, v in model.state_dict().items()}
     h, layers = cfg.hidden_size, cfg.num_layers

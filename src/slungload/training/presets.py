@@ -1,4 +1,4 @@
-"""Training presets: named optimisation schedules (``TrainConfig`` plus ``TrainExtras``).
+"""Training presets: named optimisation schedules (one ``TrainConfig`` each).
 
 ``paper`` is the paper's schedule, ``default`` the budget tuned for a 2-core CPU (measured in
 docs/training.md), ``quick`` a smoke test. ``train(..., preset=...)`` takes a name or a
@@ -9,42 +9,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .config import TrainConfig
-
-
-@dataclass(frozen=True)
-class TrainExtras:
-    """Training options beyond ``config.TrainConfig`` (candidates to move into it)."""
-
-    warmup_epochs: int = 0  # epochs of linear lr warm-up before the cosine decay
-    min_lr_ratio: float = 0.0  # lr at the end of the cosine decay, as a fraction of lr
-    max_time: float | None = None  # s, wall-clock budget of the run, resumed parts included
-    val_windows: int | None = None  # validate on a fixed seeded subset of this size (None: all)
-    max_bad_steps: int = 10  # consecutive non-finite training losses before giving up
-    # Turn every training window about the vertical by a random yaw (a symmetry of the physics:
-    # ``state.rotate_about_z``): the network meets each maneuver at every heading.
-    augment_yaw: bool = False
-
-    def __post_init__(self) -> None:
-        if self.warmup_epochs < 0:
-            raise ValueError(f"warmup_epochs must be >= 0, got {self.warmup_epochs}")
-        if not 0.0 <= self.min_lr_ratio <= 1.0:
-            raise ValueError(f"min_lr_ratio must be in [0, 1], got {self.min_lr_ratio}")
-        if self.max_time is not None and self.max_time <= 0:
-            raise ValueError(f"max_time must be > 0 s, got {self.max_time}")
-        if self.val_windows is not None and self.val_windows < 1:
-            raise ValueError(f"val_windows must be >= 1, got {self.val_windows}")
-        if self.max_bad_steps < 1:
-            raise ValueError(f"max_bad_steps must be >= 1, got {self.max_bad_steps}")
+from ..config import TrainConfig
 
 
 @dataclass(frozen=True)
 class Preset:
-    """A named optimisation schedule: ``TrainConfig`` plus ``TrainExtras``."""
+    """A named optimisation schedule: one ``TrainConfig`` and what it is for."""
 
     name: str
     config: TrainConfig
-    extras: TrainExtras = TrainExtras()
     description: str = ""
 
 
@@ -72,8 +45,11 @@ PRESETS: dict[str, Preset] = {
             patience=12,
             windows_per_epoch=2048,
             lr_schedule="cosine",
+            warmup_epochs=3,
+            min_lr_ratio=0.05,
+            max_time=600.0,
+            val_windows=1024,
         ),
-        TrainExtras(warmup_epochs=3, min_lr_ratio=0.05, max_time=600.0, val_windows=1024),
         description="CPU budget: AdamW 1e-3, warm-up + cosine, 2048 windows/epoch, <= 10 min",
     ),
     "quick": Preset(
@@ -85,8 +61,8 @@ PRESETS: dict[str, Preset] = {
             max_epochs=2,
             patience=2,
             windows_per_epoch=128,
+            val_windows=64,
         ),
-        TrainExtras(val_windows=64),
         description="smoke test: 2 epochs of 128 windows, seconds",
     ),
 }

@@ -37,18 +37,11 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from .checkpoints import load_checkpoint
-from .config import to_dict
-from .fileio import atomic_path, write_json
-from .predictor import (
-    HISTORY_DIM,
-    FileLayoutNet,
-    Predictor,
-    check_inputs,
-    states_to_file,
-    unbatch,
-)
-from .state import (
+from .._version import __version__
+from ..config import to_dict
+from ..fileio import atomic_path, write_json
+from ..models.checkpoints import load_checkpoint
+from ..state import (
     GROUP_UNITS,
     GROUPS,
     INPUT_DIM,
@@ -58,12 +51,20 @@ from .state import (
     STATE_NAMES,
     THRUST,
 )
+from .predictor import (
+    HISTORY_DIM,
+    PARITY_TOLERANCE,
+    FileLayoutNet,
+    Predictor,
+    check_inputs,
+    states_to_file,
+    unbatch,
+)
 
 FORMAT = "slungload-onnx"
 FORMAT_VERSION = 1  # bump when the graph's inputs/outputs or the sidecar change incompatibly
 OPSET = 17
 HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
-PARITY_TOLERANCE = 1e-4  # max |ONNX - eager| accepted by the export-time check
 
 
 class OnnxModelError(ValueError):
@@ -303,7 +304,7 @@ def sample_inputs(
 
 
 def _unit_quaternions(x: Any) -> Any:
-    from .state import QUAT, quat_normalize
+    from ..state import QUAT, quat_normalize
 
     out = x.clone()
     out[..., QUAT] = quat_normalize(x[..., QUAT])
@@ -425,8 +426,6 @@ def _sha256(path: Path) -> str:
 
 
 def _package_version() -> str:
-    from . import __version__
-
     return __version__
 
 

@@ -3,7 +3,7 @@
 ``WindowTensors`` gathers a whole batch of windows at once, ``EpochBatches`` draws each
 epoch's index batches from ``(seed, epoch)`` and shards them over DDP processes, and
 ``WindowData`` (a LightningDataModule) serves the training and validation loaders from them.
-``augment_yaw`` turns a training batch about the vertical (``presets.TrainExtras.augment_yaw``).
+``augment_yaw`` turns a training batch about the vertical (``TrainConfig.augment_yaw``).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, Sampler
 
-from .config import TrainConfig
-from .state import rotate_about_z
-from .windows import Windows
+from ..config import TrainConfig
+from ..data.windows import Windows
+from ..state import rotate_about_z
 
 
 class WindowTensors(torch.utils.data.Dataset):

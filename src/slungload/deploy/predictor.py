@@ -23,10 +23,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from .checkpoints import load_checkpoint
-from .config import VehicleParams, WindowConfig
-from .model import SlungLoadNet, with_unit_quaternion
-from .state import (
+from ..config import VehicleParams, WindowConfig
+from ..models.checkpoints import load_checkpoint
+from ..models.lstm_attention import SlungLoadNet
+from ..state import (
     INPUT_DIM,
     QUAT,
     STATE_DIM,
@@ -34,12 +34,13 @@ from .state import (
     quat_normalize,
     quat_wxyz_to_xyzw,
     quat_xyzw_to_wxyz,
+    with_unit_quaternion,
 )
 
-# No Lightning here (``checkpoints`` reads files with torch alone): ``export``'s runtime
-# predictor shares this module's checks and must load without the training stack.
-
 HISTORY_DIM = STATE_DIM + INPUT_DIM  # 17 columns: x_k then u_k
+# Largest |difference| from this eager predictor, physical units, that a faster path (the ONNX
+# export, the compiled predictor) may show on real windows; checked at export and in tests.
+PARITY_TOLERANCE = 1e-4
 
 
 def states_to_file(states: Tensor) -> Tensor:

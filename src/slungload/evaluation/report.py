@@ -21,20 +21,12 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..config import to_dict
+from ..fileio import write_json, write_text
+from ..state import GROUPS
 from . import plots
-from .config import to_dict
-from .evaluation import (
-    COMBINED,
-    METRIC_KEYS,
-    PAPER_MODEL_NAMES,
-    PAPER_RMSE_N50,
-    PAPER_TIMING,
-    PHYSICS,
-    Report,
-    RmseRow,
-)
-from .fileio import write_json, write_text
-from .state import GROUPS
+from .metrics import COMBINED, METRIC_KEYS
+from .results import PAPER_MODEL_NAMES, PAPER_RMSE_N50, PAPER_TIMING, PHYSICS, Report, RmseRow
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table

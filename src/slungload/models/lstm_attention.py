@@ -20,14 +20,14 @@ the horizon u_M ... u_{M+N-1} (as the data windows hold them) and does not use t
 from __future__ import annotations
 
 from itertools import pairwise
-from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .config import ModelConfig
-from .state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, quat_normalize
+from ..config import ModelConfig, VehicleParams
+from ..state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
+from .base import Prediction
 
 FEATURE_DIM = STATE_DIM + INPUT_DIM  # 17: one (x_k, u_k) pair
 
@@ -37,33 +37,6 @@ FEATURE_DIM = STATE_DIM + INPUT_DIM  # 17: one (x_k, u_k) pair
 STD_FLOOR = 1e-3  # state (m, m/s) and input (N, rad/s) channels
 QUAT_STD_FLOOR = 0.05  # quaternion channels, -
 DELTA_STD_FLOOR = 1e-5  # per-step changes x_k - x_{k-1}, same units as the state
-
-
-class Prediction(NamedTuple):
-    """Network output over the horizon, physical units.
-
-    states: (B, N, 13) x_hat_M ... x_hat_{M+N-1}; the quaternion is NOT normalised (the
-        projection loss needs its norm; see ``with_unit_quaternion`` for evaluation).
-    slack: (B, N, 13) slack variables s_M ... s_{M+N-1} in state units (with normalisation,
-        the head's output times ``delta_std``: a physics mismatch is of the size of one step's
-        change), or None when the model was built with ``slack=False``. Used by the loss only;
-        ignore them at evaluation.
-    """
-
-    states: Tensor
-    slack: Tensor | None
-
-
-def with_unit_quaternion(states: Tensor) -> Tensor:
-    """States (..., 13) with the quaternion block scaled to unit norm (for evaluation)."""
-    out = states.clone()
-    out[..., QUAT] = quat_normalize(states[..., QUAT])
-    return out
-
-
-def count_parameters(model: nn.Module) -> int:
-    """Number of trainable parameters."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
 class InputEmbedding(nn.Module):
@@ -170,9 +143,20 @@ class SlungLoadNet(nn.Module):
     ``nn.LSTM`` is several times the arithmetic.
     """
 
-    def __init__(self, config: ModelConfig | None = None) -> None:
+    architecture = "lstm-attention"  # its name in ``models.MODELS``
+
+    def __init__(
+        self, config: ModelConfig | None = None, params: VehicleParams | None = None
+    ) -> None:
+        """``params`` (the vehicle constants) is part of every architecture's signature; the
+        paper's network does not use them."""
         super().__init__()
         cfg = config or ModelConfig()
+        if cfg.architecture != self.architecture:
+            raise ValueError(
+                f"SlungLoadNet is the {self.architecture!r} architecture; the config names "
+                f"{cfg.architecture!r} (build it with models.build)"
+            )
         self.config = cfg
         hidden, layers = cfg.hidden_size, cfg.num_layers
         embed = cfg.embed_sizes[-1]

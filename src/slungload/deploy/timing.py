@@ -1,0 +1,134 @@
+"""Batch-1 inference time: the one timing loop (``time_calls``), used by the evaluation report
+(eager network and compiled predictor beside the paper's Table II) and by ``benchmark``."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable, Sequence
+
+import torch
+from torch import nn
+
+from ..config import VehicleParams
+from ..data.windows import Windows
+from ..evaluation.machine import device_name
+from ..evaluation.results import Timing, TimingResult
+from .compiled import CompiledPredictor, unsupported
+from .predictor import Predictor, states_to_file
+
+
+def time_calls(
+    call: Callable[[int], object],
+    repeats: int,
+    warmup: int,
+    sync: Callable[[], None] = lambda: None,
+) -> tuple[list[float], list[float]]:
+    """Wall-clock and calling-thread CPU seconds of ``call(i)`` for i = 0 ... repeats-1, after
+    ``warmup`` untimed calls. ``sync`` waits for the device before and after each call (CUDA
+    runs asynchronously). On one thread the two agree on an idle machine; on a shared one the
+    CPU time leaves out the time other processes held the core."""
+    for i in range(warmup):
+        call(i)
+    wall, cpu = [], []
+    for i in range(repeats):
+        sync()
+        t0, c0 = time.perf_counter(), time.thread_time()
+        call(i)
+        sync()
+        cpu.append(time.thread_time() - c0)
+        wall.append(time.perf_counter() - t0)
+    return wall, cpu
+
+
+def _mean_std_ms(seconds: list[float]) -> tuple[float, float]:
+    ms = [1e3 * s for s in seconds]
+    return statistics.fmean(ms), statistics.stdev(ms)
+
+
+def time_inference(
+    model: nn.Module,
+    windows: Windows,
+    *,
+    repeats: int = 100,
+    warmup: int = 10,
+    device: str | torch.device = "cpu",
+) -> Timing:
+    """Time ``model`` on the first window of ``windows`` (batch 1), after ``warmup`` calls."""
+    m, w = _timing_window("time_inference", windows, repeats)
+    dev = torch.device(device)
+    w = w.to(dev)
+    args = (w.states[:, :m], w.inputs[:, :m], w.inputs[:, m:])
+    sync: Callable[[], None] = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+    model.eval()
+    model.to(dev)
+    with torch.inference_mode():
+        wall, _ = time_calls(lambda i: model(*args), repeats, warmup, sync)
+    mean_ms, std_ms = _mean_std_ms(wall)
+    return Timing(
+        history=m,
+        horizon=windows.window.horizon,
+        mean_ms=mean_ms,
+        std_ms=std_ms,
+        repeats=repeats,
+        threads=torch.get_num_threads(),
+        device=device_name(dev),
+    )
+
+
+def time_compiled(
+    compiled: CompiledPredictor, windows: Windows, *, repeats: int = 100, warmup: int = 10
+) -> Timing:
+    """Time ``compiled.predict`` on the first window of ``windows`` (batch 1, one thread),
+    numpy in and out in the file layout, as a controller calls it."""
+    m, w = _timing_window("time_compiled", windows, repeats)
+    history = torch.cat([states_to_file(w.states[:, :m]), w.inputs[:, :m]], -1)[0].numpy()
+    future = w.inputs[0, m:].numpy()
+    wall, _ = time_calls(lambda i: compiled.predict(history, future), repeats, warmup)
+    mean_ms, std_ms = _mean_std_ms(wall)
+    return Timing(
+        history=m,
+        horizon=windows.window.horizon,
+        mean_ms=mean_ms,
+        std_ms=std_ms,
+        repeats=repeats,
+        threads=1,
+        device=device_name(torch.device("cpu")),
+        backend="numba compiled",
+    )
+
+
+def _timing_window(caller: str, windows: Windows, repeats: int) -> tuple[int, Windows]:
+    """History length M and the first window (batch 1) to time on, after checking both."""
+    if repeats < 2:
+        raise ValueError(f"{caller}: repeats must be >= 2, got {repeats}")
+    if len(windows) == 0:
+        raise ValueError(f"{caller}: no window to time on")
+    return windows.window.history, windows[0]
+
+
+def time_models(
+    models: Sequence[tuple[str, int | None, nn.Module]],
+    windows: dict[int, Windows],
+    *,
+    params: VehicleParams,
+    repeats: int = 100,
+    device: str | torch.device = "cpu",
+) -> tuple[TimingResult, ...]:
+    """Batch-1 time of each (label, seed, network) at every horizon of ``windows``: the eager
+    network on ``device`` and, for the architectures it supports, the compiled predictor (one
+    CPU thread) beside it. An architecture the compiled predictor does not support is timed
+    eager only (``compiled.unsupported`` says why)."""
+    horizons = sorted(windows)
+    out = []
+    for label, seed, model in models:
+        for n in horizons:
+            t = time_inference(model, windows[n], repeats=repeats, device=device)
+            out.append(TimingResult(label, seed, t))
+        if unsupported(model) is not None:
+            continue
+        compiled = CompiledPredictor(Predictor(model, windows[horizons[0]].window, params, label))
+        for n in horizons:
+            timing = time_compiled(compiled, windows[n], repeats=repeats)
+            out.append(TimingResult(label, seed, timing))
+    return tuple(out)

@@ -1,0 +1,312 @@
+"""``evaluate``: trained runs and the physics-only predictor on the test flights of a dataset,
+at every horizon, collected into a ``Report`` (and written by ``report.write_report``).
+
+Read top to bottom: test windows per horizon, the candidates, the example window for the
+figures, ``evaluate_predictors`` (the loop), and the entry ``evaluate`` that loads runs and a
+dataset. The metrics are in ``metrics.py``, the predictors in ``predictors.py``. Batch-1
+inference time is not measured here: a ``timer`` (e.g. ``deploy.timing.time_models``, which
+``slungload evaluate`` passes) adds it to the report.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .._version import __version__
+from ..config import VehicleParams, WindowConfig
+from ..data.dataset import load_dataset
+from ..data.windows import Windows, make_windows
+from ..models.checkpoints import LoadedModel, load_checkpoint
+from ..state import GROUPS
+from .machine import device_name
+from .metrics import Curve, group_errors, mae_curve, metrics_from_errors
+from .predictors import NetworkPredictor, PhysicsPredictor, Predictor
+from .report import write_report
+from .results import PHYSICS, Example, Report, RunResult, TimingResult, table_rows
+
+# Batch-1 timing of the trained networks: (label, seed, network) triples, the test windows per
+# horizon and the vehicle constants -> one record per network, backend and horizon.
+Timer = Callable[
+    [Sequence[tuple[str, "int | None", nn.Module]], Mapping[int, Windows], VehicleParams],
+    Sequence[TimingResult],
+]
+
+
+def horizon_windows(dataset: Any, *, history: int, horizons: Sequence[int]) -> dict[int, Windows]:
+    """Test windows for each horizon N, cut with stride 1 from the test flights of ``dataset``.
+
+    dataset: a ``data.Dataset`` (``.splits["test"].names``, ``.flights[name].states`` ...).
+    Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
+    """
+    test = dataset.splits["test"]
+    flights = [dataset.flights[name] for name in test.names if name in dataset.flights]
+    if not flights:
+        raise ValueError("evaluate: the dataset has no test flight")
+    return {
+        n: make_windows(flights, WindowConfig(history=history, horizon=n, stride=1))
+        for n in horizons
+    }
+
+
+# --- the report --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One predictor to evaluate: ``label`` groups seeds of one variant in the table."""
+
+    label: str
+    predictor: Predictor
+    seed: int | None = None
+    model: nn.Module | None = None  # for timing; None for the physics predictor
+    info: dict[str, Any] = field(default_factory=dict)  # run path, variant, configs
+
+
+def pick_example(windows: Windows) -> tuple[int, int]:
+    """A deterministic example window: the middle window of the flight with the most windows.
+
+    Returns (index into ``windows``, flight index).
+    """
+    if len(windows) == 0:
+        raise ValueError("no test windows to pick an example from")
+    counts = torch.bincount(windows.flight)
+    flight = int(torch.argmax(counts))
+    idx = torch.nonzero(windows.flight == flight).flatten()
+    return int(idx[len(idx) // 2]), flight
+
+
+def flight_from_windows(windows: Windows, flight: int) -> np.ndarray:
+    """States (T, 13) of one flight pieced together from its windows (steps they cover)."""
+    idx = torch.nonzero(windows.flight == flight).flatten()
+    starts = windows.start[idx]
+    length = windows.window.length
+    out = np.full((int(starts.max()) + length, windows.states.shape[-1]), np.nan)
+    for i, s in zip(idx.tolist(), starts.tolist(), strict=True):
+        out[s : s + length] = windows.states[i].double().numpy()
+    return out
+
+
+def evaluate_predictors(
+    candidates: Sequence[Candidate],
+    windows: Mapping[int, Windows],
+    *,
+    params: VehicleParams,
+    training_horizon: int,
+    dataset: str = "",
+    flights: Mapping[str, np.ndarray] | None = None,
+    timer: Timer | None = None,
+    device: str | torch.device = "cpu",
+    progress: bool = False,
+    environment: Mapping[str, Any] | None = None,
+) -> Report:
+    """Run every candidate on the windows of every horizon and collect a ``Report``.
+
+    windows: N -> test windows cut with horizon N (same flights, same M). flights: optional
+    name -> states (T, 13) for the example figure (pieced from windows otherwise). timer:
+    batch-1 timing of the candidates that hold a network (none without it).
+    """
+    if not candidates:
+        raise ValueError("evaluate: nothing to evaluate")
+    if not windows:
+        raise ValueError("evaluate: no horizon to evaluate")
+    horizons = tuple(sorted(windows))
+    histories = {w.window.history for w in windows.values()}
+    if len(histories) != 1:
+        raise ValueError(f"evaluate: windows of different histories M {sorted(histories)}")
+    history = histories.pop()
+    labels = tuple(dict.fromkeys(c.label for c in candidates))
+
+    jobs = [(c, n) for n in horizons for c in candidates]
+    bar = _progress(len(jobs), progress)
+    results: list[RunResult] = []
+    pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
+    predictions: dict[tuple[int, int], Tensor] = {}  # (candidate, N) -> (W, N, 13)
+    for c, n in jobs:
+        bar.set_description(f"{c.label} N={n}")
+        pred = c.predictor(windows[n])
+        errors = group_errors(pred, windows[n].future.states)
+        results.append(RunResult(c.label, c.seed, metrics_from_errors(errors)))
+        pooled.setdefault((c.label, n), []).append(errors)
+        predictions[(id(c), n)] = pred
+        bar.update()
+    bar.close()
+
+    curves: dict[str, dict[int, dict[str, Curve]]] = {}
+    for (label, n), parts in pooled.items():
+        joined = {g: torch.cat([p[g] for p in parts]) for g in GROUPS}
+        curves.setdefault(label, {})[n] = {g: mae_curve(joined[g]) for g in GROUPS}
+
+    example = _example(candidates, windows[horizons[-1]], predictions, horizons[-1], flights)
+
+    networks = [(c.label, c.seed, c.model) for c in candidates if c.model is not None]
+    timings = tuple(timer(networks, windows, params)) if timer is not None and networks else ()
+
+    test_flights = windows[horizons[0]].names
+    env = {
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "device": device_name(torch.device(device)),
+        **(environment or {}),
+    }
+    return Report(
+        dataset=dataset,
+        test_flights=tuple(test_flights),
+        params=params,
+        history=history,
+        training_horizon=training_horizon,
+        horizons=horizons,
+        labels=labels,
+        results=tuple(results),
+        table=table_rows(results),
+        curves=curves,
+        timings=timings,
+        example=example,
+        models=tuple({"label": c.label, "seed": c.seed, **c.info} for c in candidates if c.model),
+        environment=env,
+    )
+
+
+def _example(
+    candidates: Sequence[Candidate],
+    windows: Windows,
+    predictions: Mapping[tuple[int, int], Tensor],
+    horizon: int,
+    flights: Mapping[str, np.ndarray] | None,
+) -> Example:
+    index, flight = pick_example(windows)
+    name = windows.names[flight]
+    if flights is not None and name in flights:
+        flight_states = np.asarray(flights[name], dtype=np.float64)
+    else:
+        flight_states = flight_from_windows(windows, flight)
+    preds: dict[str, np.ndarray] = {}
+    for c in candidates:  # the first seed of each label
+        preds.setdefault(c.label, predictions[(id(c), horizon)][index].double().numpy())
+    return Example(
+        flight=name,
+        start=int(windows.start[index]),
+        history=windows.window.history,
+        flight_states=flight_states,
+        window_states=windows.states[index].double().numpy(),
+        predictions=preds,
+    )
+
+
+class _NoBar:
+    def set_description(self, _: str) -> None: ...
+    def update(self) -> None: ...
+    def close(self) -> None: ...
+
+
+def _progress(total: int, enabled: bool) -> Any:
+    if not enabled:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="run", leave=False)
+
+
+# --- entry ----------------------------------------------------------------------------------
+
+
+def evaluate(
+    runs: Sequence[str | Path],
+    *,
+    data: str | Path | None = None,
+    out: str | Path | None = None,
+    horizons: Sequence[int] = (25, 50),
+    include_physics: bool = True,
+    timer: Timer | None = None,
+    device: str = "cpu",
+    batch_size: int = 1024,
+    progress: bool = True,
+) -> Report:
+    """Evaluate trained runs (run folders or ``.ckpt`` files) on the test flights.
+
+    data: dataset folder (default: the one recorded in the first run). Every run must share
+    the history M and the vehicle constants. Test windows are cut with stride 1 for each
+    horizon in ``horizons`` from the same test flights. Runs of one variant are seeds of one
+    label (mean +- std in the table). ``include_physics`` adds the physics-only predictor;
+    ``timer`` adds batch-1 inference times (see ``Timer``). With ``out`` the report is written
+    there (``report.write_report``).
+    """
+    horizons = tuple(sorted({int(n) for n in horizons}))
+    if not horizons or horizons[0] < 1:
+        raise ValueError(f"evaluate: horizons must be positive step counts, got {horizons}")
+    loaded = [load_checkpoint(run) for run in runs]
+    if not loaded and not include_physics:
+        raise ValueError("evaluate: no run given and the physics predictor switched off")
+    folder = data if data is not None else (loaded[0].meta.get("data") if loaded else None)
+    if folder is None:
+        raise ValueError("evaluate: no dataset folder recorded in the run; pass data=")
+    history, params = _common_setup(loaded)
+
+    window = WindowConfig(history=history, horizon=horizons[0], stride=1)
+    dataset = load_dataset(folder, window=window, params=params)
+    windows = horizon_windows(dataset, history=history, horizons=horizons)
+    candidates = []
+    if include_physics:
+        candidates.append(Candidate(PHYSICS, PhysicsPredictor(dataset.params)))
+    for lm in loaded:
+        predictor = NetworkPredictor(lm.model, batch_size=batch_size, device=device)
+        seed = lm.train_config.seed
+        candidates.append(Candidate(lm.variant, predictor, seed, lm.model, _run_info(lm)))
+    test = windows[horizons[0]].names
+    report = evaluate_predictors(
+        candidates,
+        windows,
+        params=dataset.params,
+        training_horizon=loaded[0].window.horizon if loaded else horizons[0],
+        dataset=str(dataset.folder),
+        flights={name: dataset.flights[name].states for name in test},
+        timer=timer,
+        device=device,
+        progress=progress,
+        environment={"slungload": __version__, "params_source": dataset.params_source},
+    )
+    if out is not None:
+        write_report(report, out)
+    return report
+
+
+def _common_setup(loaded: Sequence[LoadedModel]) -> tuple[int, VehicleParams | None]:
+    """History M and vehicle constants shared by all runs (defaults without runs)."""
+    if not loaded:
+        return WindowConfig().history, None
+    histories = {lm.window.history for lm in loaded}
+    if len(histories) > 1:
+        names = ", ".join(f"{lm.path} (M = {lm.window.history})" for lm in loaded)
+        raise ValueError(f"evaluate: runs with different histories M cannot share windows: {names}")
+    params = {lm.params for lm in loaded}
+    if len(params) > 1:
+        names = ", ".join(str(lm.path) for lm in loaded)
+        raise ValueError(f"evaluate: runs trained with different vehicle constants: {names}")
+    return histories.pop(), params.pop()
+
+
+def _run_info(lm: LoadedModel) -> dict[str, Any]:
+    """What the report says about one run: where, what, how long, its configs."""
+    info: dict[str, Any] = {
+        "run": str(lm.path.parent),
+        "checkpoint": str(lm.path),
+        "variant": lm.variant,
+        "parameters": sum(p.numel() for p in lm.model.parameters()),
+        "configs": {k: v for k, v in lm.meta.items() if k != "format"},
+    }
+    summary = lm.path.parent / "run.json"
+    if summary.is_file():
+        try:
+            run = json.loads(summary.read_text())
+            info["epochs"] = run.get("epochs")
+            info["stop_reason"] = run.get("stop_reason")
+        except (json.JSONDecodeError, AttributeError):
+            pass  # the checkpoint alone is enough; run.json only adds the epoch count
+    return info

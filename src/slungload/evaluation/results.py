@@ -1,0 +1,233 @@
+"""Evaluation on the test flights: errors per state group, MAE per horizon step with quartiles,
+the RMSE table, batch-1 inference time, and the paper's numbers to compare with.
+
+Read top to bottom: the paper's numbers, predictors (physics-only and network, one signature
+over a batch of windows), error metrics, timing, the typed ``Report``, and the entry
+``evaluate`` that loads runs and a dataset, runs every predictor at every horizon and (with
+``out``) writes the report (``report.write_report``).
+
+Metrics (the paper's Section IV-B), per group g of ``state.GROUPS`` (position, velocity,
+quaternion, load position), with W test windows and horizon N::
+
+    e_g[j, k] = || x_hat_g[j, k] - x_g[j, k] ||       (quaternion: || q_hat (x) q^-1 - q_id ||)
+    MAE_g[k]  = mean_j e_g[j, k], with Q1 / Q3 the 25th / 75th percentiles over j
+    RMSE_g    = sqrt( sum_{j,k} e_g[j, k]^2 / (W N) ),  combined = sum of the four RMSE_g
+
+The quaternion error is the paper's: it is not sign-invariant (q and -q differ by 2); the
+data are sign-continuous (``state.quat_continuous``) and both predictors continue the sign of
+the last measured quaternion, so no sign ambiguity arises. Network quaternions are normalised
+before the error is taken (the slack variables are ignored).
+
+Horizon step k = 1 ... N predicts x_{M-1+k}, i.e. k dt seconds ahead.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..config import VehicleParams, to_dict
+from .metrics import METRIC_KEYS, Curve, Metrics
+
+PHYSICS = "physics"  # label of the physics-only open-loop predictor
+
+# --- the paper's numbers (Tables I and II) ------------------------------------------------
+
+PAPER_RMSE_N50: dict[str, dict[str, float]] = {
+    "physics": {
+        "position": 0.458,
+        "velocity": 0.924,
+        "quaternion": 0.073,
+        "load_position": 0.424,
+        "combined": 1.879,
+    },
+    "no-physics": {
+        "position": 0.153,
+        "velocity": 0.193,
+        "quaternion": 0.033,
+        "load_position": 0.182,
+        "combined": 0.561,
+    },
+    "no-slack": {
+        "position": 0.153,
+        "velocity": 0.200,
+        "quaternion": 0.034,
+        "load_position": 0.184,
+        "combined": 0.571,
+    },
+    "proposed": {
+        "position": 0.136,
+        "velocity": 0.175,
+        "quaternion": 0.032,
+        "load_position": 0.166,
+        "combined": 0.508,
+    },
+}  # fmt: skip  (RMSE over the test set, N = 50; m, m/s, -, m)
+PAPER_MODEL_NAMES = {
+    "physics": "Physics",
+    "no-physics": "Proposed model (w/o physics)",
+    "no-slack": "Proposed model (w/o slack vars)",
+    "proposed": "Proposed model",
+}
+
+
+@dataclass(frozen=True)
+class PaperTiming:
+    """One cell pair of the paper's Table II: batch-1 inference time."""
+
+    device: str
+    history: int  # M
+    horizon: int  # N
+    mean_ms: float
+    std_ms: float
+
+
+PAPER_TIMING: tuple[PaperTiming, ...] = (
+    PaperTiming("NVIDIA RTX 3090", 50, 25, 10.76, 0.53),
+    PaperTiming("NVIDIA RTX 3090", 50, 50, 21.24, 0.99),
+    PaperTiming("NVIDIA Jetson Orin Nano", 50, 25, 59.44, 0.26),
+    PaperTiming("NVIDIA Jetson Orin Nano", 50, 50, 115.26, 0.59),
+)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Batch-1 inference time of one model: mean and sample std over ``repeats`` calls."""
+
+    history: int  # M
+    horizon: int  # N
+    mean_ms: float
+    std_ms: float
+    repeats: int
+    threads: int  # torch.get_num_threads() during the measurement
+    device: str  # e.g. "cpu (x86_64)" or the CUDA device name
+    backend: str = "torch eager"  # or "numba compiled" (``time_compiled``)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Metrics of one candidate (one trained run, or the physics predictor) at one horizon."""
+
+    label: str
+    seed: int | None
+    metrics: Metrics
+
+
+@dataclass(frozen=True)
+class RmseRow:
+    """One row of the RMSE table: mean and std across the seeds of one label."""
+
+    label: str
+    horizon: int
+    seeds: int  # runs averaged
+    mean: dict[str, float]  # METRIC_KEYS -> mean RMSE
+    std: dict[str, float]  # METRIC_KEYS -> sample std across seeds (0 for one seed)
+
+
+@dataclass(frozen=True)
+class TimingResult:
+    label: str
+    seed: int | None
+    timing: Timing
+
+
+@dataclass(frozen=True)
+class Example:
+    """One test window for the time-series and 3D figures.
+
+    flight_states (T, 13) the whole flight (as far as the windows cover it); window_states
+    (M+N, 13) the window from ``start``; predictions: label -> (N, 13).
+    """
+
+    flight: str
+    start: int  # first step of the window in the flight
+    history: int  # M
+    flight_states: np.ndarray
+    window_states: np.ndarray
+    predictions: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Report:
+    """Everything ``evaluate`` measured; ``report.write_report`` turns it into files."""
+
+    dataset: str  # folder of the flights
+    test_flights: tuple[str, ...]
+    params: VehicleParams
+    history: int  # M
+    training_horizon: int  # N used in training (the dashed line in the MAE figures)
+    horizons: tuple[int, ...]
+    labels: tuple[str, ...]  # in display order, physics first
+    results: tuple[RunResult, ...]  # per candidate and horizon
+    table: tuple[RmseRow, ...]  # per label and horizon
+    curves: dict[str, dict[int, dict[str, Curve]]]  # label -> N -> group -> MAE pooled over seeds
+    timings: tuple[TimingResult, ...]
+    example: Example | None
+    models: tuple[dict[str, Any], ...]  # per trained run: label, seed, run, configs
+    environment: dict[str, Any]  # package and torch versions, threads, device
+
+    @property
+    def dt(self) -> float:
+        return self.params.dt
+
+    def row(self, label: str, horizon: int) -> RmseRow | None:
+        """The table row of ``label`` at ``horizon``, or None."""
+        for r in self.table:
+            if r.label == label and r.horizon == horizon:
+                return r
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly content (``report.json``)."""
+        ex = self.example
+        return {
+            "dataset": self.dataset,
+            "test_flights": list(self.test_flights),
+            "params": to_dict(self.params),
+            "history": self.history,
+            "training_horizon": self.training_horizon,
+            "horizons": list(self.horizons),
+            "labels": list(self.labels),
+            "results": [
+                {"label": r.label, "seed": r.seed, **r.metrics.to_dict()} for r in self.results
+            ],
+            "table": [dataclasses.asdict(r) for r in self.table],
+            "timings": [
+                {"label": t.label, "seed": t.seed, **dataclasses.asdict(t.timing)}
+                for t in self.timings
+            ],
+            "example": None
+            if ex is None
+            else {"flight": ex.flight, "start": ex.start, "history": ex.history},
+            "models": list(self.models),
+            "environment": dict(self.environment),
+            "paper": {
+                "rmse_n50": PAPER_RMSE_N50,
+                "timing": [dataclasses.asdict(t) for t in PAPER_TIMING],
+            },
+        }
+
+
+def table_rows(results: Sequence[RunResult]) -> tuple[RmseRow, ...]:
+    """Mean and std across seeds of the RMSE, per label and horizon (first-seen order)."""
+    groups: dict[tuple[str, int], list[Metrics]] = {}
+    for r in results:
+        groups.setdefault((r.label, r.metrics.horizon), []).append(r.metrics)
+    rows = []
+    for (label, horizon), runs in groups.items():
+        vals = {k: [m.rmse[k] for m in runs] for k in METRIC_KEYS}
+        rows.append(
+            RmseRow(
+                label=label,
+                horizon=horizon,
+                seeds=len(runs),
+                mean={k: statistics.fmean(v) for k, v in vals.items()},
+                std={k: statistics.stdev(v) if len(v) > 1 else 0.0 for k, v in vals.items()},
+            )
+        )
+    return tuple(rows)

@@ -1,0 +1,173 @@
+"""Training: the network and its loss in a Lightning module, presets, resume, signals.
+
+One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
+``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
+``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
+signals, ``train``. Its command line is ``slungload train`` (cli.py).
+
+A run folder holds::
+
+    best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
+                            the key "slungload"), so ``load_checkpoint`` rebuilds the model from
+                            the file alone, with ``torch.load(weights_only=True)``
+    run.json                summary (``Run``), written atomically by rank 0
+    csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
+    tensorboard/            the same for TensorBoard
+
+Faults: every checkpoint is written under a temporary name and renamed into place, so a killed
+run never leaves a truncated ``.ckpt``. SIGINT (Ctrl-C) or SIGTERM stops after the current
+batch, saves ``last.ckpt`` and raises ``TrainingInterrupted``; ``resume=True`` continues from
+it (a second Ctrl-C stops at once, without saving). A training step whose loss is not finite is
+skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_steps``);
+``TrainConfig.max_bad_steps`` of them in a row stop the run with ``TrainingDiverged``.
+
+Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
+batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
+draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
+CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
+``max_time`` stops on the clock, so its epoch count depends on the machine.
+
+Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
+re-launches the running command once per extra process, so call ``train`` from a script or
+the command line (``slungload train`` or ``python -m slungload.cli train``), not from a notebook.
+Each process takes an equal share of every epoch's windows.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import logging
+import signal
+import sys
+import threading
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import (
+    Callback,
+)
+from lightning.pytorch.loggers import CSVLogger
+from lightning.pytorch.loggers.csv_logs import ExperimentWriter
+from lightning.pytorch.loggers.logger import rank_zero_experiment
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+
+from ..fileio import atomic_path
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning's checkpoint writer, through a temporary file beside the target.
+
+    Lightning 2.6 stages a local checkpoint in the system temporary folder and moves it into
+    place; across file systems that move is a copy, which a crash can leave truncated.
+    """
+
+    def save_checkpoint(
+        self, checkpoint: dict[str, Any], path: str | Path, storage_options: Any | None = None
+    ) -> None:
+        if storage_options is not None:
+            raise TypeError("AtomicCheckpointIO.save_checkpoint takes no storage_options")
+        with atomic_path(path) as tmp:
+            torch.save(checkpoint, tmp)
+
+
+class SaveOnInterrupt(Callback):
+    """On SIGTERM (or SIGINT, see ``_sigint_as_sigterm``) save ``last.ckpt`` before stopping.
+
+    Lightning 2.6 turns SIGTERM into a ``SIGTERMException`` at the end of the current batch
+    (every DDP process at the same batch) but saves nothing; this adds the save.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.saved = False
+
+    def on_exception(
+        self, trainer: L.Trainer, pl_module: L.LightningModule, exception: BaseException
+    ) -> None:
+        if isinstance(exception, SIGTERMException) and not trainer.sanity_checking:
+            trainer.save_checkpoint(self.path)
+            self.saved = True
+
+
+@contextlib.contextmanager
+def _sigint_as_sigterm() -> Iterator[list[int]]:
+    """While fitting, a first Ctrl-C asks for the graceful stop Lightning gives SIGTERM;
+    a second one (or one before Lightning's handler is in place) interrupts at once.
+
+    Yields a list that receives the number of every signal that asked to stop.
+    """
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received  # signal handlers can only be set from the main thread
+        return
+
+    def on_sigint(signum: int, frame: Any) -> None:
+        lightning = signal.getsignal(signal.SIGTERM)
+        if received or not callable(lightning):
+            raise KeyboardInterrupt
+        received.append(signum)
+        print(
+            "\nstopping after this batch to save last.ckpt (Ctrl-C again: stop now)",
+            file=sys.stderr,
+        )
+        lightning(signal.SIGTERM, frame)
+
+    previous = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class _AppendingWriter(ExperimentWriter):
+    """Lightning's CSV writer deletes an existing metrics.csv; a resumed run appends to it."""
+
+    def _check_log_dir_exists(self) -> None:
+        if self._fs.isfile(self.metrics_file_path):
+            with self._fs.open(self.metrics_file_path, "r", newline="") as f:
+                self.metrics_keys = list(csv.DictReader(f).fieldnames or [])
+
+
+class _ResumableCSVLogger(CSVLogger):
+    """``CSVLogger`` that keeps the rows of the epochs before a resume."""
+
+    @property
+    @rank_zero_experiment
+    def experiment(self) -> ExperimentWriter:
+        if self._experiment is None:
+            self._fs.makedirs(self.root_dir, exist_ok=True)
+            self._experiment = _AppendingWriter(log_dir=self.log_dir)
+        return self._experiment
+
+
+@contextlib.contextmanager
+def _quiet_lightning(quiet: bool) -> Iterator[None]:
+    """Silence Lightning's warnings about our deliberate choices, and its info lines if quiet."""
+    levels: dict[str, int] = {}
+    with warnings.catch_warnings():
+        # Windows are tensors in memory (no workers needed); resuming into the run folder is
+        # the point of resume.
+        # Lightning 2.6 on torch 2.13 warns about its own use of torch's pytree.
+        for pattern in (
+            r".*does not have many workers.*",
+            r".*exists and is not empty.*",
+            r".*treespec, LeafSpec.*",
+            r".*`training_step` returned `None`.*",  # a skipped non-finite step, on purpose
+        ):
+            warnings.filterwarnings("ignore", message=pattern)
+        if quiet:
+            for name in ("lightning.pytorch", "lightning.fabric"):
+                levels[name] = logging.getLogger(name).level
+                logging.getLogger(name).setLevel(logging.WARNING)
+        try:
+            yield
+        finally:
+            for name, level in levels.items():
+                logging.getLogger(name).setLevel(level)

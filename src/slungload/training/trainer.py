@@ -1,0 +1,337 @@
+"""Training: the network and its loss in a Lightning module, presets, resume, signals.
+
+One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
+``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
+``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
+signals, ``train``. Its command line is ``slungload train`` (cli.py).
+
+A run folder holds::
+
+    best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
+                            the key "slungload"), so ``load_checkpoint`` rebuilds the model from
+                            the file alone, with ``torch.load(weights_only=True)``
+    run.json                summary (``Run``), written atomically by rank 0
+    csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
+    tensorboard/            the same for TensorBoard
+
+Faults: every checkpoint is written under a temporary name and renamed into place, so a killed
+run never leaves a truncated ``.ckpt``. SIGINT (Ctrl-C) or SIGTERM stops after the current
+batch, saves ``last.ckpt`` and raises ``TrainingInterrupted``; ``resume=True`` continues from
+it (a second Ctrl-C stops at once, without saving). A training step whose loss is not finite is
+skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_steps``);
+``TrainConfig.max_bad_steps`` of them in a row stop the run with ``TrainingDiverged``.
+
+Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
+batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
+draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
+CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
+``max_time`` stops on the clock, so its epoch count depends on the machine.
+
+Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
+re-launches the running command once per extra process, so call ``train`` from a script or
+the command line (``slungload train`` or ``python -m slungload.cli train``), not from a notebook.
+Each process takes an equal share of every epoch's windows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import signal
+import time
+from dataclasses import dataclass, field, replace
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import lightning as L
+import torch
+from lightning.pytorch.callbacks import (
+    EarlyStopping,
+    LearningRateMonitor,
+    ModelCheckpoint,
+)
+from lightning.pytorch.loggers import TensorBoardLogger
+from lightning.pytorch.utilities.exceptions import SIGTERMException
+
+from .._version import __version__
+from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
+from ..data.dataset import Dataset, load_dataset
+from ..fileio import write_json
+from ..loss import model_config_for
+from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
+from ..models.registry import build
+from .batches import WindowData
+from .module import MONITOR, SlungLoadModule
+from .presets import Preset, get_preset
+from .runtime import (
+    AtomicCheckpointIO,
+    SaveOnInterrupt,
+    _quiet_lightning,
+    _ResumableCSVLogger,
+    _sigint_as_sigterm,
+)
+
+RUN_JSON = "run.json"
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM stopped a run; ``last.ckpt`` holds it (``resume=True`` continues)."""
+
+    def __init__(self, message: str, signum: int = signal.SIGINT) -> None:
+        super().__init__(message)
+        self.signum = signum
+
+
+@dataclass(frozen=True)
+class Run:
+    """What a ``train`` call produced."""
+
+    out: Path
+    best_checkpoint: Path
+    last_checkpoint: Path
+    variant: str
+    preset: str
+    epochs: int  # epochs completed in total (a resumed run counts the earlier ones)
+    seconds: float  # wall-clock time of this call's fit
+    stop_reason: str  # "max_epochs" | "early_stopping" | "max_time"
+    best_val_loss: float
+    metrics: dict[str, float] = field(default_factory=dict)  # last epoch's val metrics
+    skipped_steps: int = 0  # training steps skipped for a non-finite loss, this call
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        return {k: str(v) if isinstance(v, Path) else v for k, v in d.items()}
+
+    def summary(self) -> str:
+        skipped = f"{self.skipped_steps} steps skipped (loss or gradients not finite); " * bool(
+            self.skipped_steps
+        )
+        return (
+            f"{self.variant} ({self.preset}): {self.epochs} epochs in {self.seconds:.0f} s, "
+            f"stopped by {self.stop_reason}; best val loss {self.best_val_loss:.4g}, "
+            f"val fit RMSE {self.metrics.get('val/fit_rmse', float('nan')):.4g}; "
+            f"{skipped}{self.best_checkpoint}"
+        )
+
+
+def _accelerator(device: str) -> str:
+    if device not in ("auto", "cpu", "cuda"):
+        raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but torch sees no CUDA GPU")
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    return device
+
+
+def train(
+    data: str | Path | Dataset,
+    *,
+    out: str | Path,
+    variant: str = "proposed",
+    preset: str | Preset = "default",
+    device: str = "auto",
+    devices: int = 1,
+    seed: int = 0,
+    max_epochs: int | None = None,
+    resume: bool = False,
+    model_config: ModelConfig = ModelConfig(),  # noqa: B008 (frozen)
+    weights: LossWeights = LossWeights(),  # noqa: B008 (frozen)
+    window: WindowConfig = WindowConfig(),  # noqa: B008 (frozen)
+    params: VehicleParams | None = None,
+    progress: bool = True,
+    num_threads: int | None = None,
+) -> Run:
+    """Train one model variant on a dataset folder (or a loaded ``Dataset``) into ``out``.
+
+    ``preset`` names a schedule in ``PRESETS``; ``seed`` and ``max_epochs`` override its own.
+    ``variant`` names a loss variant of ``loss.py`` (it may change the network, e.g. no slack
+    outputs). ``window``/``params`` are used only when ``data`` is a folder. ``resume=True``
+    continues from ``out/last.ckpt`` (epochs, optimiser, schedule and early-stopping state);
+    without it, an ``out`` that already holds a run is refused. ``num_threads`` sets torch's
+    CPU threads for this process.
+
+    Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
+    ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
+    """
+    out = Path(out).expanduser()
+    last = out / LAST
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"run folder {out} is a file, expected a folder")
+    if resume and not last.is_file():
+        raise FileNotFoundError(f"cannot resume: {last} does not exist")
+    if not resume and last.is_file():
+        raise FileExistsError(f"{out} already holds a run ({LAST}); pass resume=True or a new out")
+    if devices < 1:
+        raise ValueError(f"devices must be >= 1, got {devices}")
+    if max_epochs is not None and max_epochs < 1:
+        raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
+    if num_threads is not None and num_threads < 1:
+        raise ValueError(f"num_threads (torch CPU threads) must be >= 1, got {num_threads}")
+    accelerator = _accelerator(device)
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
+
+    chosen = get_preset(preset)
+    config = replace(chosen.config, seed=seed)
+    if max_epochs is not None:
+        config = replace(config, max_epochs=max_epochs)
+
+    dataset = (
+        data if isinstance(data, Dataset) else load_dataset(data, window=window, params=params)
+    )
+    window = dataset.window
+    model_config = model_config_for(variant, model_config)
+
+    L.seed_everything(seed, workers=False, verbose=False)
+    net = build(model_config, dataset.params)
+    train_windows = dataset.splits["train"]
+    if model_config.normalize and len(train_windows):
+        net.fit_normalization(
+            train_windows.states, train_windows.inputs, origin_step=window.history - 1
+        )
+    meta = {
+        "format": CKPT_FORMAT,
+        "package_version": __version__,
+        "variant": variant,
+        "preset": chosen.name,
+        "model": to_dict(model_config),
+        "weights": to_dict(weights),
+        "train": to_dict(config),
+        "window": to_dict(window),
+        "params": to_dict(dataset.params),
+        "params_source": dataset.params_source,
+        "data": str(dataset.folder),
+    }
+    if resume:
+        check_resumable(last, meta)
+    module = SlungLoadModule(
+        net,
+        variant=variant,
+        params=dataset.params,
+        weights=weights,
+        window=window,
+        config=config,
+        meta=meta,
+    )
+    datamodule = WindowData(
+        train_windows, dataset.splits["val"], config, val_windows=config.val_windows
+    )
+
+    best_cb = ModelCheckpoint(
+        dirpath=out,
+        filename=BEST.removesuffix(".ckpt"),
+        monitor=MONITOR,
+        mode="min",
+        save_top_k=1,
+        auto_insert_metric_name=False,
+        enable_version_counter=False,
+    )
+    # Lightning 2.6's save_last=True refreshes last.ckpt only in epochs that improve the best
+    # one; a second callback without a monitor writes it after every epoch. Listed after
+    # best_cb, so last.ckpt holds best_cb's state of the same epoch.
+    last_cb = ModelCheckpoint(
+        dirpath=out, filename=LAST.removesuffix(".ckpt"), save_top_k=1, enable_version_counter=False
+    )
+    # strict=False: a run stopped by a signal in the middle of validation resumes past that
+    # epoch's validation (Lightning does not rerun it), so that one epoch has no val/total;
+    # the check skips it instead of failing the resumed run.
+    stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience, strict=False)
+    interrupt_cb = SaveOnInterrupt(last)
+    callbacks = [best_cb, last_cb, stop_cb, interrupt_cb]
+    start = time.perf_counter()
+    with _quiet_lightning(not progress), _sigint_as_sigterm() as sigints:
+        trainer = _make_trainer(out, accelerator, devices, config, callbacks, progress)
+        try:
+            trainer.fit(
+                module,
+                datamodule=datamodule,
+                ckpt_path=last if resume else None,
+                weights_only=True,
+            )
+        except SIGTERMException:
+            signum = signal.SIGINT if sigints else signal.SIGTERM
+            saved = f"saved {last}" if interrupt_cb.saved else f"{last} is the last epoch's"
+            raise TrainingInterrupted(
+                f"training stopped by {signal.Signals(signum).name} at epoch "
+                f"{trainer.current_epoch}, step {trainer.global_step}; {saved}; continue with "
+                "resume=True (slungload train --resume)",
+                signum,
+            ) from None
+    seconds = time.perf_counter() - start
+
+    run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
+    run = replace(run, skipped_steps=module.skipped_steps)
+    if trainer.is_global_zero:
+        write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
+    return run
+
+
+def _make_trainer(
+    out: Path,
+    accelerator: str,
+    devices: int,
+    config: TrainConfig,
+    callbacks: list[Any],
+    progress: bool,
+) -> L.Trainer:
+    strategy: Any = "auto"
+    if devices > 1:
+        from lightning.pytorch.strategies import DDPStrategy
+
+        strategy = DDPStrategy(process_group_backend="gloo" if accelerator == "cpu" else "nccl")
+    return L.Trainer(
+        accelerator=accelerator,
+        devices=devices,
+        strategy=strategy,
+        max_epochs=config.max_epochs,
+        max_time=timedelta(seconds=config.max_time) if config.max_time else None,
+        gradient_clip_val=config.grad_clip or None,
+        callbacks=[*callbacks, LearningRateMonitor(logging_interval="epoch")],
+        plugins=[AtomicCheckpointIO()],
+        logger=[
+            _ResumableCSVLogger(out, name="csv", version=""),
+            TensorBoardLogger(out, name="tensorboard", version="", default_hp_metric=False),
+        ],
+        default_root_dir=out,
+        enable_progress_bar=progress,
+        enable_model_summary=progress,
+        use_distributed_sampler=False,  # EpochBatches shards the windows itself
+        log_every_n_steps=1,
+        num_sanity_val_steps=1,
+    )
+
+
+def _run_result(
+    trainer: L.Trainer,
+    best_cb: ModelCheckpoint,
+    stop_cb: EarlyStopping,
+    out: Path,
+    variant: str,
+    preset: str,
+    config: TrainConfig,
+    seconds: float,
+) -> Run:
+    epochs = trainer.current_epoch
+    if stop_cb.stopped_epoch > 0:
+        reason = "early_stopping"
+    elif epochs >= config.max_epochs:
+        reason = "max_epochs"
+    else:
+        reason = "max_time"
+    metrics = {
+        k: float(v) for k, v in sorted(trainer.callback_metrics.items()) if k.startswith("val/")
+    }
+    best_score = best_cb.best_model_score
+    return Run(
+        out=out,
+        best_checkpoint=Path(best_cb.best_model_path) if best_cb.best_model_path else out / BEST,
+        last_checkpoint=out / LAST,
+        variant=variant,
+        preset=preset,
+        epochs=epochs,
+        seconds=seconds,
+        stop_reason=reason,
+        best_val_loss=float(best_score) if best_score is not None else float("nan"),
+        metrics=metrics,
+    )
