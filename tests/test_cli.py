@@ -12,12 +12,6 @@ from slungload.cli import _seed_range, main
 from slungload.evaluation.results import PAPER_RMSE_N50
 
 
-def run_cli(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_help_lists_every_command(capsys):
     with pytest.raises(SystemExit) as info:
         main(["--help"])
@@ -27,30 +21,30 @@ def test_help_lists_every_command(capsys):
         assert command in out
 
 
-def test_maneuvers_lists_the_paper_families(capsys):
-    code, out, _ = run_cli(capsys, "maneuvers")
+def test_maneuvers_lists_the_paper_families(run_cli):
+    code, out, _ = run_cli("maneuvers")
     assert code == 0
     for family in ("xy_step", "fast_8_lap_xyz", "baf_very_fast", "roll_35"):
         assert family in out.split()
 
 
-def test_missing_data_folder_is_one_line_and_exit_2(capsys, tmp_path):
-    code, out, err = run_cli(capsys, "inspect", str(tmp_path / "nowhere"))
+def test_missing_data_folder_is_one_line_and_exit_2(run_cli, tmp_path):
+    code, out, err = run_cli("inspect", str(tmp_path / "nowhere"))
     assert code == 2
     assert "nowhere" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
 
 
-def test_simulate_refuses_to_overwrite(capsys, tmp_path):
+def test_simulate_refuses_to_overwrite(run_cli, tmp_path):
     (tmp_path / "keep.txt").write_text("precious")
-    code, _, err = run_cli(capsys, "simulate", "--out", str(tmp_path), "--flights", "1", "--quiet")
+    code, _, err = run_cli("simulate", "--out", str(tmp_path), "--flights", "1", "--quiet")
     assert code == 2
     assert str(tmp_path) in err
     assert (tmp_path / "keep.txt").read_text() == "precious"
 
 
-def test_bad_seed_range_is_a_user_error(capsys, tmp_path):
-    code, _, err = run_cli(capsys, "reproduce", "--out", str(tmp_path), "--seeds", "a..b")
+def test_bad_seed_range_is_a_user_error(run_cli, tmp_path):
+    code, _, err = run_cli("reproduce", "--out", str(tmp_path), "--seeds", "a..b")
     assert code == 2 and "--seeds" in err
 
 
@@ -59,25 +53,23 @@ def test_seed_range(text, seeds):
     assert _seed_range(text) == seeds
 
 
-def test_simulate_then_inspect(capsys, tmp_path):
+def test_simulate_then_inspect(run_cli, tmp_path):
     data = tmp_path / "data"
-    code, out, _ = run_cli(
-        capsys, "simulate", "--out", str(data), "--flights", "3", "--quiet", "--no-wind"
-    )
+    code, out, _ = run_cli("simulate", "--out", str(data), "--flights", "3", "--quiet", "--no-wind")
     assert code == 0 and "wrote 3 flights" in out
     meta = json.loads((data / "vehicle.json").read_text())
     assert meta["sim"]["effects"]["wind"] is False and meta["sim"]["effects"]["drag"] is True
-    code, out, _ = run_cli(capsys, "inspect", str(data))
+    code, out, _ = run_cli("inspect", str(data))
     assert code == 0 and "(vehicle.json)" in out
 
 
 @pytest.mark.slow
-def test_quick_reproduce_writes_a_plausible_report(capsys, tmp_path):
+def test_quick_reproduce_writes_a_plausible_report(run_cli, tmp_path):
     """The README's main job in its smoke-test form: the default 48-flight dataset, three
     variants trained for a few seconds, evaluated at N = 25 and 50 (timing left out)."""
     out = tmp_path / "out"
     code, stdout, _ = run_cli(
-        capsys, "reproduce", "--out", str(out), "--preset", "quick", "--no-timing", "--quiet"
+        "reproduce", "--out", str(out), "--preset", "quick", "--no-timing", "--quiet"
     )
     assert code == 0 and "report.md" in stdout
     report = out / "report"

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from flights import file_rows, swinging_flight
+from flights import predict_args
 
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.config import ModelConfig, WindowConfig
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import (
     PARITY_TOLERANCE,
@@ -21,27 +21,12 @@ from slungload.deploy.compiled import (
     _lstm_update,
     fold,
 )
-from slungload.deploy.predictor import Predictor
 from slungload.models.lstm_attention import SlungLoadNet
 from slungload.state import QUAT, STATE_DIM
 
 torch.set_num_threads(1)
 
 M = 50
-
-
-@pytest.fixture(scope="module")
-def flights():
-    return [swinging_flight(f"f{i}", i, 150) for i in range(3)]
-
-
-def predictor_for(config: ModelConfig, flights, seed: int = 0) -> Predictor:
-    torch.manual_seed(seed)
-    model = SlungLoadNet(config)
-    if config.normalize:
-        windows = make_windows(flights, WindowConfig(history=M, horizon=25))
-        model.fit_normalization(windows.states, windows.inputs, origin_step=M - 1)
-    return Predictor(model.eval(), WindowConfig(history=M, horizon=25), VehicleParams(), "x")
 
 
 def test_exp_matches_numpy_to_float32_precision():
@@ -101,13 +86,14 @@ def test_lstm_update_matches_torch_cell():
     ids=["default", "absolute-no-slack", "non-residual", "raw-units"],
 )
 @pytest.mark.parametrize("horizon", [25, 50])
-def test_predictions_match_the_eager_network(flights, config: ModelConfig, horizon: int):
-    predictor = predictor_for(config, flights)
+def test_predictions_match_the_eager_network(
+    untrained_predictor, physics_flight, config: ModelConfig, horizon: int
+):
+    predictor = untrained_predictor(config)
     compiled = CompiledPredictor(predictor)
-    test_flights = [swinging_flight(f"t{i}", 100 + i, M + horizon + 15) for i in range(2)]
+    test_flights = [physics_flight(f"t{i}", 100 + i, M + horizon + 15) for i in range(2)]
     windows = make_windows(test_flights, WindowConfig(history=M, horizon=horizon, stride=5))
-    history = file_rows(windows.states[:, :M], windows.inputs[:, :M])
-    future = windows.inputs[:, M:].double().numpy()
+    history, future = predict_args(windows)
     got, want = compiled.predict(history, future), predictor.predict(history, future)
     assert got.shape == want.shape == (len(windows), horizon, STATE_DIM)
     assert got.dtype == np.float64
@@ -122,22 +108,28 @@ def test_predictions_match_the_eager_network(flights, config: ModelConfig, horiz
     assert np.abs(moved - got).max() > 100 * np.abs(got - want).max()
 
 
-def test_quaternion_sign_jumps_and_scale_in_the_history_change_nothing(flights):
-    predictor = predictor_for(ModelConfig(), flights)
+def test_quaternion_sign_jumps_and_scale_in_the_history_change_nothing(
+    untrained_predictor, physics_flight
+):
+    predictor = untrained_predictor()
     compiled = CompiledPredictor(predictor)
-    windows = make_windows([swinging_flight("t", 7, M + 40)], WindowConfig(history=M, horizon=25))
-    history = file_rows(windows.states[:1, :M], windows.inputs[:1, :M])[0]
-    future = windows.inputs[0, M:].double().numpy()
+    windows = make_windows([physics_flight("t", 7, M + 40)], WindowConfig(history=M, horizon=25))
+    histories, futures = predict_args(windows[:1])
+    history, future = histories[0], futures[0]
     base = compiled.predict(history, future)
     flipped = history.copy()
     flipped[20:35, 6:10] *= -1.0  # q and -q: the same attitude
-    flipped[:, 6:10] *= 1.7  # not unit: normalised on the way in
+    flipped[:, 6:10] *= 1.05  # not unit, within the tolerance: normalised on the way in
     np.testing.assert_allclose(compiled.predict(flipped, future), base, atol=1e-5)
     np.testing.assert_allclose(predictor.predict(flipped, future), base, atol=PARITY_TOLERANCE)
+    flipped[:, 6:10] *= 1.7  # far from unit: wrong columns or a broken estimator, refused
+    for fn in (compiled.predict, predictor.predict):
+        with pytest.raises(ValueError, match=r"row 0 has a quaternion of norm 1\.7\d.*x-y-z-w"):
+            fn(flipped, future)
 
 
-def test_unbatched_call_and_checks(flights):
-    compiled = CompiledPredictor(predictor_for(ModelConfig(), flights), warm_up=False)
+def test_unbatched_call_and_checks(untrained_predictor):
+    compiled = CompiledPredictor(untrained_predictor(), warm_up=False)
     history = np.zeros((M, 17))
     history[:, 9] = 1.0
     out = compiled.predict(history, np.zeros((7, 4)))

@@ -1,7 +1,7 @@
 """Reading flights, estimating the load state, windows, splits and the cache.
 
-The flights are made here, analytically: a vehicle on a smooth curve with a load swinging on
-a cone around it, written in the published schema (quaternions x-y-z-w).
+The flights are analytic (``flights.flight_arrays``): a vehicle on a smooth curve with a load
+swinging on a cone around it, in the published schema (quaternions x-y-z-w).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from flights import flight_arrays
 
 from slungload.config import VehicleParams, WindowConfig
 from slungload.data.dataset import load_dataset, read_splits
@@ -24,45 +25,6 @@ from slungload.state import LOAD_RATE, LOAD_VEL, QUAT
 
 PARAMS = VehicleParams()
 SMALL = WindowConfig(history=10, horizon=5, stride=1)
-
-
-def flight_arrays(steps: int = 60, *, dt: float = 0.03, t0: float = 0.0, seed: int = 0) -> dict:
-    """A smooth flight in the published schema; ``seed`` shifts the phases."""
-    t = t0 + dt * np.arange(steps)
-    phase = 0.7 * seed
-    p = np.stack([np.sin(0.5 * t + phase), 0.5 * np.cos(0.3 * t), 1.0 + 0.1 * t], axis=1)
-    v = np.stack([0.5 * np.cos(0.5 * t + phase), -0.15 * np.sin(0.3 * t), 0.1 + 0 * t], axis=1)
-    yaw = 0.2 * t + phase
-    attitude = np.stack([0 * t, 0 * t, np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)  # x-y-z-w
-    theta, rate = 0.3, 3.0
-    xi = np.stack(
-        [
-            np.sin(theta) * np.cos(rate * t),
-            np.sin(theta) * np.sin(rate * t),
-            -np.cos(theta) + 0 * t,
-        ],
-        axis=1,
-    )
-    return {
-        "time": t,
-        "p": p,
-        "v": v,
-        "attitude": attitude,
-        "p_load": p + PARAMS.cable_length * xi,
-        "w_ref": np.stack([0.1 * np.sin(t), 0 * t, 0.2 + 0 * t], axis=1),
-        "T_ref": (14.2 + 0.1 * np.sin(t))[:, None],
-    }
-
-
-def make_dataset(
-    folder: Path, lengths: dict[str, int], splits: dict[str, list[str]] | None = None
-) -> Path:
-    """Write flights ``name -> steps`` and split lists (default: all in train)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    for i, (name, steps) in enumerate(lengths.items()):
-        write_npz(folder / f"{name}.npz", flight_arrays(steps, seed=i))
-    write_splits(folder, splits or {"train": list(lengths)})
-    return folder
 
 
 def write_flight(path: Path, **changes) -> Path:
@@ -268,9 +230,9 @@ def test_estimate_is_causal_and_works_on_torch_batches():
 # --- datasets, windows, splits ---------------------------------------------------------------
 
 
-def test_windows_per_flight_never_cross_flights(tmp_path):
+def test_windows_per_flight_never_cross_flights(tmp_path, write_dataset):
     lengths = {"a": 40, "b": 23, "c": 60}
-    folder = make_dataset(tmp_path / "ds", lengths, {"train": ["a", "b"], "val": ["c"]})
+    folder = write_dataset(tmp_path / "ds", lengths, {"train": ["a", "b"], "val": ["c"]})
     for stride in (1, 4):
         window = WindowConfig(history=10, horizon=5, stride=stride)
         ds = load_dataset(folder, window=window, params=PARAMS, use_cache=False)
@@ -290,8 +252,8 @@ def test_windows_per_flight_never_cross_flights(tmp_path):
                     assert torch.equal(getattr(w, key)[k], want)
 
 
-def test_window_views_and_subsets(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"a": 40})
+def test_window_views_and_subsets(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 40}, {"train": ["a"]})
     w = load_dataset(folder, window=SMALL, params=PARAMS, use_cache=False).splits["train"]
     assert w.history.states.shape == (26, 10, 13) and w.future.inputs.shape == (26, 5, 4)
     assert torch.equal(torch.cat([w.history.aux, w.future.aux], 1), w.aux)
@@ -302,8 +264,8 @@ def test_window_views_and_subsets(tmp_path):
     assert len(w[w.start >= 20]) == 6 and len(w[2:5]) == 3 and len(w[7]) == 1
 
 
-def test_short_flights_are_skipped_and_none_left_is_an_error(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"long": 30, "short": 12})
+def test_short_flights_are_skipped_and_none_left_is_an_error(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"long": 30, "short": 12}, {"train": ["long", "short"]})
     with pytest.warns(DataWarning, match="short.npz: skipped, 12 steps"):
         ds = load_dataset(folder, window=SMALL, params=PARAMS, use_cache=False)
     assert list(ds.flights) == ["long"]
@@ -311,8 +273,8 @@ def test_short_flights_are_skipped_and_none_left_is_an_error(tmp_path):
         load_dataset(folder, window=WindowConfig(40, 5), params=PARAMS, use_cache=False)
 
 
-def test_split_lists(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"a": 20, "b": 20, "c": 20, "d": 20})
+def test_split_lists(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 20, "b": 20, "c": 20, "d": 20})
     (folder / "train.txt").write_text("a.npz\n\n# comment\nb\n")
     (folder / "val.txt").write_text("c\n")
     (folder / "test.txt").write_text("")
@@ -341,8 +303,8 @@ def test_missing_or_empty_folder(tmp_path):
         load_dataset(tmp_path / "empty")
 
 
-def test_vehicle_constants_source(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"a": 20})
+def test_vehicle_constants_source(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 20}, {"train": ["a"]}, vehicle=False)
     with pytest.warns(DataWarning, match="no vehicle.json"):
         ds = load_dataset(folder, window=SMALL, use_cache=False)
     assert ds.params == VehicleParams() and ds.params_source == "paper defaults"
@@ -356,8 +318,8 @@ def test_vehicle_constants_source(tmp_path):
     assert ds.params == other and ds.params_source == "override"
 
 
-def test_cache_hit_invalidation_and_corruption(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"a": 30, "b": 25}, {"train": ["a"], "test": ["b"]})
+def test_cache_hit_invalidation_and_corruption(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 30, "b": 25}, {"train": ["a"], "test": ["b"]})
     cache = tmp_path / "cache"
     first = load_dataset(folder, window=SMALL, params=PARAMS, cache_dir=cache)
     assert not first.from_cache and first.cache_path.is_file()
@@ -396,22 +358,22 @@ def test_cache_hit_invalidation_and_corruption(tmp_path):
     assert load_dataset(folder, window=SMALL, params=PARAMS, cache_dir=cache).from_cache
 
 
-def test_cache_dir_from_environment(tmp_path, monkeypatch):
-    folder = make_dataset(tmp_path / "ds", {"a": 20})
+def test_cache_dir_from_environment(tmp_path, monkeypatch, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 20}, {"train": ["a"]})
     monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "env_cache"))
     ds = load_dataset(folder, window=SMALL, params=PARAMS)
     assert ds.cache_path.parent == tmp_path / "env_cache" and ds.cache_path.is_file()
 
 
-def test_notes_are_repeated_on_a_cache_hit(tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"a": 20, "b": 10})
+def test_notes_are_repeated_on_a_cache_hit(tmp_path, write_dataset):
+    folder = write_dataset(tmp_path / "ds", {"a": 20, "b": 10}, {"train": ["a", "b"]})
     for _ in range(2):
         with pytest.warns(DataWarning, match="b.npz: skipped"):
             load_dataset(folder, window=SMALL, params=PARAMS, cache_dir=tmp_path / "c")
 
 
-def test_summary(tmp_path):
-    folder = make_dataset(
+def test_summary(tmp_path, write_dataset):
+    folder = write_dataset(
         tmp_path / "ds", {"a": 40, "b": 30, "c": 12}, {"train": ["a", "c"], "test": ["b"]}
     )
     summary = summarize(folder, window=SMALL, params=PARAMS)
@@ -426,9 +388,9 @@ def test_summary(tmp_path):
     assert "override" in table and "61.9 %" in table and "swing angle" in table
 
 
-def test_summary_names_maneuvers_missing_from_training(tmp_path):
+def test_summary_names_maneuvers_missing_from_training(tmp_path, write_dataset):
     names = ["xy_step", "xy_step_04", "roll_35_00", "roll_35_01", "baf_fast_01"]
-    folder = make_dataset(tmp_path / "ds", dict.fromkeys(names, 40))
+    folder = write_dataset(tmp_path / "ds", dict.fromkeys(names, 40))
     splits = {"train": ["xy_step", "baf_fast_01"], "val": ["xy_step_04"], "test": ["roll_35_00"]}
     write_splits(folder, {**splits, "test": ["roll_35_00", "roll_35_01"]})
     summary = summarize(folder, window=SMALL, params=PARAMS)

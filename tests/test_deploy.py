@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -10,10 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from flights import file_rows, swinging_flight
+from flights import predict_args
 
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data.dataset import Dataset
+from slungload.config import WindowConfig
 from slungload.data.windows import make_windows
 from slungload.deploy.onnx import (
     FORMAT_VERSION,
@@ -23,24 +23,15 @@ from slungload.deploy.onnx import (
     sidecar_path,
 )
 from slungload.deploy.predictor import Predictor
-from slungload.models.lstm_attention import SlungLoadNet
 from slungload.state import QUAT, STATE_DIM
-from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 
-PAPER = WindowConfig(history=50, horizon=25)
-
 
 @pytest.fixture(scope="module")
-def paper_predictor() -> Predictor:
+def paper_predictor(untrained_predictor) -> Predictor:
     """The paper-size network, random weights, normalisation fitted on physics windows."""
-    torch.manual_seed(0)
-    flights = [swinging_flight(f"f{i}", i, 140) for i in range(3)]
-    windows = make_windows(flights, WindowConfig(history=50, horizon=50))
-    model = SlungLoadNet(ModelConfig())
-    model.fit_normalization(windows.states, windows.inputs, origin_step=PAPER.history - 1)
-    return Predictor(model.eval(), PAPER, VehicleParams(), "proposed")
+    return untrained_predictor()
 
 
 @pytest.fixture(scope="module")
@@ -50,11 +41,12 @@ def exported(paper_predictor: Predictor, tmp_path_factory: pytest.TempPathFactor
 
 
 @pytest.mark.parametrize("horizon", [25, 50])
-def test_exported_matches_eager_on_physics_windows(paper_predictor, exported, horizon: int):
-    flights = [swinging_flight(f"t{i}", 100 + i, 50 + horizon + 20) for i in range(2)]
+def test_exported_matches_eager_on_physics_windows(
+    paper_predictor, exported, horizon: int, physics_flight
+):
+    flights = [physics_flight(f"t{i}", 100 + i, 50 + horizon + 20) for i in range(2)]
     windows = make_windows(flights, WindowConfig(history=50, horizon=horizon, stride=7))
-    history = file_rows(windows.states[:, :50], windows.inputs[:, :50])  # (W, 50, 17)
-    future = windows.inputs[:, 50:].double().numpy()  # (W, N, 4)
+    history, future = predict_args(windows)  # (W, 50, 17), (W, N, 4)
     onnx = OnnxPredictor(exported[horizon].model)
     got, want = onnx.predict(history, future), paper_predictor.predict(history, future)
     assert got.shape == (len(windows), horizon, STATE_DIM) and got.dtype == np.float64
@@ -71,13 +63,18 @@ def test_exported_matches_eager_on_physics_windows(paper_predictor, exported, ho
     assert np.abs(moved - got).max() > 20 * np.abs(got - want).max()
 
 
-def test_history_length_is_dynamic(paper_predictor, exported):
-    flights = [swinging_flight("h", 7, 120)]
+def test_history_length_is_dynamic_on_request(paper_predictor, exported, physics_flight):
+    flights = [physics_flight("h", 7, 120)]
     windows = make_windows(flights, WindowConfig(history=30, horizon=25, stride=20))
-    history = file_rows(windows.states[:, :30], windows.inputs[:, :30])  # M = 30, not 50
-    future = windows.inputs[:, 30:].double().numpy()
-    got = OnnxPredictor(exported[25].model).predict(history, future)
-    np.testing.assert_allclose(got, paper_predictor.predict(history, future), atol=1e-4, rtol=0)
+    history, future = predict_args(windows)  # M = 30, not 50
+    # By default another M than the trained one is refused, naming both.
+    for predictor in (OnnxPredictor(exported[25].model), paper_predictor):
+        with pytest.raises(ValueError, match=r"history has 30 rows.*trained on M = 50"):
+            predictor.predict(history, future)
+    onnx = OnnxPredictor(exported[25].model, any_history=True)
+    eager = dataclasses.replace(paper_predictor, any_history=True)
+    got = onnx.predict(history, future)
+    np.testing.assert_allclose(got, eager.predict(history, future), atol=1e-4, rtol=0)
 
 
 def test_sidecar_describes_model_layout_and_versions(exported):
@@ -159,35 +156,111 @@ def test_runtime_path_does_not_import_lightning(exported):
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
 
 
-def test_export_from_a_trained_run(tmp_path: Path):
+def test_export_from_a_trained_run(tmp_path: Path, tiny_run):
     """A quick checkpoint exports with its own horizon and records every config."""
-    small = WindowConfig(history=6, horizon=4)
-    splits = {
-        split: make_windows([swinging_flight(split, seed, 40)], small)
-        for seed, split in enumerate(("train", "val", "test"))
-    }
-    dataset = Dataset(
-        folder=tmp_path,
-        params=VehicleParams(),
-        params_source="test",
-        window=small,
-        splits=splits,
-        flights={},
-    )
-    tiny = ModelConfig(
-        embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0
-    )
-    train(dataset, out=tmp_path / "run", preset="quick", model_config=tiny, progress=False)
-    result = export(tmp_path / "run", tmp_path / "tiny.onnx")
+    result = export(tiny_run.out, tmp_path / "tiny.onnx")
     assert result.horizon == 4 and result.history == 6
     meta = json.loads(result.sidecar.read_text())
     assert set(meta["configs"]) == {"model", "window", "params", "weights", "train"}
     assert meta["variant"] == "proposed" and meta["source"].endswith("best.ckpt")
-    val = dataset.splits["val"]
-    history = file_rows(val.states[:, :6], val.inputs[:, :6])
-    future = val.inputs[:, 6:].double().numpy()
-    eager = Predictor.from_checkpoint(tmp_path / "run")
+    history, future = predict_args(tiny_run.dataset.splits["val"])
+    eager = Predictor.from_checkpoint(tiny_run.out)
     got = OnnxPredictor(result.model).predict(history, future)
     np.testing.assert_allclose(got, eager.predict(history, future), atol=1e-4, rtol=0)
     with pytest.raises(ValueError, match="only 'onnx'"):
-        export(tmp_path / "run", tmp_path / "x.tflite", format="tflite")
+        export(tiny_run.out, tmp_path / "x.tflite", format="tflite")
+
+
+def _spoil(change):
+    """A valid paper-size (50, 17) history (x-y-z-w identity attitude, hover thrust) with
+    ``change(history)`` applied."""
+
+    def make() -> np.ndarray:
+        history = np.zeros((50, 17))
+        history[:, 9] = 1.0
+        history[:, 13] = 14.2
+        change(history)
+        return history
+
+    return make
+
+
+def _set(index, value):
+    def change(history: np.ndarray) -> None:
+        history[index] = value
+
+    return change
+
+
+def _wxyz(history: np.ndarray) -> None:
+    history[:, 6:10] = [1.0, 0.0, 0.0, 0.0]  # hover, written w-x-y-z
+
+
+@pytest.mark.parametrize(
+    ("spoiled", "message"),
+    [
+        (lambda: np.zeros((40, 17)), r"history has 40 rows, but the model was trained on M = 50"),
+        (_spoil(_set((7, slice(6, 10)), 0.0)), r"row 7 has a quaternion of norm 0 .*x-y-z-w"),
+        (_spoil(_wxyz), r"looks like w-x-y-z quaternions .* order is x-y-z-w"),
+        (_spoil(_set((3, 11), np.nan)), r"history holds NaN .*row 3, column 11 \(pLy\) is nan"),
+        (_spoil(_set((0, 15), np.inf)), r"row 0, column 15 \(wy\) is inf"),
+        (_spoil(_set((4, 8), np.nan)), r"row 4, column 8 \(qz\)"),
+    ],
+    ids=["short-history", "zero-quaternion", "wxyz", "nan-load", "inf-rate", "nan-quaternion"],
+)
+def test_every_predictor_refuses_bad_inputs_alike(paper_predictor, exported, spoiled, message):
+    from slungload.deploy.compiled import CompiledPredictor
+
+    history, future = spoiled(), np.zeros((25, 4))
+    predictors = {
+        "Predictor": paper_predictor,
+        "CompiledPredictor": CompiledPredictor(paper_predictor, warm_up=False),
+        "OnnxPredictor": OnnxPredictor(exported[25].model),
+    }
+    messages = []
+    for caller, predictor in predictors.items():
+        with pytest.raises(ValueError, match=message) as info:
+            predictor.predict(history, future)
+        assert str(info.value).startswith(f"{caller}.predict: ")
+        messages.append(str(info.value).split(": ", 1)[1])
+    assert len(set(messages)) == 1, messages  # one check, one wording
+
+
+def test_batched_bad_values_name_the_window(paper_predictor):
+    history = np.zeros((3, 50, 17))
+    history[..., 9] = 1.0
+    history[2, 10, 13] = np.nan
+    with pytest.raises(ValueError, match=r"window 2, row 10, column 13 \(T\) is nan"):
+        paper_predictor.predict(history, np.zeros((3, 25, 4)))
+    future = np.zeros((3, 25, 4))
+    future[1, 24, 0] = -np.inf
+    history[2, 10, 13] = 0.0
+    with pytest.raises(ValueError, match=r"future_inputs holds .*window 1, row 24, column 0 \(T\)"):
+        paper_predictor.predict(history, future)
+    # A flight that really hovers with w near 1 in the last column passes.
+    assert paper_predictor.predict(history, np.zeros((3, 25, 4))).shape == (3, 25, 13)
+
+
+def test_export_out_is_a_file_in_an_existing_folder_or_a_folder(tiny_run, tmp_path: Path):
+    missing = tmp_path / "no" / "such" / "m.onnx"
+    with pytest.raises(FileNotFoundError, match=r"folder .*no/such does not exist"):
+        export(tiny_run.out, missing)
+    assert not (tmp_path / "no").exists()  # nothing created
+    (tmp_path / "afile").write_text("")
+    with pytest.raises(NotADirectoryError, match="afile is not a folder"):
+        export(tiny_run.out, tmp_path / "afile" / "m.onnx")
+    with pytest.raises(ValueError, match="overwritten by the model's JSON sidecar"):
+        export(tiny_run.out, tmp_path / "m.json")
+    # An existing folder receives <run name>-n<N>.onnx and its sidecar.
+    folder = tmp_path / "models"
+    folder.mkdir()
+    result = export(tiny_run.out, folder)
+    assert result.model == folder / f"{tiny_run.out.name}-n4.onnx"
+    assert result.sidecar == folder / f"{tiny_run.out.name}-n4.json"
+    assert json.loads(result.sidecar.read_text())["model_file"] == result.model.name
+    assert export(tiny_run.out / "best.ckpt", folder, horizon=6).model.name == (
+        f"{tiny_run.out.name}-n6.onnx"
+    )
+    assert sorted(p.name for p in folder.iterdir()) == sorted(
+        f"{tiny_run.out.name}-n{n}.{ext}" for n in (4, 6) for ext in ("onnx", "json")
+    )

@@ -2,53 +2,24 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
-from flights import WXYZ_TO_XYZW, file_rows, swinging_flight
+from flights import SMALL, WXYZ_TO_XYZW, file_rows, predict_args
 
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data.dataset import Dataset
-from slungload.data.windows import make_windows
 from slungload.deploy.predictor import Predictor
 from slungload.models.checkpoints import load_checkpoint
 from slungload.state import QUAT, STATE_DIM, with_unit_quaternion
-from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 
-TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
-SMALL = WindowConfig(history=6, horizon=4)
 M, N = SMALL.history, SMALL.horizon
 
 
-@pytest.fixture(scope="module")
-def dataset(tmp_path_factory: pytest.TempPathFactory) -> Dataset:
-    flights = {s: [swinging_flight(f"{s}{i}", 10 * i + len(s)) for i in range(2)] for s in "abc"}
-    splits = dict(zip(("train", "val", "test"), flights.values(), strict=True))
-    return Dataset(
-        folder=tmp_path_factory.mktemp("memory"),
-        params=VehicleParams(),
-        params_source="test",
-        window=SMALL,
-        splits={k: make_windows(v, SMALL) for k, v in splits.items()},
-        flights={},
-    )
-
-
-@pytest.fixture(scope="module")
-def run_dir(dataset: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("run")
-    train(dataset, out=out, preset="quick", model_config=TINY, progress=False, num_threads=1)
-    return out
-
-
-def test_predict_matches_the_eager_model(run_dir: Path, dataset: Dataset) -> None:
-    val = dataset.splits["val"]
-    predictor = Predictor.from_checkpoint(run_dir)
-    model = load_checkpoint(run_dir / "best.ckpt").model
+def test_predict_matches_the_eager_model(tiny_run) -> None:
+    val = tiny_run.dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(tiny_run.out)
+    model = load_checkpoint(tiny_run.out / "best.ckpt").model
     for i in (0, len(val) - 1):
         states, inputs = val.states[i], val.inputs[i]
         got = predictor.predict(file_rows(states[:M], inputs[:M]), inputs[M:].numpy())
@@ -61,20 +32,19 @@ def test_predict_matches_the_eager_model(run_dir: Path, dataset: Dataset) -> Non
         np.testing.assert_allclose(np.linalg.norm(got[:, QUAT], axis=-1), 1.0, atol=1e-6)
 
 
-def test_batch_and_single_inputs_agree(run_dir: Path, dataset: Dataset) -> None:
-    val = dataset.splits["val"]
-    predictor = Predictor.from_checkpoint(run_dir / "best.ckpt")
-    history = file_rows(val.states[:5, :M], val.inputs[:5, :M])  # (5, M, 17)
-    future = val.inputs[:5, M:].numpy()
+def test_batch_and_single_inputs_agree(tiny_run) -> None:
+    val = tiny_run.dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(tiny_run.out / "best.ckpt")
+    history, future = predict_args(val[:5])  # (5, M, 17), (5, N, 4)
     batch = predictor.predict(history, future)
     assert batch.shape == (5, N, STATE_DIM)
     for b in range(5):
         np.testing.assert_allclose(batch[b], predictor.predict(history[b], future[b]), atol=1e-5)
 
 
-def test_other_horizons_and_quaternion_sign_flips(run_dir: Path, dataset: Dataset) -> None:
-    val = dataset.splits["val"]
-    predictor = Predictor.from_checkpoint(run_dir)
+def test_other_horizons_and_quaternion_sign_flips(tiny_run) -> None:
+    val = tiny_run.dataset.splits["val"]
+    predictor = Predictor.from_checkpoint(tiny_run.out)
     history = file_rows(val.states[0, :M], val.inputs[0, :M])
     longer = np.repeat(val.inputs[0, M:].numpy(), 2, axis=0)  # 2N steps of inputs
     out = predictor.predict(history, longer)
@@ -98,16 +68,16 @@ def test_other_horizons_and_quaternion_sign_flips(run_dir: Path, dataset: Datase
     ],
 )
 def test_bad_shapes_name_expected_and_actual(
-    run_dir: Path, history_shape: tuple, future_shape: tuple
+    tiny_run, history_shape: tuple, future_shape: tuple
 ) -> None:
-    predictor = Predictor.from_checkpoint(run_dir)
+    predictor = Predictor.from_checkpoint(tiny_run.out)
     with pytest.raises(ValueError, match=r"expected history .*got history") as info:
         predictor.predict(np.zeros(history_shape), np.zeros(future_shape))
     assert str(history_shape) in str(info.value) and str(future_shape) in str(info.value)
 
 
-def test_non_finite_values_and_bad_checkpoints_are_refused(run_dir: Path, tmp_path: Path) -> None:
-    predictor = Predictor.from_checkpoint(run_dir)
+def test_non_finite_values_and_bad_checkpoints_are_refused(tiny_run, tmp_path) -> None:
+    predictor = Predictor.from_checkpoint(tiny_run.out)
     history = np.zeros((M, 17))
     history[:, 9] = 1.0  # identity quaternion, x-y-z-w
     history[2, 0] = np.nan

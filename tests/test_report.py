@@ -9,15 +9,13 @@ import json
 import math
 import re
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pytest
 import torch
-from flights import roll_out_flight
 from torch import Tensor, nn
 
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.config import VehicleParams, WindowConfig
 from slungload.data.windows import make_windows
 from slungload.deploy.timing import time_models
 from slungload.evaluation.evaluator import Candidate, evaluate, evaluate_predictors
@@ -26,40 +24,12 @@ from slungload.evaluation.predictors import NetworkPredictor, PhysicsPredictor
 from slungload.evaluation.report import write_report
 from slungload.evaluation.results import PAPER_RMSE_N50, PHYSICS, Report
 from slungload.experiment import evaluate_runs
-from slungload.fileio import write_json, write_npz, write_splits
-from slungload.physics import hover_thrust
-from slungload.state import GROUPS, LOAD_POS, POS, QUAT, VEL, quat_from_rotvec, quat_wxyz_to_xyzw
+from slungload.models.base import Prediction
+from slungload.state import GROUPS, VEL
 
 torch.set_num_threads(1)
 PARAMS = VehicleParams()
 M, N = 6, 8
-
-
-class Flight(NamedTuple):
-    name: str
-    states: np.ndarray
-    inputs: np.ndarray
-    aux: np.ndarray
-
-
-def physics_flight(name: str, steps: int, seed: int) -> Flight:
-    """A flight of the discrete model: thrust near hover, random body rates, a swinging load."""
-    g = torch.Generator().manual_seed(seed)
-    x0 = torch.zeros(13, dtype=torch.float64)
-    x0[QUAT] = quat_from_rotvec(torch.tensor([0.05, -0.03, 0.2], dtype=torch.float64))
-    x0[LOAD_POS] = torch.tensor([0.1, 0.0, -0.69], dtype=torch.float64)
-    x0[LOAD_POS] *= PARAMS.cable_length / x0[LOAD_POS].norm()
-    aux0 = torch.zeros(6, dtype=torch.float64)
-    inputs = torch.zeros(steps, 4, dtype=torch.float64)
-    inputs[:, 0] = hover_thrust(PARAMS) * (1 + 0.03 * torch.randn(steps, generator=g))
-    inputs[:, 1:] = 0.2 * torch.randn(steps, 3, generator=g, dtype=torch.float64)
-    states, aux = roll_out_flight(x0, aux0, inputs, PARAMS)
-    return Flight(name, states, inputs.numpy(), aux)
-
-
-class Pred(NamedTuple):
-    states: Tensor
-    slack: Tensor | None
 
 
 class OffsetNet(nn.Module):
@@ -70,17 +40,17 @@ class OffsetNet(nn.Module):
         self.offset = nn.Parameter(torch.tensor(offset))
         self.layer = nn.Linear(17, 13)  # some work to time
 
-    def forward(self, x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> Pred:
+    def forward(self, x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> Prediction:
         n = u_future.shape[1]
         last = x_hist[:, -1:] + 0 * self.layer(torch.cat([x_hist, u_hist], -1))[:, -1:]
         states = last.repeat(1, n, 1).clone()
         states[..., VEL] += self.offset
-        return Pred(states, None)
+        return Prediction(states, None)
 
 
 @pytest.fixture(scope="module")
-def report() -> Report:
-    flights = [physics_flight(f"test_{i}", 40 + 7 * i, seed=i) for i in range(3)]
+def report(physics_flight) -> Report:
+    flights = [physics_flight(f"test_{i}", seed=i, steps=40 + 7 * i) for i in range(3)]
     windows = {n: make_windows(flights, WindowConfig(history=M, horizon=n)) for n in (N, 2 * N)}
     # A physics model with the wrong load mass, so that it has an error like the real one.
     mismatched = dataclasses.replace(PARAMS, mass_load=0.2, cable_length=0.6)
@@ -202,47 +172,12 @@ def test_json_round_trips(written, report):
 # --- end to end ----------------------------------------------------------------------------
 
 
-def write_dataset(folder: Path) -> None:
-    """Physics-generated flights in the published file schema, with splits and constants."""
-    names = {"train": [], "val": [], "test": []}
-    for i, split in enumerate(["train", "train", "val", "test", "test"]):
-        f = physics_flight(f"{split}_{i}", 40 + 3 * i, seed=10 + i)
-        s = f.states
-        write_npz(
-            folder / f"{f.name}.npz",
-            {
-                "time": np.arange(len(s)) * PARAMS.dt,
-                "p": s[:, POS],
-                "v": s[:, VEL],
-                "attitude": quat_wxyz_to_xyzw(torch.from_numpy(s[:, QUAT])).numpy(),
-                "p_load": s[:, LOAD_POS],
-                "w_ref": f.inputs[:, 1:],
-                "T_ref": f.inputs[:, :1],
-            },
-        )
-        names[split].append(f.name)
-    write_splits(folder, names)
-    write_json(folder / "vehicle.json", {"vehicle": {"dt": PARAMS.dt}})
-
-
-def test_evaluate_end_to_end(tmp_path, monkeypatch):
-    from slungload.training.trainer import train
-
+def test_evaluate_end_to_end(tmp_path, monkeypatch, tiny_run):
     monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
-    data = tmp_path / "data"
-    write_dataset(data)
-    small = ModelConfig(embed_sizes=(8,), hidden_size=4, num_layers=1, head_sizes=(8,), dropout=0.0)
-    run = train(
-        data,
-        out=tmp_path / "run",
-        preset="quick",
-        max_epochs=1,
-        model_config=small,
-        window=WindowConfig(history=M, horizon=4),
-        progress=False,
-    )
+    assert tiny_run.dataset.window.history == M
     out = tmp_path / "eval"
-    report = evaluate_runs([run.out], out=out, horizons=(4, 8), timing_repeats=3, progress=False)
+    report = evaluate_runs([tiny_run.out], out=out, horizons=(4, 8), timing_repeats=3,
+                           progress=False)  # fmt: skip
     assert report.labels == (PHYSICS, "proposed") and report.training_horizon == 4
     assert report.test_flights == ("test_3", "test_4")
     windows = {(r.label, r.metrics.horizon): r.metrics.windows for r in report.results}

@@ -24,40 +24,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_data import flight_arrays  # the analytic flights of the data tests
+from flights import SMALL, WINDOW_ARGS, flight_arrays
 
-from slungload.cli import main
-from slungload.config import ModelConfig, VehicleParams, WindowConfig, to_dict
-from slungload.fileio import write_json, write_npz, write_splits
+from slungload.fileio import write_npz
 from slungload.models.checkpoints import load_checkpoint
 from slungload.training.presets import PRESETS, Preset
 from slungload.training.runtime import AtomicCheckpointIO
-from slungload.training.trainer import TrainingInterrupted, train
+from slungload.training.trainer import TrainingInterrupted
 
 # `slungload.training` the attribute is the function; the module is needed for monkeypatching.
 train_module = importlib.import_module("slungload.training.module")  # where the loss is called
 torch.set_num_threads(1)
-
-SMALL = WindowConfig(history=6, horizon=4)
-TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
-WINDOW_ARGS = ("--history", str(SMALL.history), "--horizon", str(SMALL.horizon))
-
-
-def make_dataset(folder: Path, steps: dict[str, int] | None = None) -> Path:
-    """Flights ``name -> steps`` (default four of 40), the last two in val and test."""
-    steps = steps or {f"f{i}": 40 for i in range(4)}
-    for i, (name, n) in enumerate(steps.items()):
-        write_npz(folder / f"{name}.npz", flight_arrays(n, seed=i))
-    names = list(steps)
-    write_splits(folder, {"train": names[:-2], "val": names[-2:-1], "test": names[-1:]})
-    write_json(folder / "vehicle.json", to_dict(VehicleParams()))
-    return folder
-
-
-def run_cli(capsys: pytest.CaptureFixture[str], *argv: str | Path) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def assert_one_line_error(code: int, err: str, *names: str) -> str:
@@ -118,8 +95,8 @@ BAD_FLIGHT = {
 
 @pytest.mark.parametrize("command", ["inspect", "train"])
 @pytest.mark.parametrize("case", BAD_FLIGHT)
-def test_bad_flight_is_one_line_naming_the_file(capsys, tmp_path, case, command):
-    folder = make_dataset(tmp_path / "ds")
+def test_bad_flight_is_one_line_naming_the_file(tmp_path, case, command, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds")
     arrays = flight_arrays(40, seed=0)
     change, words = BAD_FLIGHT[case]
     change(arrays)
@@ -129,7 +106,7 @@ def test_bad_flight_is_one_line_naming_the_file(capsys, tmp_path, case, command)
     else:
         argv = ["train", "--data", folder, "--out", tmp_path / "run", "--preset", "quick"]
         argv += ["--quiet", *WINDOW_ARGS]
-    code, _, err = run_cli(capsys, *argv)
+    code, _, err = run_cli(*argv)
     assert_one_line_error(code, err, str(folder / "f0.npz"), *words)
     assert not (tmp_path / "run").exists()  # nothing half-made left behind
 
@@ -167,11 +144,11 @@ BAD_FILE = {
 
 
 @pytest.mark.parametrize("case", BAD_FILE)
-def test_unreadable_flight_file_is_one_line(capsys, tmp_path, case):
-    folder = make_dataset(tmp_path / "ds")
+def test_unreadable_flight_file_is_one_line(tmp_path, case, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds")
     spoil, words = BAD_FILE[case]
     spoil(folder / "f1.npz")
-    code, _, err = run_cli(capsys, "inspect", folder, *WINDOW_ARGS)
+    code, _, err = run_cli("inspect", folder, *WINDOW_ARGS)
     assert_one_line_error(code, err, str(folder / "f1.npz"), words)
 
 
@@ -208,39 +185,39 @@ BAD_FOLDER = {
 
 
 @pytest.mark.parametrize("case", BAD_FOLDER)
-def test_bad_dataset_folder_is_one_line(capsys, tmp_path, case):
-    folder = make_dataset(tmp_path / "ds")
+def test_bad_dataset_folder_is_one_line(tmp_path, case, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds")
     spoil, words = BAD_FOLDER[case]
     spoil(folder)
-    code, _, err = run_cli(capsys, "inspect", folder, *WINDOW_ARGS)
+    code, _, err = run_cli("inspect", folder, *WINDOW_ARGS)
     assert_one_line_error(code, err, *words)
 
 
-def test_missing_path_and_file_instead_of_folder(capsys, tmp_path):
-    code, _, err = run_cli(capsys, "inspect", tmp_path / "nowhere")
+def test_missing_path_and_file_instead_of_folder(tmp_path, run_cli):
+    code, _, err = run_cli("inspect", tmp_path / "nowhere")
     assert_one_line_error(code, err, str(tmp_path / "nowhere"), "does not exist")
     (tmp_path / "file.npz").write_bytes(b"")
-    code, _, err = run_cli(capsys, "inspect", tmp_path / "file.npz")
+    code, _, err = run_cli("inspect", tmp_path / "file.npz")
     assert_one_line_error(code, err, str(tmp_path / "file.npz"), "not a folder")
 
 
-def test_unknown_keys_are_a_note_not_an_error(capsys, tmp_path):
-    folder = make_dataset(tmp_path / "ds")
+def test_unknown_keys_are_a_note_not_an_error(tmp_path, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds")
     write_npz(folder / "f0.npz", {**flight_arrays(40), "battery_voltage": np.ones(40)})
     with pytest.warns(UserWarning, match="battery_voltage"):
-        code, out, _ = run_cli(capsys, "inspect", folder, *WINDOW_ARGS)
+        code, out, _ = run_cli("inspect", folder, *WINDOW_ARGS)
     assert code == 0
     assert "note:" in out and "battery_voltage" in out
 
 
-def test_flights_shorter_than_a_window(capsys, tmp_path):
-    folder = make_dataset(tmp_path / "ds", {"f0": 40, "f1": 8, "f2": 40, "f3": 40})
+def test_flights_shorter_than_a_window(tmp_path, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds", {"f0": 40, "f1": 8, "f2": 40, "f3": 40})
     # inspect lists the short flight; train skips it with a warning and trains on the rest.
-    code, out, _ = run_cli(capsys, "inspect", folder, *WINDOW_ARGS)
+    code, out, _ = run_cli("inspect", folder, *WINDOW_ARGS)
     assert code == 0 and "skipped (fewer than M + N = 10 steps): f1" in out
     # None left: one line naming the folder and the longest flight.
     argv = ["train", "--data", folder, "--out", tmp_path / "run", "--quiet"]
-    code, _, err = run_cli(capsys, *argv, "--history", "30", "--horizon", "20")
+    code, _, err = run_cli(*argv, "--history", "30", "--horizon", "20")
     assert_one_line_error(code, err, str(folder), "no flight left", "M + N = 50", "longest has 40")
 
 
@@ -254,11 +231,11 @@ BAD_OPTIONS = {
 
 
 @pytest.mark.parametrize("case", BAD_OPTIONS)
-def test_bad_train_options_are_one_line(capsys, tmp_path, case):
-    folder = make_dataset(tmp_path / "ds")
+def test_bad_train_options_are_one_line(tmp_path, case, write_dataset, run_cli):
+    folder = write_dataset(tmp_path / "ds")
     extra, words = BAD_OPTIONS[case]
     argv = ["train", "--data", folder, "--out", tmp_path / "run", "--preset", "quick", "--quiet"]
-    code, _, err = run_cli(capsys, *argv, *WINDOW_ARGS, *extra)
+    code, _, err = run_cli(*argv, *WINDOW_ARGS, *extra)
     assert_one_line_error(code, err, *words)
 
 
@@ -275,22 +252,11 @@ class _Marker:
         return (open, (str(self.path), "w"))
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A run folder of one quick epoch with the tiny network."""
-    root = tmp_path_factory.mktemp("trained")
-    data = make_dataset(root / "ds")
-    out = root / "run"
-    train(data, out=out, preset="quick", max_epochs=1, window=SMALL, model_config=TINY,
-          progress=False, num_threads=1)  # fmt: skip
-    return out
-
-
-def test_checkpoint_with_pickled_code_is_refused_and_never_run(capsys, tmp_path, trained):
+def test_checkpoint_with_pickled_code_is_refused_and_never_run(tmp_path, tiny_run, run_cli):
     marker = tmp_path / "code_ran"
     run = tmp_path / "evil_run"
     run.mkdir()
-    ckpt = torch.load(trained / "best.ckpt", weights_only=True)
+    ckpt = torch.load(tiny_run.out / "best.ckpt", weights_only=True)
     torch.save({**ckpt, "slungload": {**ckpt["slungload"], "extra": _Marker(marker)}},
                run / "best.ckpt")  # fmt: skip
     (run / "last.ckpt").write_bytes((run / "best.ckpt").read_bytes())
@@ -298,20 +264,20 @@ def test_checkpoint_with_pickled_code_is_refused_and_never_run(capsys, tmp_path,
     with pytest.raises(ValueError, match="pickled Python objects.*refused") as info:
         load_checkpoint(run)
     assert str(run / "best.ckpt") in str(info.value) and "it calls io.open" in str(info.value)
-    code, _, err = run_cli(capsys, "evaluate", run, "--out", tmp_path / "report", "--no-timing")
+    code, _, err = run_cli("evaluate", run, "--out", tmp_path / "report", "--no-timing")
     assert_one_line_error(code, err, str(run / "best.ckpt"), "refused")
-    argv = ["train", "--data", trained.parent / "ds", "--out", run, "--resume", "--quiet"]
-    code, _, err = run_cli(capsys, *argv, *WINDOW_ARGS)
+    argv = ["train", "--data", tiny_run.data, "--out", run, "--resume", "--quiet"]
+    code, _, err = run_cli(*argv, *WINDOW_ARGS)
     assert_one_line_error(code, err, str(run / "last.ckpt"), "refused")
     assert not marker.exists()
 
 
-def test_dataset_cache_with_pickled_code_is_rebuilt_never_run(tmp_path):
+def test_dataset_cache_with_pickled_code_is_rebuilt_never_run(tmp_path, write_dataset):
     from slungload.data.dataset import load_dataset
     from slungload.data.flight import DataWarning
 
     marker = tmp_path / "code_ran"
-    data = make_dataset(tmp_path / "ds")
+    data = write_dataset(tmp_path / "ds")
     first = load_dataset(data, window=SMALL, cache_dir=tmp_path / "cache")
     torch.save({"version": 1, "key": "x", "payload": _Marker(marker)}, first.cache_path)
     with pytest.warns(DataWarning, match="bad cache"):
@@ -342,22 +308,20 @@ BAD_META = {
 
 
 @pytest.mark.parametrize("case", BAD_META)
-def test_checkpoint_of_another_version_or_config_says_what_differs(tmp_path, trained, case):
+def test_checkpoint_of_another_version_or_config_says_what_differs(tmp_path, tiny_run, case):
     edit, problem = BAD_META[case]
-    path = _edit_meta(trained / "best.ckpt", tmp_path / "other.ckpt", edit)
+    path = _edit_meta(tiny_run.out / "best.ckpt", tmp_path / "other.ckpt", edit)
     with pytest.raises(ValueError, match=problem) as info:
         load_checkpoint(path)
     assert str(path) in str(info.value) and len(str(info.value).splitlines()) == 1
 
 
-def test_resume_with_other_settings_names_them(capsys, tmp_path, trained):
+def test_resume_with_other_settings_names_them(tmp_path, tiny_run, run_cli):
     run = tmp_path / "run"
     run.mkdir()
-    (run / "last.ckpt").write_bytes((trained / "last.ckpt").read_bytes())
-    argv = ["train", "--data", trained.parent / "ds", "--out", run, "--resume", "--quiet"]
-    code, _, err = run_cli(
-        capsys, *argv, "--variant", "no-physics", "--history", "6", "--horizon", "5"
-    )
+    (run / "last.ckpt").write_bytes((tiny_run.out / "last.ckpt").read_bytes())
+    argv = ["train", "--data", tiny_run.data, "--out", run, "--resume", "--quiet"]
+    code, _, err = run_cli(*argv, "--variant", "no-physics", "--history", "6", "--horizon", "5")
     line = assert_one_line_error(code, err, "cannot resume", str(run / "last.ckpt"))
     assert "variant: 'proposed' -> 'no-physics'" in line and "window.horizon: 4 -> 5" in line
 
@@ -380,9 +344,9 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.npz"]
 
 
-def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch, trained):
+def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch, tiny_run):
     path = tmp_path / "last.ckpt"
-    path.write_bytes((trained / "last.ckpt").read_bytes())
+    path.write_bytes((tiny_run.out / "last.ckpt").read_bytes())
     before = path.read_bytes()
 
     def dies_half_way(obj, f, *args, **kwargs):
@@ -399,14 +363,6 @@ def test_checkpoints_are_written_through_a_temporary_name(tmp_path, monkeypatch,
 # --- interruptions --------------------------------------------------------------------------
 
 
-def _train_command(data: Path, out: Path, *extra: str) -> list[str]:
-    return [
-        sys.executable, "-m", "slungload.cli", "train", "--data", str(data), "--out", str(out),
-        "--preset", "quick", "--device", "cpu", "--threads", "1", "--quiet", *WINDOW_ARGS,
-        *extra,
-    ]  # fmt: skip
-
-
 def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> None:
     end = time.monotonic() + timeout
     while not path.is_file():
@@ -415,22 +371,14 @@ def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> Non
         time.sleep(0.02)
 
 
-def _weights(path: Path) -> dict[str, torch.Tensor]:
-    return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
-
-
-@pytest.fixture(scope="module")
-def subprocess_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
-    cache = tmp_path_factory.mktemp("cache")
-    return {**os.environ, "SLUNGLOAD_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
-
-
 @pytest.mark.slow
-def test_sigkill_mid_run_then_resume_gives_the_uninterrupted_weights(tmp_path, subprocess_env):
-    data = make_dataset(tmp_path / "ds")
+def test_sigkill_mid_run_then_resume_gives_the_uninterrupted_weights(
+    tmp_path, subprocess_env, write_dataset, train_command, weights_of
+):
+    data = write_dataset(tmp_path / "ds")
     epochs = ("--epochs", "6")
     killed = tmp_path / "killed"
-    proc = subprocess.Popen(_train_command(data, killed, *epochs), env=subprocess_env,
+    proc = subprocess.Popen(train_command(data, killed, *epochs), env=subprocess_env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     _wait_for(killed / "last.ckpt", proc)
     proc.kill()  # SIGKILL: no handler runs, no file is finished
@@ -439,16 +387,16 @@ def test_sigkill_mid_run_then_resume_gives_the_uninterrupted_weights(tmp_path, s
     at_kill = torch.load(killed / "last.ckpt", weights_only=True)["epoch"]
 
     env = subprocess_env
-    done = subprocess.run(_train_command(data, killed, *epochs, "--resume"), env=env,
+    done = subprocess.run(train_command(data, killed, *epochs, "--resume"), env=env,
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     assert json.loads((killed / "run.json").read_text())["epochs"] == 6
     straight = tmp_path / "straight"
-    done = subprocess.run(_train_command(data, straight, *epochs), env=env,
+    done = subprocess.run(train_command(data, straight, *epochs), env=env,
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     # The killed run resumed from an epoch boundary: same seed, same windows, same weights.
-    a, b = _weights(killed / "last.ckpt"), _weights(straight / "last.ckpt")
+    a, b = weights_of(killed / "last.ckpt"), weights_of(straight / "last.ckpt")
     assert all(torch.allclose(a[k], b[k], atol=1e-6) for k in a), f"killed after epoch {at_kill}"
     loaded = load_checkpoint(killed)
     x = torch.zeros(1, SMALL.history, 13), torch.zeros(1, SMALL.history, 4)
@@ -458,12 +406,14 @@ def test_sigkill_mid_run_then_resume_gives_the_uninterrupted_weights(tmp_path, s
 
 @pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_signal_saves_last_checkpoint_and_resume_finishes(tmp_path, subprocess_env, signum):
-    data = make_dataset(tmp_path / "ds")
+def test_signal_saves_last_checkpoint_and_resume_finishes(
+    tmp_path, subprocess_env, signum, write_dataset, train_command
+):
+    data = write_dataset(tmp_path / "ds")
     out = tmp_path / "run"
     # Many windows per epoch so that the signal lands in the middle of one.
     epochs = ("--epochs", "3")
-    proc = subprocess.Popen(_train_command(data, out, *epochs), env=subprocess_env,
+    proc = subprocess.Popen(train_command(data, out, *epochs), env=subprocess_env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     _wait_for(out / "last.ckpt", proc)
     step_before = torch.load(out / "last.ckpt", weights_only=True)["global_step"]
@@ -476,7 +426,7 @@ def test_signal_saves_last_checkpoint_and_resume_finishes(tmp_path, subprocess_e
     assert saved["global_step"] >= step_before
     assert not (out / "run.json").exists()  # not a finished run
 
-    done = subprocess.run(_train_command(data, out, *epochs, "--resume"), env=subprocess_env,
+    done = subprocess.run(train_command(data, out, *epochs, "--resume"), env=subprocess_env,
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     assert json.loads((out / "run.json").read_text())["epochs"] == 3
@@ -505,16 +455,17 @@ def _nan_loss_on(steps: Callable[[int], bool], monkeypatch: pytest.MonkeyPatch) 
 
 
 @pytest.mark.filterwarnings("ignore:non-finite training loss")  # one is checked below
-def test_non_finite_loss_steps_are_skipped_and_counted(tmp_path, monkeypatch):
-    data = make_dataset(tmp_path / "ds")
+def test_non_finite_loss_steps_are_skipped_and_counted(
+    tmp_path, monkeypatch, write_dataset, train_tiny, weights_of
+):
+    data = write_dataset(tmp_path / "ds")
     calls = _nan_loss_on(lambda i: i % 3 == 1, monkeypatch)
     with pytest.warns(UserWarning, match="non-finite training loss at epoch 0, batch 1"):
-        run = train(data, out=tmp_path / "run", preset="quick", window=SMALL, model_config=TINY,
-                    progress=False, num_threads=1)  # fmt: skip
+        run = train_tiny(data, tmp_path / "run")
     assert run.skipped_steps == sum(1 for i in calls if i % 3 == 1) > 0
     assert "steps skipped (loss or gradients not finite)" in run.summary()
     assert np.isfinite(run.best_val_loss)
-    assert all(torch.isfinite(w).all() for w in _weights(run.last_checkpoint).values())
+    assert all(torch.isfinite(w).all() for w in weights_of(run.last_checkpoint).values())
     rows = csv.DictReader((tmp_path / "run" / "csv" / "metrics.csv").open())
     logged = [(float(r["train/skipped_steps"]), float(r["train/total"])) for r in rows
               if r.get("train/skipped_steps")]  # fmt: skip
@@ -523,7 +474,9 @@ def test_non_finite_loss_steps_are_skipped_and_counted(tmp_path, monkeypatch):
 
 
 @pytest.mark.filterwarnings("ignore:non-finite gradients")  # one is checked below
-def test_non_finite_gradients_of_a_finite_loss_are_dropped(tmp_path, monkeypatch):
+def test_non_finite_gradients_of_a_finite_loss_are_dropped(
+    tmp_path, monkeypatch, write_dataset, train_tiny, weights_of
+):
     original = train_module.compute_loss
     calls: list[int] = []
 
@@ -536,22 +489,23 @@ def test_non_finite_gradients_of_a_finite_loss_are_dropped(tmp_path, monkeypatch
         return terms
 
     monkeypatch.setattr(train_module, "compute_loss", compute_loss)
-    data = make_dataset(tmp_path / "ds")
+    data = write_dataset(tmp_path / "ds")
     with pytest.warns(UserWarning, match="non-finite gradients at epoch 0"):
-        run = train(data, out=tmp_path / "run", preset="quick", window=SMALL, model_config=TINY,
-                    progress=False, num_threads=1)  # fmt: skip
+        run = train_tiny(data, tmp_path / "run")
     assert run.skipped_steps == sum(1 for i in calls if i % 3 == 1) > 0
     assert np.isfinite(run.best_val_loss)
-    assert all(torch.isfinite(w).all() for w in _weights(run.last_checkpoint).values())
+    assert all(torch.isfinite(w).all() for w in weights_of(run.last_checkpoint).values())
 
 
 @pytest.mark.filterwarnings("ignore:non-finite training loss")
-def test_persistently_non_finite_loss_stops_with_a_clear_message(capsys, tmp_path, monkeypatch):
-    data = make_dataset(tmp_path / "ds")
+def test_persistently_non_finite_loss_stops_with_a_clear_message(
+    tmp_path, monkeypatch, write_dataset, run_cli
+):
+    data = write_dataset(tmp_path / "ds")
     _nan_loss_on(lambda i: i >= 2, monkeypatch)
     argv = ["train", "--data", data, "--out", tmp_path / "run", "--preset", "quick", "--quiet"]
     with pytest.warns(UserWarning, match="non-finite"):
-        code, _, err = run_cli(capsys, *argv, *WINDOW_ARGS, "--epochs", "20")
+        code, _, err = run_cli(*argv, *WINDOW_ARGS, "--epochs", "20")
     line = assert_one_line_error(code, err, "not finite for 10 steps in a row")
     assert "learning rate" in line and "grad_clip" in line
 
@@ -602,16 +556,15 @@ def test_a_pool_worker_stops_when_reproduce_is_killed(tmp_path):
     assert not _alive(pid)
 
 
-def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch):
+def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch, write_dataset, train_tiny):
     # A SIGTERM that lands in the middle of an epoch's validation (seen in session 3) saves a
     # checkpoint whose epoch has all its training batches and part of its validation; the
     # resumed run skips the rest of that validation (Lightning does), so that epoch has no
     # val/total, and the run must go on rather than fail the early-stopping check.
-    data = make_dataset(tmp_path / "ds", {"f0": 40, "f1": 40, "f2": 200, "f3": 40})
+    data = write_dataset(tmp_path / "ds", {"f0": 40, "f1": 40, "f2": 200, "f3": 40})
     quick = PRESETS["quick"]
     preset = Preset("all-val", replace(quick.config, val_windows=None))
-    args = dict(variant="proposed", preset=preset, max_epochs=3, window=SMALL,
-                model_config=TINY, progress=False, num_threads=1)  # fmt: skip
+    args = dict(variant="proposed", preset=preset, max_epochs=3)
     sent: list[int] = []
 
     def on_validation_batch_start(self, batch, batch_idx, dataloader_idx=0):
@@ -623,10 +576,10 @@ def test_resume_after_a_stop_during_validation(tmp_path, monkeypatch):
                         on_validation_batch_start)  # fmt: skip
     out = tmp_path / "run"
     with pytest.raises(TrainingInterrupted, match="SIGTERM at epoch 1"):
-        train(data, out=out, **args)
+        train_tiny(data, out, **args)
     assert sent
     monkeypatch.undo()
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*could not find the monitored key")
-        run = train(data, out=out, resume=True, **args)
+        run = train_tiny(data, out, resume=True, **args)
     assert run.epochs == 3 and (out / "run.json").is_file()

@@ -369,15 +369,20 @@ def test_splits_partition_flights(small_dataset):
     assert sorted(flat) == sorted(ds.flights) and all(listed.values())
 
 
+def assert_paper_shares(splits: dict, names: list[str], steps: list[int]) -> None:
+    """Each split holds its share of the windows (``SPLIT_FRACTIONS``) within 3 points."""
+    total = sum(windows_of(s) for s in steps)
+    for split, share in SPLIT_FRACTIONS.items():
+        got = sum(windows_of(steps[names.index(n)]) for n in splits[split]) / total
+        assert got == pytest.approx(share, abs=0.03)
+
+
 def test_split_fractions_near_paper():
     rng = np.random.default_rng(0)
     steps = list(rng.integers(197, 800, size=48))
     names = [f"f{i}" for i in range(48)]
     splits = split_flights(names, steps, np.random.default_rng(1))
-    total = sum(windows_of(s) for s in steps)
-    for split, share in SPLIT_FRACTIONS.items():
-        got = sum(windows_of(steps[names.index(n)]) for n in splits[split]) / total
-        assert got == pytest.approx(share, abs=0.03)
+    assert_paper_shares(splits, names, steps)
 
 
 def test_split_puts_every_maneuver_family_in_training():
@@ -387,15 +392,12 @@ def test_split_puts_every_maneuver_family_in_training():
     plan = flight_plan(48)
     names, families = [n for _, n in plan], [f for f, _ in plan]
     steps = list(np.random.default_rng(2).integers(197, 800, size=48))
-    total = sum(windows_of(s) for s in steps)
     for seed in range(5):
         splits = split_flights(names, steps, np.random.default_rng(seed), families)
         assert sorted(sum(splits.values(), ())) == sorted(names)
         trained = {families[names.index(n)] for n in splits["train"]}
         assert trained == set(MANEUVERS)
-        for split, share in SPLIT_FRACTIONS.items():
-            got = sum(windows_of(steps[names.index(n)]) for n in splits[split]) / total
-            assert got == pytest.approx(share, abs=0.03)
+        assert_paper_shares(splits, names, steps)
 
 
 def test_family_split_of_three_flights_fills_every_split():

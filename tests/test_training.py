@@ -11,88 +11,37 @@ import dataclasses
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from flights import SMALL, TINY
 
-from slungload.config import (
-    LossWeights,
-    ModelConfig,
-    TrainConfig,
-    VehicleParams,
-    WindowConfig,
-    to_dict,
-)
+from slungload.config import LossWeights, TrainConfig, to_dict
 from slungload.data.dataset import load_dataset
-from slungload.fileio import write_json, write_npz, write_splits
 from slungload.loss import LOSS_VARIANTS, compute_loss
 from slungload.models.checkpoints import load_checkpoint
-from slungload.physics import hover_thrust, rollout
-from slungload.state import LOAD_POS, POS, QUAT, RATES, THRUST, VEL, join_state, quat_wxyz_to_xyzw
+from slungload.state import LOAD_POS, POS, VEL
 from slungload.training.batches import EpochBatches
 from slungload.training.module import _warmup_cosine
 from slungload.training.presets import PRESETS, Preset
-from slungload.training.trainer import train
 
 torch.set_num_threads(1)
 
-TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
-SMALL = WindowConfig(history=6, horizon=4)
 LOSS_TERMS = ("total", "fit", "physics", "projection", "slack")
 
 
-def make_flights(folder: Path, *, flights: int = 6, steps: int = 60, seed: int = 0) -> Path:
-    """A dataset folder of physics-model flights around hover with a swinging load."""
-    params = VehicleParams()
-    rng = np.random.default_rng(seed)
-    names = []
-    t = np.arange(steps) * params.dt
-    for i in range(flights):
-        swing = rng.uniform(-0.3, 0.3)  # rad, initial cable angle
-        p0 = torch.tensor(rng.uniform(-1.0, 1.0, 3))
-        load0 = p0 + params.cable_length * torch.tensor([np.sin(swing), 0.0, -np.cos(swing)])
-        q0 = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
-        x0 = join_state(p0, torch.zeros(3, dtype=torch.float64), q0, load0)
-        u = np.zeros((steps, 4))
-        u[:, 0] = hover_thrust(params) * (1 + 0.05 * np.sin(2 * np.pi * rng.uniform(0.3, 1) * t))
-        for j in range(3):
-            u[:, 1 + j] = 0.3 * np.sin(2 * np.pi * rng.uniform(0.2, 1) * t + rng.uniform(0, 6))
-        after, _ = rollout(
-            x0, torch.zeros(6, dtype=torch.float64), torch.from_numpy(u[:-1]), params
-        )
-        x = torch.cat([x0[None], after]).numpy()
-        names.append(f"flight_{i:02d}")
-        arrays = {
-            "time": t,
-            "p": x[:, POS],
-            "v": x[:, VEL],
-            "attitude": quat_wxyz_to_xyzw(torch.from_numpy(x[:, QUAT])).numpy(),
-            "p_load": x[:, LOAD_POS],
-            "w_ref": u[:, RATES],
-            "T_ref": u[:, THRUST],
-        }
-        write_npz(folder / f"{names[-1]}.npz", arrays)
-    write_splits(folder, {"train": names[:-2], "val": names[-2:-1], "test": names[-1:]})
-    write_json(folder / "vehicle.json", to_dict(params))
-    return folder
-
-
 @pytest.fixture(scope="module")
-def data_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return make_flights(tmp_path_factory.mktemp("flights"))
+def data_dir(tmp_path_factory: pytest.TempPathFactory, write_dataset) -> Path:
+    """Six physics-model flights of 60 steps around hover with a swinging load."""
+    flights = {f"flight_{i:02d}": 60 for i in range(6)}
+    return write_dataset(tmp_path_factory.mktemp("flights"), flights, physics=True)
 
 
 @pytest.fixture(scope="module")
 def dataset(data_dir: Path, tmp_path_factory: pytest.TempPathFactory):
     return load_dataset(data_dir, window=SMALL, cache_dir=tmp_path_factory.mktemp("cache"))
-
-
-def quick(out: Path, data, **kw):
-    kw = {"preset": "quick", "model_config": TINY, "progress": False, "num_threads": 1, **kw}
-    return train(data, out=out, **kw)
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, str]]:
@@ -104,15 +53,13 @@ def epoch_values(rows: list[dict[str, str]], key: str) -> list[float]:
     return [float(r[key]) for r in rows if r.get(key)]
 
 
-def weights_of(path: Path) -> dict[str, torch.Tensor]:
-    return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
-
-
 # --- the run folder ------------------------------------------------------------------------
 
 
-def test_quick_run_writes_checkpoints_logs_and_summary(data_dir: Path, tmp_path: Path) -> None:
-    run = quick(tmp_path / "run", data_dir, window=SMALL)  # from the folder itself
+def test_quick_run_writes_checkpoints_logs_and_summary(
+    data_dir: Path, tmp_path: Path, train_tiny
+) -> None:
+    run = train_tiny(data_dir, tmp_path / "run", window=SMALL)  # from the folder itself
     assert run.epochs == PRESETS["quick"].config.max_epochs
     assert run.stop_reason == "max_epochs"
     assert run.best_checkpoint == tmp_path / "run" / "best.ckpt" and run.best_checkpoint.is_file()
@@ -139,34 +86,36 @@ def test_quick_run_writes_checkpoints_logs_and_summary(data_dir: Path, tmp_path:
     assert "val/fit_rmse" in tags
 
 
-def test_fit_rmse_is_the_sum_of_group_rmses(dataset, tmp_path: Path) -> None:
-    run = quick(tmp_path / "run", dataset)
+def test_fit_rmse_is_the_sum_of_group_rmses(dataset, tmp_path: Path, train_tiny) -> None:
+    run = train_tiny(dataset, tmp_path / "run")
     groups = sum(run.metrics[f"val/rmse_{g}"] for g in ("position", "velocity", "quaternion"))
     groups += run.metrics["val/rmse_load_position"]
     assert run.metrics["val/fit_rmse"] == pytest.approx(groups, rel=1e-5)
 
 
-def test_existing_run_is_not_overwritten_and_resume_needs_one(dataset, tmp_path: Path) -> None:
+def test_existing_run_is_not_overwritten_and_resume_needs_one(
+    dataset, tmp_path: Path, train_tiny
+) -> None:
     with pytest.raises(FileNotFoundError, match="last.ckpt"):
-        quick(tmp_path / "run", dataset, resume=True)
-    quick(tmp_path / "run", dataset, max_epochs=1)
+        train_tiny(dataset, tmp_path / "run", resume=True)
+    train_tiny(dataset, tmp_path / "run", max_epochs=1)
     with pytest.raises(FileExistsError, match="resume"):
-        quick(tmp_path / "run", dataset)
+        train_tiny(dataset, tmp_path / "run")
 
 
-def test_bad_options_are_refused(dataset, tmp_path: Path) -> None:
+def test_bad_options_are_refused(dataset, tmp_path: Path, train_tiny) -> None:
     with pytest.raises(ValueError, match="preset"):
-        quick(tmp_path / "a", dataset, preset="fastest")
+        train_tiny(dataset, tmp_path / "a", preset="fastest")
     with pytest.raises(ValueError, match="device"):
-        quick(tmp_path / "b", dataset, device="tpu")
+        train_tiny(dataset, tmp_path / "b", device="tpu")
     with pytest.raises(ValueError, match="variant"):
-        quick(tmp_path / "c", dataset, variant="no-such-thing")
+        train_tiny(dataset, tmp_path / "c", variant="no-such-thing")
 
 
 # --- optimisation --------------------------------------------------------------------------
 
 
-def test_loss_decreases_when_overfitting_a_few_windows(dataset, tmp_path: Path) -> None:
+def test_loss_decreases_when_overfitting_a_few_windows(dataset, tmp_path: Path, train_tiny) -> None:
     few = dataclasses.replace(
         dataset, splits={**dataset.splits, "train": dataset.splits["train"][torch.arange(8)]}
     )
@@ -174,7 +123,7 @@ def test_loss_decreases_when_overfitting_a_few_windows(dataset, tmp_path: Path) 
         "overfit",
         TrainConfig(lr=3e-3, weight_decay=0.0, batch_size=8, max_epochs=60, patience=1000),
     )
-    run = quick(tmp_path / "run", few, preset=overfit)
+    run = train_tiny(few, tmp_path / "run", preset=overfit)
     losses = epoch_values(read_metrics(tmp_path / "run"), "train/total")
     assert len(losses) == 60
     assert losses[-1] < 0.2 * losses[0], (losses[0], losses[-1])
@@ -191,7 +140,7 @@ def test_warmup_cosine_schedule_shape() -> None:
     assert factor(60) == pytest.approx(0.55)  # half way down the cosine
 
 
-def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path) -> None:
+def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path, train_tiny) -> None:
     cosine = Preset(
         "cosine",
         dataclasses.replace(
@@ -204,7 +153,7 @@ def test_cosine_preset_logs_warmup_then_decay(dataset, tmp_path: Path) -> None:
             val_windows=16,
         ),
     )
-    quick(tmp_path / "run", dataset, preset=cosine)
+    train_tiny(dataset, tmp_path / "run", preset=cosine)
     lrs = epoch_values(read_metrics(tmp_path / "run"), "lr-Adam")
     peak = lrs.index(max(lrs))
     assert 0 < peak <= 2 and lrs[0] < lrs[peak] and lrs[-1] < lrs[peak]
@@ -237,27 +186,31 @@ def test_epoch_batches_are_seeded_by_epoch_and_shard_evenly() -> None:
 # --- determinism and resume ----------------------------------------------------------------
 
 
-def test_same_seed_gives_identical_weights(dataset, tmp_path: Path) -> None:
+def test_same_seed_gives_identical_weights(dataset, tmp_path: Path, train_tiny, weights_of) -> None:
     config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
-    a = quick(tmp_path / "a", dataset, seed=3, model_config=config)
-    b = quick(tmp_path / "b", dataset, seed=3, model_config=config)
-    c = quick(tmp_path / "c", dataset, seed=4, model_config=config)
+    a = train_tiny(dataset, tmp_path / "a", seed=3, model_config=config)
+    b = train_tiny(dataset, tmp_path / "b", seed=3, model_config=config)
+    c = train_tiny(dataset, tmp_path / "c", seed=4, model_config=config)
     wa, wb, wc = (weights_of(r.last_checkpoint) for r in (a, b, c))
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
     assert not all(torch.equal(wa[k], wc[k]) for k in wa)
 
 
-def test_resume_continues_the_epoch_count_and_matches_one_long_run(dataset, tmp_path: Path) -> None:
+def test_resume_continues_the_epoch_count_and_matches_one_long_run(
+    dataset, tmp_path: Path, train_tiny, weights_of
+) -> None:
     config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
-    first = quick(tmp_path / "split", dataset, max_epochs=1, model_config=config)
+    first = train_tiny(dataset, tmp_path / "split", max_epochs=1, model_config=config)
     assert first.epochs == 1
     one_epoch = torch.load(first.last_checkpoint, weights_only=True)["global_step"]
-    resumed = quick(tmp_path / "split", dataset, max_epochs=3, resume=True, model_config=config)
+    resumed = train_tiny(
+        dataset, tmp_path / "split", max_epochs=3, resume=True, model_config=config
+    )
     assert resumed.epochs == 3
     rows = read_metrics(tmp_path / "split")
     assert epoch_values(rows, "epoch")[-1] == 2
     assert len(epoch_values(rows, "train/total")) == 3  # the first call's rows are kept
-    straight = quick(tmp_path / "straight", dataset, max_epochs=3, model_config=config)
+    straight = train_tiny(dataset, tmp_path / "straight", max_epochs=3, model_config=config)
     # last.ckpt is the last epoch's even when that epoch did not improve on the best one.
     last = torch.load(straight.last_checkpoint, weights_only=True)
     assert last["global_step"] == 3 * one_epoch
@@ -269,8 +222,10 @@ def test_resume_continues_the_epoch_count_and_matches_one_long_run(dataset, tmp_
 # --- checkpoints ---------------------------------------------------------------------------
 
 
-def test_load_checkpoint_reproduces_the_logged_validation_loss(dataset, tmp_path: Path) -> None:
-    run = quick(tmp_path / "run", dataset)
+def test_load_checkpoint_reproduces_the_logged_validation_loss(
+    dataset, tmp_path: Path, train_tiny
+) -> None:
+    run = train_tiny(dataset, tmp_path / "run")
     assert len(dataset.splits["val"]) <= PRESETS["quick"].config.val_windows  # all are used
     loaded = load_checkpoint(tmp_path / "run")  # the folder means best.ckpt
     assert loaded.path == run.best_checkpoint
@@ -328,9 +283,9 @@ def test_checkpoints_with_pickled_objects_are_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("variant", sorted(LOSS_VARIANTS))
-def test_each_variant_trains_and_reloads(variant: str, dataset, tmp_path: Path) -> None:
+def test_each_variant_trains_and_reloads(variant: str, dataset, tmp_path: Path, train_tiny) -> None:
     one_step = Preset("one", dataclasses.replace(PRESETS["quick"].config, max_epochs=1))
-    run = quick(tmp_path / variant, dataset, variant=variant, preset=one_step)
+    run = train_tiny(dataset, tmp_path / variant, variant=variant, preset=one_step)
     assert run.epochs == 1 and run.variant == variant
     loaded = load_checkpoint(run.out)
     assert loaded.variant == variant
@@ -346,34 +301,13 @@ def test_each_variant_trains_and_reloads(variant: str, dataset, tmp_path: Path) 
 
 
 @pytest.mark.slow
-def test_ddp_with_two_cpu_processes(data_dir: Path, tmp_path: Path) -> None:
+def test_ddp_with_two_cpu_processes(
+    data_dir: Path, tmp_path: Path, train_command, subprocess_env
+) -> None:
     """Lightning's "ddp" re-launches the command line, so run it as ``python -m``."""
     out = tmp_path / "ddp"
-    cmd = [
-        sys.executable,
-        "-m",
-        "slungload.cli",
-        "train",
-        "--data",
-        str(data_dir),
-        "--out",
-        str(out),
-        "--preset",
-        "quick",
-        "--device",
-        "cpu",
-        "--devices",
-        "2",
-        "--threads",
-        "1",
-        "--quiet",
-        "--history",
-        str(SMALL.history),
-        "--horizon",
-        str(SMALL.horizon),
-    ]
-    env = {**os.environ, "SLUNGLOAD_CACHE": str(tmp_path / "cache")}
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=env)
+    cmd = train_command(data_dir, out, "--devices", "2")
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180, env=subprocess_env)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     summary = json.loads((out / "run.json").read_text())
     assert summary["epochs"] == PRESETS["quick"].config.max_epochs

@@ -34,7 +34,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "evaluation.results": ("Report",),
     "evaluation.evaluator": ("evaluate",),
     "evaluation.report": ("write_report",),
-    "deploy.predictor": ("Predictor",),
+    "deploy.predictor": ("FlightWindow", "Predictor", "flight_window"),
     "deploy.compiled": ("CompiledPredictor",),
     "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
     "deploy.timing": ("time_inference",),

@@ -32,9 +32,13 @@ class VehicleParams:
     load_damping: float = 0.025  # -, per-step damping d of the load angular velocity
     dt: float = 0.03  # s, sampling time h
     gravity: float = 9.81  # m/s^2, g (the paper prints 9.8; the authors' code uses 9.81)
+    # -, achieved thrust per commanded thrust: the discrete model applies thrust_gain * T. Not in
+    # the paper (its value there is 1); a vehicle whose thrust commands are off by a factor (a
+    # mapping from normalised throttle, battery sag) is fitted by ``slungload identify``.
+    thrust_gain: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("mass_quad", "mass_load", "cable_length", "dt", "gravity"):
+        for name in ("mass_quad", "mass_load", "cable_length", "dt", "gravity", "thrust_gain"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"VehicleParams.{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 <= self.load_damping <= 1.0:
@@ -62,6 +66,16 @@ class WindowConfig:
         return self.history + self.horizon
 
 
+DEFAULT_ARCHITECTURE = "lstm-attention"  # the paper's network (models.lstm_attention)
+# Every network architecture of ``models.MODELS`` by name, with what it is: the names live here,
+# beside the config that selects one, so that the command line lists them without loading torch
+# (a test holds this table and the registry equal).
+ARCHITECTURES: dict[str, str] = {
+    DEFAULT_ARCHITECTURE: "the paper's LSTM encoder-decoder with Bahdanau attention",
+    "physics-step": "the paper's network correcting one step of the discrete model per step",
+}
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the LSTM encoder-decoder with Bahdanau attention.
@@ -70,7 +84,7 @@ class ModelConfig:
     ``models.MODELS``; a checkpoint written before it existed is the paper's network.
     """
 
-    architecture: str = "lstm-attention"  # a name in models.MODELS
+    architecture: str = DEFAULT_ARCHITECTURE  # a name in models.MODELS
     embed_sizes: tuple[int, ...] = (100, 200, 300)  # input embedding Linear widths
     hidden_size: int = 20  # LSTM hidden units
     num_layers: int = 3  # LSTM layers (encoder and decoder)
@@ -86,6 +100,12 @@ class ModelConfig:
     # that sees absolute positions can tell training flights apart and memorise them.
     relative_positions: bool = True
 
+    def __post_init__(self) -> None:
+        if self.architecture not in ARCHITECTURES:
+            raise ValueError(
+                f"unknown model architecture {self.architecture!r}; known: {sorted(ARCHITECTURES)}"
+            )
+
 
 @dataclass(frozen=True)
 class LossWeights:
@@ -100,6 +120,26 @@ class LossWeights:
     slack: float = 0.1  # rho
     alpha: float = 0.1  # 1/step, decay of the fit weights e^{-alpha (n - M)}
     beta: float = 0.6  # 1/step, decay of the physics and slack weights e^{-beta (n - M)}
+
+
+@dataclass(frozen=True)
+class LossVariant:
+    """Which terms a training run uses (the paper's ablations; ``loss.compute_loss``)."""
+
+    name: str
+    physics: bool  # include L_physics
+    slack: bool  # the model emits slack variables and L_slack is included
+    description: str
+
+
+LOSS_VARIANTS: dict[str, LossVariant] = {
+    v.name: v
+    for v in (
+        LossVariant("proposed", True, True, "fit + physics with slack + projection + slack"),
+        LossVariant("no-slack", True, False, "fit + physics (slack fixed at 0) + projection"),
+        LossVariant("no-physics", False, False, "fit + projection (plain encoder-decoder)"),
+    )
+}
 
 
 @dataclass(frozen=True)
@@ -127,6 +167,10 @@ class TrainConfig:
     # Turn every training window about the vertical by a random yaw (a symmetry of the physics:
     # ``state.rotate_about_z``): the network meets each maneuver at every heading.
     augment_yaw: bool = False
+    # Fit the discrete model's constants (load mass, cable length, load damping, thrust gain)
+    # to the training flights before training (``slungload identify``): the physics loss and a
+    # physics-step network's f then use the fitted model instead of the nominal one.
+    fit_constants: bool = False
 
     def __post_init__(self) -> None:
         if self.warmup_epochs < 0:
@@ -170,16 +214,76 @@ def from_dict(cls: type[T], data: dict[str, Any]) -> T:
 
 VEHICLE_FILE = "vehicle.json"
 
+# Names a user is likely to write for each vehicle constant (matched after lower-casing and
+# turning '-' and ' ' into '_'); the field's own name is always accepted.
+VEHICLE_KEY_ALIASES: dict[str, tuple[str, ...]] = {
+    "mass_quad": (
+        "mass_quadrotor", "quad_mass", "quadrotor_mass", "mass_vehicle", "vehicle_mass",
+        "mass_drone", "drone_mass", "mass_uav", "uav_mass", "m_quad", "m_q", "mq",
+    ),
+    "mass_load": ("load_mass", "mass_payload", "payload_mass", "m_load", "m_l", "ml"),
+    "cable_length": (
+        "l", "length", "cable", "cable_len", "l_cable", "rope_length", "string_length",
+        "tether_length", "pendulum_length",
+    ),
+    "load_damping": ("damping", "d", "load_angular_damping", "damping_load"),
+    "dt": ("h", "sampling_time", "sample_time", "time_step", "timestep", "step", "ts"),
+    "gravity": ("g", "gravity_acceleration", "grav"),
+    "thrust_gain": ("k_t", "kt", "thrust_scale", "thrust_factor"),
+}  # fmt: skip
 
-def load_vehicle(folder: str | Path) -> VehicleParams | None:
-    """Vehicle constants stored beside a dataset (``vehicle.json``), or None if absent.
 
-    The file may hold the constants at top level or under a ``"vehicle"`` key (the simulator
-    writes the latter, with its effects and seed beside them).
-    """
-    path = Path(folder) / VEHICLE_FILE
-    if not path.is_file():
-        return None
+def _vehicle_key(key: str) -> str:
+    return key.strip().lower().replace("-", "_").replace(" ", "_")
+
+
+def accepted_vehicle_keys() -> str:
+    """The accepted vehicle-constant names (every field, with its aliases), for messages."""
+    names = [f.name for f in fields(VehicleParams)]
+    return "; ".join(
+        f"{name} (or {', '.join(VEHICLE_KEY_ALIASES[name])})"
+        if VEHICLE_KEY_ALIASES.get(name)
+        else name
+        for name in names
+    )
+
+
+def vehicle_from_dict(data: Any) -> VehicleParams:
+    """``VehicleParams`` from a dict whose keys may be the fields' names or common aliases
+    (``VEHICLE_KEY_ALIASES``: ``mass_quadrotor`` for ``mass_quad``, ``l`` for ``cable_length``,
+    ...). Unknown keys, one constant given twice, or a value that is not a number are a
+    ``ValueError`` that lists the accepted keys."""
+    if not isinstance(data, dict):
+        raise ValueError(f"expected an object of vehicle constants, got {type(data).__name__}")
+    lookup = {f.name: f.name for f in fields(VehicleParams)}  # a new field needs no alias
+    for name, aliases in VEHICLE_KEY_ALIASES.items():
+        lookup.update({_vehicle_key(alias): name for alias in aliases})
+    kwargs: dict[str, float] = {}
+    given: dict[str, str] = {}
+    unknown = []
+    for key, value in data.items():
+        name = lookup.get(_vehicle_key(str(key)))
+        if name is None:
+            unknown.append(key)
+            continue
+        if name in given:
+            raise ValueError(f"{given[name]!r} and {key!r} both set {name}; keep one")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{key!r} must be a number, got {value!r}")
+        given[name], kwargs[name] = key, float(value)
+    if unknown:
+        raise ValueError(
+            f"unknown keys {sorted(map(str, unknown))}; accepted keys: "
+            f"{accepted_vehicle_keys()}"
+        )
+    return VehicleParams(**kwargs)
+
+
+def read_vehicle(path: str | Path) -> VehicleParams:
+    """Vehicle constants from a JSON file: at top level or under a ``"vehicle"`` key (the
+    simulator and ``slungload import`` write the latter, with what made the data beside it).
+    Keys may be aliases (``vehicle_from_dict``). Errors name the file."""
+    path = Path(path)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -187,6 +291,19 @@ def load_vehicle(folder: str | Path) -> VehicleParams | None:
     if isinstance(data, dict) and isinstance(data.get("vehicle"), dict):
         data = data["vehicle"]
     try:
-        return from_dict(VehicleParams, data)
+        return vehicle_from_dict(data)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: bad vehicle constants ({exc})") from exc
+
+
+def load_vehicle(folder: str | Path) -> VehicleParams | None:
+    """Vehicle constants stored beside a dataset (``vehicle.json``), or None if absent.
+
+    The file may hold the constants at top level or under a ``"vehicle"`` key (the simulator
+    writes the latter, with its effects and seed beside them); keys may be common aliases
+    (``VEHICLE_KEY_ALIASES``), and an unknown key is an error listing the accepted ones.
+    """
+    path = Path(folder) / VEHICLE_FILE
+    if not path.is_file():
+        return None
+    return read_vehicle(path)

@@ -7,6 +7,7 @@ both cores: the model is small and its decoder loop is latency-bound.
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import signal
@@ -39,6 +40,7 @@ class Reproduction:
     report: Report
     report_path: Path
     seconds: dict[str, float]  # stage -> wall-clock s
+    time_capped: tuple[Path, ...] = ()  # runs the time cap stopped short (run again: resumed)
 
 
 def _train_job(job: dict) -> Run:
@@ -86,7 +88,8 @@ def reproduce(
     sim_seed: int = 0,
     flights: int = 48,
     device: str = "cpu",
-    timing: bool = True,
+    timing: bool = False,
+    timing_repeats: int = 100,
     progress: bool = True,
 ) -> Reproduction:
     """Simulate the default dataset (unless ``data`` is given; ``flights`` and ``sim_seed`` set
@@ -115,11 +118,42 @@ def reproduce(
     seconds["simulate"] = time.perf_counter() - start
 
     start = time.perf_counter()
+    jobs = _training_jobs(out, data, seeds=seeds, variants=variants, preset=preset, device=device)
+    run_training_jobs(jobs, workers=workers, progress=progress)
+    run_dirs = tuple(out / "runs" / f"{v}-s{s}" for s in seeds for v in variants)
+    seconds["train"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    report = evaluate_runs(
+        run_dirs,
+        data=data,
+        out=out / "report",
+        timing=timing,
+        timing_repeats=timing_repeats,
+        progress=progress,
+    )
+    seconds["evaluate"] = time.perf_counter() - start
+    capped = tuple(d for d in run_dirs if stopped_by_time_cap(d))
+    return Reproduction(data, run_dirs, report, out / "report" / "report.md", seconds, capped)
+
+
+def _training_jobs(
+    out: Path,
+    data: Path,
+    *,
+    seeds: Sequence[int],
+    variants: Sequence[str],
+    preset: str,
+    device: str,
+) -> list[dict]:
+    """``train`` arguments of every (seed, variant) run not finished yet: no ``run.json``, or
+    stopped by the time cap before its epoch budget. A run with a ``last.ckpt`` resumes."""
     jobs = []
     for seed in seeds:
         for variant in variants:
             run_dir = out / "runs" / f"{variant}-s{seed}"
-            if (run_dir / "run.json").is_file():
+            capped = stopped_by_time_cap(run_dir)
+            if (run_dir / "run.json").is_file() and not capped:
                 continue  # finished earlier
             jobs.append(
                 dict(
@@ -132,40 +166,50 @@ def reproduce(
                     progress=False,
                     num_threads=1,
                     resume=(run_dir / "last.ckpt").is_file(),
+                    # A run the clock stopped short goes on to its full budget, uncapped.
+                    time_cap=not capped,
                 )
             )
-    _run_jobs(jobs, workers=workers, progress=progress)
-    run_dirs = tuple(out / "runs" / f"{v}-s{s}" for s in seeds for v in variants)
-    seconds["train"] = time.perf_counter() - start
+    return jobs
 
-    start = time.perf_counter()
-    report = evaluate_runs(
-        run_dirs, data=data, out=out / "report", timing=timing, progress=progress
-    )
-    seconds["evaluate"] = time.perf_counter() - start
-    return Reproduction(data, run_dirs, report, out / "report" / "report.md", seconds)
+
+def stopped_by_time_cap(run_dir: Path) -> bool:
+    """Whether a finished run (its ``run.json``) was stopped by the wall-clock cap before its
+    epoch budget."""
+    summary = run_dir / "run.json"
+    if not summary.is_file():
+        return False
+    run = json.loads(summary.read_text())
+    budget = run.get("config", {}).get("train", {}).get("max_epochs")
+    return run.get("stop_reason") == "max_time" and (budget is None or run["epochs"] < budget)
 
 
 def evaluate_runs(
     runs: Sequence[str | Path],
     *,
-    timing: bool = True,
+    timing: bool = False,
     timing_repeats: int = 100,
     device: str = "cpu",
+    progress: bool = True,
     **options: Any,
 ) -> Report:
     """``evaluation.evaluate`` with, if ``timing``, the batch-1 time of every network (eager
     on ``device`` and the compiled predictor, ``timing_repeats`` calls each) in its report.
-    ``options`` go to ``evaluate`` (data, out, horizons, include_physics, progress, ...)."""
+    ``options`` go to ``evaluate`` (data, out, horizons, include_physics, ...)."""
     timer = None
     if timing:
 
         def timer(networks, windows, params):  # an evaluator.Timer
             return time_models(
-                networks, windows, params=params, repeats=timing_repeats, device=device
+                networks,
+                windows,
+                params=params,
+                repeats=timing_repeats,
+                device=device,
+                progress=progress,
             )
 
-    return evaluate(runs, timer=timer, device=device, **options)
+    return evaluate(runs, timer=timer, device=device, progress=progress, **options)
 
 
 def worker_pool(workers: int) -> ProcessPoolExecutor:
@@ -179,7 +223,9 @@ def worker_pool(workers: int) -> ProcessPoolExecutor:
     )
 
 
-def _run_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
+def run_training_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
+    """``train(**job)`` for every job, ``workers`` at a time in a pool (one torch thread each)
+    that stops with its parent; a failed run raises here."""
     if not jobs:
         return
     bar = tqdm(total=len(jobs), desc="training runs", unit="run", disable=not progress)

@@ -119,6 +119,9 @@ def read_npz(path: str | Path) -> dict[str, np.ndarray]:
 
 
 def write_splits(folder: str | Path, splits: Mapping[str, list[str]]) -> None:
-    """Write ``train.txt``, ``val.txt``, ``test.txt`` (one flight name a line)."""
+    """Write ``train.txt``, ``val.txt``, ``test.txt``: one flight file a line, named with its
+    ``.npz`` suffix as the authors' release lists do (``baf_fast_00.npz``); a name that already
+    ends in ``.npz`` is written as it is. The readers accept names with or without it."""
     for split in SPLITS:
-        write_text(Path(folder) / f"{split}.txt", "".join(f"{n}\n" for n in splits.get(split, [])))
+        names = [n if n.lower().endswith(".npz") else f"{n}.npz" for n in splits.get(split, [])]
+        write_text(Path(folder) / f"{split}.txt", "".join(f"{n}\n" for n in names))

@@ -20,13 +20,12 @@ horizon and averaged over the batch, in physical units.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import torch
 from torch import Tensor
 
-from .config import LossWeights, ModelConfig, VehicleParams
+from .config import LOSS_VARIANTS, LossVariant, LossWeights, ModelConfig, VehicleParams
 from .models.base import Prediction
 from .physics import step
 from .state import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL, quat_error
@@ -44,26 +43,6 @@ class LossTerms(NamedTuple):
     def scalars(self) -> dict[str, float]:
         """Plain floats for logging."""
         return {name: float(value.detach()) for name, value in self._asdict().items()}
-
-
-@dataclass(frozen=True)
-class LossVariant:
-    """Which terms a training run uses (the paper's ablations)."""
-
-    name: str
-    physics: bool  # include L_physics
-    slack: bool  # the model emits slack variables and L_slack is included
-    description: str
-
-
-LOSS_VARIANTS: dict[str, LossVariant] = {
-    v.name: v
-    for v in (
-        LossVariant("proposed", True, True, "fit + physics with slack + projection + slack"),
-        LossVariant("no-slack", True, False, "fit + physics (slack fixed at 0) + projection"),
-        LossVariant("no-physics", False, False, "fit + projection (plain encoder-decoder)"),
-    )
-}
 
 
 def get_variant(name: str) -> LossVariant:

@@ -15,7 +15,11 @@ vehicle to the load and the cable tension T_L::
 and the discrete updates p+ = p + h v + h^2/2 a, v+ = v + h a (same for the load), and
 R+ = R exp(h S(omega)), i.e. q+ = q (x) exp(h omega / 2). The tension follows from the taut
 cable constraint (it is the paper's formula); it is not clipped at zero, as in the paper: the
-model assumes a taut cable and leaves slack to the learned part.
+model assumes a taut cable and leaves slack to the learned part. T is the commanded thrust
+times ``params.thrust_gain`` (1 in the paper; fitted by ``slungload identify``).
+
+``params`` is a ``VehicleParams`` or any object with its attributes as tensors
+(``models.constants.LearnedConstants.current()``), so the constants can be fitted by gradient.
 """
 
 from __future__ import annotations
@@ -66,7 +70,7 @@ def accelerations(
     p, _, q, p_load = split_state(x)
     thrust, _ = split_input(u)
     xi = cable_direction(p, p_load, params)
-    thrust_w = thrust_vector(q, thrust)
+    thrust_w = thrust_vector(q, params.thrust_gain * thrust)
     t_load = tension(xi, thrust_w, load_rate, params).unsqueeze(-1)
     g = torch.zeros_like(p)
     g[..., 2] = params.gravity

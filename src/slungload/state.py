@@ -171,3 +171,21 @@ def with_unit_quaternion(states: Tensor) -> Tensor:
     out = states.clone()
     out[..., QUAT] = quat_normalize(states[..., QUAT])
     return out
+
+
+def group_errors(pred: Tensor, true: Tensor) -> dict[str, Tensor]:
+    """Error norm per group: pred, true (W, N, 13) -> {group: (W, N)}, float64.
+
+    Quaternion: || q_hat (x) q^-1 - q_id ||; the others: the Euclidean norm of the difference.
+    """
+    if pred.shape != true.shape:
+        raise ValueError(f"prediction {tuple(pred.shape)} and truth {tuple(true.shape)} differ")
+    pred, true = pred.double(), true.double()
+    errors = {}
+    for name, sl in GROUPS.items():
+        if sl == QUAT:
+            diff = quat_error(pred[..., sl], true[..., sl])
+        else:
+            diff = pred[..., sl] - true[..., sl]
+        errors[name] = diff.norm(dim=-1)
+    return errors

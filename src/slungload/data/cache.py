@@ -1,14 +1,9 @@
-"""Sliding windows cut from flights, and the on-disk cache of prepared flights.
+"""The on-disk cache of prepared flights (``data.load_dataset``).
 
-A window is M + N consecutive steps of one flight: the first M are the history the network
-sees, the last N the future it predicts. Windows never cross flights. ``data.load_dataset``
-builds them per split; this module knows nothing about files or splits.
-
-The cache (``data.load_dataset``) is a ``torch.save`` file of the validated flights with their
-load-state estimates and split lists, plain tensors, strings and dicts, read back with
-``weights_only=True``; windows are re-cut from them on loading. Its name is a hash of
-everything the windows depend on (see ``cache_key``), so a stale cache is never read, only
-left behind.
+A ``torch.save`` file of the validated flights with their load-state estimates and split
+lists, plain tensors, strings and dicts, read back with ``weights_only=True``; windows are
+re-cut from them on loading. Its name is a hash of everything the windows depend on (see
+``cache_key``), so a stale cache is never read, only left behind.
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
-"""Flights on disk -> validated arrays -> estimated load state -> windows per split.
-
-One flight is one ``.npz`` file in the published schema (``fileio.FLIGHT_KEYS``); a dataset is
-a folder of them with ``train.txt`` / ``val.txt`` / ``test.txt`` naming the flights of each
-split and, optionally, ``vehicle.json`` with the constants. See ``docs/data.md``.
-
-The load velocity vL and load angular velocity Omega_L are not measured; they are estimated
-causally from the positions (``estimate_load_state``) so that a prediction made at step k
-never uses a sample after k.
+"""A dataset folder: its flights (read by ``readers``), the split lists ``train.txt`` /
+``val.txt`` / ``test.txt``, the vehicle constants (``vehicle.json``), windows per split, and the
+cache of prepared flights. ``load_dataset`` is the entry; see ``docs/data.md``.
 """
 
 from __future__ import annotations
@@ -68,7 +62,10 @@ def check_folder(folder: str | Path) -> tuple[Path, dict[str, Path]]:
         raise FileNotFoundError(f"dataset folder {folder} does not exist")
     files = flight_files(folder)
     if not files:
-        raise DatasetError(f"dataset folder {folder} holds no flight files ({kinds})")
+        raise DatasetError(
+            f"dataset folder {folder} holds no flight files ({kinds}), neither at the top nor "
+            "under data/"
+        )
     return folder, files
 
 

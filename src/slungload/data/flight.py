@@ -1,12 +1,9 @@
-"""Flights on disk -> validated arrays -> estimated load state -> windows per split.
-
-One flight is one ``.npz`` file in the published schema (``fileio.FLIGHT_KEYS``); a dataset is
-a folder of them with ``train.txt`` / ``val.txt`` / ``test.txt`` naming the flights of each
-split and, optionally, ``vehicle.json`` with the constants. See ``docs/data.md``.
+"""One flight, whatever file it came from: the ``Flight`` record, the checks every reader applies
+(time steps, quaternions, finite numbers), and the causal load-state estimate.
 
 The load velocity vL and load angular velocity Omega_L are not measured; they are estimated
 causally from the positions (``estimate_load_state``) so that a prediction made at step k
-never uses a sample after k.
+never uses a sample after k. See ``docs/data.md``.
 """
 
 from __future__ import annotations

@@ -1,12 +1,6 @@
-"""Flights on disk -> validated arrays -> estimated load state -> windows per split.
-
-One flight is one ``.npz`` file in the published schema (``fileio.FLIGHT_KEYS``); a dataset is
-a folder of them with ``train.txt`` / ``val.txt`` / ``test.txt`` naming the flights of each
-split and, optionally, ``vehicle.json`` with the constants. See ``docs/data.md``.
-
-The load velocity vL and load angular velocity Omega_L are not measured; they are estimated
-causally from the positions (``estimate_load_state``) so that a prediction made at step k
-never uses a sample after k.
+"""What ``slungload inspect`` prints: per split, flights, steps, seconds and windows; value
+ranges (speed, swing, thrust); validation or test maneuvers without a flight in training. No
+windows are built and no cache is used.
 """
 
 from __future__ import annotations

@@ -53,7 +53,7 @@ from ..models.base import count_parameters
 from ..models.lstm_attention import SlungLoadNet
 from ..physics import hover_thrust, rollout
 from ..state import join_state, quat_from_rotvec
-from .compiled import CompiledPredictor
+from .compiled import CompiledPredictor, unsupported
 from .onnx import OnnxPredictor, export
 from .predictor import FileLayoutNet, Predictor, check_inputs, states_to_file, unbatch
 from .timing import time_calls
@@ -362,68 +362,50 @@ def benchmark(
     load_start, device, versions = os.getloadavg()[0], _device(), _versions()
     big = max(batches, default=1)
     predictor, source = _predictor(run, history, max(horizons), model_config, seed)
-    compiled = CompiledPredictor(predictor)  # compiles once (or loads Numba's cache)
     latency, throughput, parity = [], [], {}
     notes = [
         "All backends are called through numpy in / numpy out with the same checks "
         "(Predictor.predict, OnnxPredictor.predict, CompiledPredictor.predict, or the traced "
         "network behind the same checks)."
     ]
+    reason = unsupported(predictor.model)
+    if reason is not None:
+        notes.append(f"No compiled backend: {reason}.")
+    compiled = CompiledPredictor(predictor) if reason is None else None  # compiles once
     with tempfile.TemporaryDirectory(prefix="slungload-bench-") as tmp, torch_threads(threads):
         for n in horizons:
             window = WindowConfig(history=history, horizon=n)
             windows = physics_windows(max(big, 16), window, params=predictor.params, seed=seed + n)
             hist, fut = file_inputs(windows)
-            onnx_path = export(predictor, Path(tmp) / f"n{n}.onnx", horizon=n).model
             fns: dict[str, PredictFn] = {
                 EAGER: predictor.predict,
                 SCRIPT: script_predict(predictor, hist, fut),
-                ONNX: OnnxPredictor(onnx_path, threads=threads).predict,
-                COMPILED: compiled.predict,
-            }
-            check = slice(0, 64)
-            reference = predictor.predict(hist[check], fut[check])
-            parity[n] = max(
-                float(np.abs(fn(hist[check], fut[check]) - reference).max()) for fn in fns.values()
-            )
-            one_hist, one_fut = hist[:16], fut[:16]
-            for name, fn in fns.items():
-                latency.append(
-                    measure_latency(
-                        name,
-                        fn,
-                        one_hist,
-                        one_fut,
-                        threads=threads,
-                        repeats=repeats,
-                        warmup=max(5, repeats // 10),
-                    )  # fmt: skip
-                )
+                ONNX: OnnxPredictor(export(predictor, Path(tmp) / f"n{n}.onnx", horizon=n).model,
+                                    threads=threads, any_history=True).predict,
+            }  # fmt: skip
+            if compiled is not None:
+                fns[COMPILED] = compiled.predict
+            parity[n] = _parity(fns, hist[:64], fut[:64])
+            latency += _latencies(fns, hist[:16], fut[:16], threads=threads, repeats=repeats)
             for b in batches:
                 for name, fn in fns.items():
                     throughput.append(
                         measure_throughput(
-                            name,
-                            fn,
-                            hist[:b],
-                            fut[:b],
-                            threads=threads,
-                            repeats=3 if quick else 7,
-                        )  # fmt: skip
+                            name, fn, hist[:b], fut[:b], threads=threads, repeats=3 if quick else 7
+                        )
                     )
-    training = []
     cores = os.cpu_count() or 1
-    for n_threads in (train_threads or sorted({1, cores})) if train else ():
-        training.append(
-            measure_training(
-                model_config=model_config,
-                window=WindowConfig(history=history, horizon=25 if 25 in horizons else horizons[0]),
-                target_windows=train_windows,
-                measured_windows=max(256, train_windows // 5) if quick else None,
-                threads=n_threads,
-                seed=seed,
-            )
+    training = [
+        measure_training(
+            model_config=model_config,
+            window=WindowConfig(history=history, horizon=25 if 25 in horizons else horizons[0]),
+            target_windows=train_windows,
+            measured_windows=max(256, train_windows // 5) if quick else None,
+            threads=n_threads,
+            seed=seed,
         )
+        for n_threads in ((train_threads or sorted({1, cores})) if train else ())
+    ]
     notes.append(
         f"Load average (1 min) {load_start:.2f} at the start, {os.getloadavg()[0]:.2f} at the end "
         f"on {cores} cores: other processes compete for the cores and inflate wall-clock times."
@@ -433,18 +415,39 @@ def benchmark(
     )
 
 
+def _parity(fns: dict[str, PredictFn], history: np.ndarray, future: np.ndarray) -> float:
+    """Largest |difference| of any backend from the eager predictor on the same windows."""
+    reference = fns[EAGER](history, future)
+    return max(float(np.abs(fn(history, future) - reference).max()) for fn in fns.values())
+
+
+def _latencies(
+    fns: dict[str, PredictFn], history: np.ndarray, future: np.ndarray, *, threads: int,
+    repeats: int,
+) -> list[Latency]:  # fmt: skip
+    """Batch-1 latency of every backend, cycling over the windows of ``history``."""
+    warmup = max(5, repeats // 10)
+    return [
+        measure_latency(name, fn, history, future, threads=threads, repeats=repeats, warmup=warmup)
+        for name, fn in fns.items()
+    ]
+
+
 def _predictor(
     run: str | Path | None, history: int, horizon: int, config: ModelConfig | None, seed: int
 ) -> tuple[Predictor, str]:
+    # threads=None: ``benchmark`` sets torch's threads itself; any_history: ``history`` may
+    # differ from the run's M (a timing question, not a prediction).
     if run is not None:
-        return Predictor.from_checkpoint(run), str(run)
+        return Predictor.from_checkpoint(run, threads=None, any_history=True), str(run)
     torch.manual_seed(seed)
     model = SlungLoadNet(config or ModelConfig())
     window = WindowConfig(history=history, horizon=horizon)
     fit = physics_windows(64, window, seed=seed)
     model.fit_normalization(fit.states, fit.inputs, origin_step=history - 1)
     size = "paper-size" if config is None else "custom-size"
-    return Predictor(model.eval(), window, VehicleParams(), "proposed"), f"random {size} network"
+    predictor = Predictor(model.eval(), window, VehicleParams(), "proposed", threads=None)
+    return predictor, f"random {size} network"
 
 
 def _device() -> str:

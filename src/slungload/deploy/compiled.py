@@ -40,7 +40,7 @@ from torch import nn
 
 from ..models.lstm_attention import SlungLoadNet
 from ..state import INPUT_DIM, STATE_DIM
-from .predictor import PARITY_TOLERANCE, Predictor, check_inputs, unbatch
+from .predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
 
 COMPILED_ARCHITECTURES = (SlungLoadNet.architecture,)  # what ``fold`` knows how to compile
 
@@ -209,8 +209,9 @@ class CompiledPredictor:
     """``Predictor.predict`` as one compiled call per window (numpy in, numpy out).
 
     Same arguments, checks and result as ``Predictor.predict`` (file layout, quaternion
-    x-y-z-w, float64 out). Single-threaded; windows of a batch run one after another, so it
-    is meant for batch 1 (larger batches are faster on the torch or ONNX paths).
+    x-y-z-w, float64 out; M and ``threads`` as the wrapped ``Predictor``'s). Single-threaded
+    by default; windows of a batch run one after another, so it is meant for batch 1 (larger
+    batches are faster on the torch or ONNX paths).
     """
 
     def __init__(self, predictor: Predictor, *, warm_up: bool = True) -> None:
@@ -237,7 +238,13 @@ class CompiledPredictor:
     def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
         """history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout ->
         (N, 13) or (B, N, 13) float64 states, quaternion unit and x-y-z-w."""
-        hist, fut, single = check_inputs(history, future_inputs, caller="CompiledPredictor.predict")
+        p = self.predictor
+        hist, fut, single = check_inputs(
+            history,
+            future_inputs,
+            caller="CompiledPredictor.predict",
+            history_rows=None if p.any_history else p.history,
+        )
         hist = np.ascontiguousarray(hist, dtype=np.float32)
         fut = np.ascontiguousarray(fut, dtype=np.float32)
         w = self.weights
@@ -246,7 +253,8 @@ class CompiledPredictor:
         origin = np.empty((batch, STATE_DIM), dtype=np.float32)
         for b in range(batch):
             _relative_rows(hist[b], w.origin_shift, xu[b], origin[b])
-        pre = self._encoder_inputs(xu)
+        with torch_threads(p.threads):  # the only torch work: one matrix product
+            pre = self._encoder_inputs(xu)
         out = np.empty((batch, fut.shape[1], STATE_DIM), dtype=np.float32)
         for b in range(batch):
             _forward(xu[b], origin[b], pre[b], fut[b], w, out[b])

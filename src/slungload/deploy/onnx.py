@@ -46,14 +46,17 @@ from ..state import (
     GROUPS,
     INPUT_DIM,
     INPUT_NAMES,
+    LOAD_POS,
+    POS,
     RATES,
     STATE_DIM,
-    STATE_NAMES,
     THRUST,
+    with_unit_quaternion,
 )
 from .predictor import (
     HISTORY_DIM,
     PARITY_TOLERANCE,
+    STATE_COLUMNS,
     FileLayoutNet,
     Predictor,
     check_inputs,
@@ -76,10 +79,7 @@ class OnnxModelError(ValueError):
 
 def state_columns() -> list[str]:
     """Names of the 13 state columns in the file layout (quaternion x-y-z-w), from state.py."""
-    import torch  # the runtime path imports torch through ``predictor`` anyway
-
-    order = states_to_file(torch.arange(STATE_DIM, dtype=torch.float64)).long().tolist()
-    return [STATE_NAMES[i] for i in order]
+    return list(STATE_COLUMNS)
 
 
 def state_units() -> list[str]:
@@ -164,19 +164,26 @@ def export(
     """Write ``out`` (ONNX) and its sidecar ``out.with_suffix('.json')``.
 
     run_or_ckpt: a run folder (its ``best.ckpt``), a ``.ckpt`` written by ``train``, or a
-    loaded ``Predictor``. horizon: N fixed in the file (default: the N it was trained with).
-    The export is checked against the eager network with ONNX Runtime before it is kept;
-    a disagreement above ``PARITY_TOLERANCE`` raises ``OnnxModelError``.
+    loaded ``Predictor``. out: the model file to write, in an existing folder (a missing
+    folder is an error, not created); or an existing folder, to write
+    ``<run name>-n<N>.onnx`` into it (``export_name``). horizon: N fixed in the file
+    (default: the N it was trained with). The export is checked against the eager network
+    with ONNX Runtime before it is kept; a disagreement above ``PARITY_TOLERANCE`` raises
+    ``OnnxModelError``.
     """
     if format != "onnx":
         raise ValueError(f"export: unknown format {format!r}; only 'onnx' is supported")
     start = time.perf_counter()
+    out = Path(out)
+    if not out.is_dir():
+        _check_model_path(out)  # before the (slower) load
     predictor, configs, source = _load(run_or_ckpt)
     n = predictor.window.horizon if horizon is None else int(horizon)
     if n < 1:
         raise ValueError(f"export: horizon must be >= 1, got {n}")
     m = predictor.window.history
-    out = Path(out)
+    if out.is_dir():
+        out = out / export_name(run_or_ckpt, n)
     model = predictor.model.cpu().eval()
     net = FileLayoutNet(model).eval()
     history, future = sample_inputs(predictor, batch=2, horizon=n)
@@ -219,6 +226,40 @@ def export(
         },
     )
     return ExportResult(out, sidecar, n, m, opset, diff, time.perf_counter() - start)
+
+
+def export_name(run_or_ckpt: str | Path | Predictor, horizon: int) -> str:
+    """File name ``export`` gives a model written into a folder: ``<run name>-n<N>.onnx``.
+
+    The run name is the run folder's name (for a ``.ckpt``: its folder's, with the file's
+    stem unless it is ``best``); an in-memory ``Predictor`` is ``model``.
+    """
+    if isinstance(run_or_ckpt, Predictor):
+        name = "model"
+    else:
+        path = Path(run_or_ckpt).resolve()
+        if path.is_dir():
+            name = path.name
+        else:
+            name = path.parent.name + ("" if path.stem == "best" else f"-{path.stem}")
+    return f"{name or 'model'}-n{horizon}.onnx"
+
+
+def _check_model_path(out: Path) -> None:
+    """``out`` must name a file in an existing folder (not the sidecar's name)."""
+    folder = out.parent
+    if not folder.exists():
+        raise FileNotFoundError(
+            f"export: folder {folder} does not exist (create it first); out is the model file "
+            "to write, or an existing folder to write <run name>-n<N>.onnx into"
+        )
+    if not folder.is_dir():
+        raise NotADirectoryError(f"export: {folder} is not a folder, so {out} cannot be written")
+    if out.suffix.lower() == ".json":
+        raise ValueError(
+            f"export: {out} would be overwritten by the model's JSON sidecar; name the model "
+            "file .onnx"
+        )
 
 
 def _load(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], str]:
@@ -279,9 +320,11 @@ def sample_inputs(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Plausible float32 file-layout inputs around the network's normalisation statistics.
 
-    history (batch, M, 17) and future_inputs (batch, N, 4): states and inputs drawn around the
-    fitted means with half the fitted spread, unit quaternions, a random arena position. Used
-    to trace the export and to check it; not a substitute for real windows.
+    history (batch, M, 17) and future_inputs (batch, N, 4): per window, a last state drawn
+    around the fitted mean with half the fitted spread (the load at the mean offset from the
+    vehicle) reached by a random walk in steps of the fitted per-step change, inputs drawn
+    around their means with half their spread, unit quaternions, a random arena position.
+    Used to trace the export and to check it; not a substitute for real windows.
     """
     import torch
 
@@ -291,24 +334,22 @@ def sample_inputs(
     gen = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         x = model.state_mean + 0.5 * model.state_std * torch.randn(
-            batch, m, STATE_DIM, generator=gen
+            batch, 1, STATE_DIM, generator=gen
         )
+        # Rows drawn independently would mean a load anywhere but on its cable and huge speeds
+        # between rows: a network that steps the discrete model ('physics-step', from the load
+        # state estimated on the last two rows) diverges from such a history.
+        x[..., LOAD_POS] = x[..., POS] + (model.state_mean[LOAD_POS] - model.state_mean[POS])
+        walk = model.delta_std * torch.randn(batch, m, STATE_DIM, generator=gen)
+        x = x + walk.cumsum(1) - walk.sum(1, keepdim=True)  # (batch, M, 13), last row x
         x = x + model.origin(torch.randn(batch, 1, STATE_DIM, generator=gen))
         u = model.input_mean + 0.5 * model.input_std * torch.randn(
             batch, m + n, INPUT_DIM, generator=gen
         )
     x = x.double()
-    x = states_to_file(_unit_quaternions(x))
+    x = states_to_file(with_unit_quaternion(x))
     history = torch.cat([x, u[:, :m].double()], dim=-1)
     return history.float().numpy(), u[:, m:].float().numpy()
-
-
-def _unit_quaternions(x: Any) -> Any:
-    from ..state import QUAT, quat_normalize
-
-    out = x.clone()
-    out[..., QUAT] = quat_normalize(x[..., QUAT])
-    return out
 
 
 # --- runtime -----------------------------------------------------------------------------
@@ -337,10 +378,13 @@ class OnnxPredictor:
 
     Loading checks the model file against its sidecar (format version, checksum, input and
     output names and shapes, state layout) and refuses a mismatch with ``OnnxModelError``.
+    threads: ONNX Runtime's intra-op threads; any_history: accept histories of any length
+    M >= 1 (the graph's M is dynamic), not only the M the network was trained with.
     """
 
-    def __init__(self, path: str | Path, *, threads: int = 1) -> None:
+    def __init__(self, path: str | Path, *, threads: int = 1, any_history: bool = False) -> None:
         self.path = Path(path)
+        self.any_history = any_history
         if not self.path.is_file():
             raise FileNotFoundError(f"exported model {self.path} does not exist")
         self.meta = read_sidecar(self.path)
@@ -352,15 +396,21 @@ class OnnxPredictor:
             raise OnnxModelError(f"{self.path}: not a loadable ONNX model ({exc})") from exc
         _check_session(self.path, self.session, self.meta)
         self.horizon: int = self.meta["horizon"]
-        self.history: int = self.meta["history"]  # M it was trained with; any M >= 1 works
+        self.history: int = self.meta["history"]  # M it was trained with
 
     def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
         """Predict the next N states, as ``Predictor.predict``.
 
-        history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout; N must
-        be this file's horizon. Returns (N, 13) or (B, N, 13) float64, unit quaternion x-y-z-w.
+        history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout; M must
+        be ``self.history`` (unless ``any_history``) and N this file's horizon. Returns (N, 13)
+        or (B, N, 13) float64, unit quaternion x-y-z-w.
         """
-        hist, fut, single = check_inputs(history, future_inputs, caller="OnnxPredictor.predict")
+        hist, fut, single = check_inputs(
+            history,
+            future_inputs,
+            caller="OnnxPredictor.predict",
+            history_rows=None if self.any_history else self.history,
+        )
         if fut.shape[1] != self.horizon:
             raise ValueError(
                 f"OnnxPredictor.predict: {self.path} is exported for N = {self.horizon} future "

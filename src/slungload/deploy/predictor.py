@@ -12,12 +12,22 @@ edge. ``history`` row k holds x_k then u_k::
 ``future_inputs`` holds u_M ... u_{M+N-1} (T, omega); the result holds x_M ... x_{M+N-1} in
 the first 13 columns' layout, with a unit quaternion. The network's recursion uses u_{M-1}
 (the last history row) and u_M ... u_{M+N-2}; the last future input does not change the result.
+
+``check_inputs`` is the one gate every predictor (this one, ``CompiledPredictor``,
+``OnnxPredictor``) calls: shapes, M equal to the trained history (unless ``any_history``),
+finite numbers (the error names the row and the column), unit quaternions, and a guard against
+w-x-y-z quaternions in the x-y-z-w columns. ``flight_window`` cuts those arrays, and the true
+future states, out of a ``data.Flight``. ``Predictor`` runs on one torch thread by default
+(``threads``), as a control loop wants: more threads cost more than they save at batch 1.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple, Protocol
 
 import numpy as np
 import torch
@@ -28,8 +38,10 @@ from ..models.checkpoints import load_checkpoint
 from ..models.lstm_attention import SlungLoadNet
 from ..state import (
     INPUT_DIM,
+    INPUT_NAMES,
     QUAT,
     STATE_DIM,
+    STATE_NAMES,
     quat_continuous,
     quat_normalize,
     quat_wxyz_to_xyzw,
@@ -41,6 +53,20 @@ HISTORY_DIM = STATE_DIM + INPUT_DIM  # 17 columns: x_k then u_k
 # Largest |difference| from this eager predictor, physical units, that a faster path (the ONNX
 # export, the compiled predictor) may show on real windows; checked at export and in tests.
 PARITY_TOLERANCE = 1e-4
+_WXYZ_TO_XYZW = [1, 2, 3, 0]  # file order of the package's quaternion components
+# Column names of the file layout: the 13 states (quaternion x-y-z-w) then the 4 inputs.
+STATE_COLUMNS: tuple[str, ...] = (
+    STATE_NAMES[: QUAT.start]
+    + tuple(STATE_NAMES[QUAT.start + i] for i in _WXYZ_TO_XYZW)
+    + STATE_NAMES[QUAT.stop :]
+)
+HISTORY_COLUMNS: tuple[str, ...] = STATE_COLUMNS + INPUT_NAMES
+# A history quaternion whose norm is further than this from 1 is refused (the network
+# normalises it, but a zero or far-off quaternion means wrong columns or a broken estimator).
+QUAT_NORM_TOLERANCE = 0.1
+# w-x-y-z in the x-y-z-w slot, seen in near-level flight: the file's w column (index 9) is near
+# 0 in every history row while its qx column (index 6) is near +-1 (a level attitude's w).
+_SWAPPED_W_BELOW, _SWAPPED_X_ABOVE = 0.3, 0.9
 
 
 def states_to_file(states: Tensor) -> Tensor:
@@ -78,60 +104,172 @@ class FileLayoutNet(nn.Module):
 
 @dataclass
 class Predictor:
-    """A trained network predicting N future states from M past states and inputs."""
+    """A trained network predicting N future states from M past states and inputs.
+
+    threads: torch intra-op threads during ``predict`` (set for the call, then restored);
+    1 by default, the fastest at batch 1 on a machine that also runs a controller. None
+    leaves torch's setting alone. any_history: accept histories of any length M >= 1 (the
+    network runs, but was trained on ``window.history`` rows); by default another length is
+    refused.
+    """
 
     model: SlungLoadNet
     window: WindowConfig  # the M and N it was trained with (other horizons also work)
     params: VehicleParams
     variant: str
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+    threads: int | None = 1
+    any_history: bool = False
     network: FileLayoutNet = field(init=False, repr=False)  # ``model`` behind file layouts
 
     def __post_init__(self) -> None:
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"Predictor: threads must be >= 1 or None, got {self.threads}")
         self.network = FileLayoutNet(self.model)
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, *, device: str | torch.device = "cpu") -> Predictor:
-        """Load a run folder (its ``best.ckpt``) or a ``.ckpt`` written by ``train``."""
+    def from_checkpoint(
+        cls,
+        path: str | Path,
+        *,
+        device: str | torch.device = "cpu",
+        threads: int | None = 1,
+        any_history: bool = False,
+    ) -> Predictor:
+        """Load a run folder (its ``best.ckpt``) or a ``.ckpt`` written by ``train``.
+
+        threads: torch threads during ``predict`` (default 1; None: torch's setting).
+        """
         loaded = load_checkpoint(path)
         device = torch.device(device)
         return cls(
-            loaded.model.to(device).eval(), loaded.window, loaded.params, loaded.variant, device
+            loaded.model.to(device).eval(),
+            loaded.window,
+            loaded.params,
+            loaded.variant,
+            device,
+            threads=threads,
+            any_history=any_history,
         )
 
     @property
     def history(self) -> int:
-        """M, the number of past rows ``predict`` expects by default (any M >= 1 works)."""
+        """M, the number of past rows ``predict`` expects (the window it was trained with)."""
         return self.window.history
 
     def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
         """Predict the next N states.
 
-        history (M, 17) or (B, M, 17): rows x_k, u_k (file convention, see the module doc);
-        future_inputs (N, 4) or (B, N, 4): T (N), omega (rad/s) at steps M ... M+N-1.
-        Returns (N, 13) or (B, N, 13) float64 states, quaternion unit and x-y-z-w.
+        history (M, 17) or (B, M, 17): rows x_k, u_k (file convention, see the module doc),
+        M = ``self.history``; future_inputs (N, 4) or (B, N, 4): T (N), omega (rad/s) at steps
+        M ... M+N-1. Returns (N, 13) or (B, N, 13) float64 states, quaternion unit and x-y-z-w.
         """
-        hist, fut, single = check_inputs(history, future_inputs)
+        hist, fut, single = check_inputs(
+            history, future_inputs, history_rows=None if self.any_history else self.history
+        )
         dtype = next(self.model.parameters()).dtype
-        with torch.inference_mode():
+        with torch_threads(self.threads), torch.inference_mode():
             h = torch.as_tensor(hist, dtype=dtype, device=self.device)
             u_future = torch.as_tensor(fut, dtype=dtype, device=self.device)
             states = self.network(h, u_future)
         return unbatch(states.cpu().numpy(), single)
 
 
+@contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """torch on ``threads`` intra-op threads inside the block, restored after (None: as is)."""
+    before = torch.get_num_threads()
+    if threads is None or threads == before:
+        yield
+        return
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+# --- cutting predict's arguments from a flight ---------------------------------------------
+
+
+class FlightLike(Protocol):
+    """What ``flight_window`` reads: a ``data.Flight`` or anything with its two arrays."""
+
+    states: np.ndarray  # (T, 13), package layout: quaternion w-x-y-z
+    inputs: np.ndarray  # (T, 4): T_ref (N), w_ref (rad/s)
+
+
+class FlightWindow(NamedTuple):
+    """``predict``'s arguments cut from a flight, and what it should answer (file layout)."""
+
+    history: np.ndarray  # (M, 17): x_k, u_k for k = start ... start+M-1, q x-y-z-w
+    future_inputs: np.ndarray  # (N, 4): u_k for the N steps after the history
+    truth: np.ndarray  # (N, 13): the measured x_k at those N steps, q x-y-z-w
+
+
+def flight_window(flight: FlightLike, start: int, *, history: int, horizon: int) -> FlightWindow:
+    """M = ``history`` rows from step ``start`` and the N = ``horizon`` steps after them.
+
+    flight: a ``data.Flight`` (``read_flight``), states in the package layout (w-x-y-z); the
+    result is in the file layout ``predict`` takes (x-y-z-w), so that
+    ``predictor.predict(w.history, w.future_inputs)`` compares with ``w.truth``.
+    """
+    states = np.asarray(flight.states, dtype=np.float64)
+    inputs = np.asarray(flight.inputs, dtype=np.float64)
+    shape_ok = states.ndim == 2 and states.shape[1] == STATE_DIM
+    if not shape_ok or inputs.shape != (len(states), INPUT_DIM):
+        raise ValueError(
+            f"flight_window: expected states (T, {STATE_DIM}) and inputs (T, {INPUT_DIM}), got "
+            f"{states.shape} and {inputs.shape}"
+        )
+    if history < 1 or horizon < 1:
+        raise ValueError(
+            f"flight_window: history and horizon must be >= 1, got {history} and {horizon}"
+        )
+    end = start + history + horizon
+    if start < 0 or end > len(states):
+        name = getattr(flight, "name", "the flight")
+        raise ValueError(
+            f"flight_window: steps {start} ... {end - 1} (M = {history} + N = {horizon}) do not "
+            f"fit in {name} ({len(states)} steps); start must be 0 ... "
+            f"{len(states) - history - horizon}"
+        )
+    file_states = states.copy()
+    file_states[:, QUAT] = states[:, QUAT][:, _WXYZ_TO_XYZW]
+    mid = start + history
+    return FlightWindow(
+        history=np.concatenate([file_states[start:mid], inputs[start:mid]], axis=1),
+        future_inputs=inputs[mid:end].copy(),
+        truth=file_states[mid:end],
+    )
+
+
+# --- checks --------------------------------------------------------------------------------
+
+
 def check_inputs(
-    history: np.ndarray, future_inputs: np.ndarray, *, caller: str = "Predictor.predict"
+    history: np.ndarray,
+    future_inputs: np.ndarray,
+    *,
+    caller: str = "Predictor.predict",
+    history_rows: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Check ``predict``'s arguments; return them batched, (B, M, 17) and (B, N, 4), and
-    whether they came unbatched. Errors start with ``caller`` and show expected and actual
-    shapes."""
+    whether they came unbatched. Errors start with ``caller``: shapes show expected and
+    actual; history_rows (the trained M; None: any M >= 1) must match the history's rows;
+    NaN / infinite values name the row and column; quaternions must be unit and x-y-z-w."""
     hist = np.asarray(history)
     fut = np.asarray(future_inputs)
     _check(hist, fut, caller)
+    if history_rows is not None and hist.shape[-2] != history_rows:
+        raise ValueError(
+            f"{caller}: history has {hist.shape[-2]} rows, but the model was trained on "
+            f"M = {history_rows} (window.history); pass the last {history_rows} rows"
+        )
     single = hist.ndim == 2
     if single:
         hist, fut = hist[None], fut[None]
+    _check_values(hist, fut, caller, single)
     return hist, fut, single
 
 
@@ -160,7 +298,46 @@ def _check(history: np.ndarray, future: np.ndarray, caller: str) -> None:
     if not ok:
         raise ValueError(f"{caller}: {expected}; {got}")
     for name, arr in (("history", history), ("future_inputs", future)):
-        if not np.issubdtype(arr.dtype, np.number):
-            raise ValueError(f"{caller}: {name} has dtype {arr.dtype}, expected numbers")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"{caller}: {name} holds NaN or infinite values")
+        if not np.issubdtype(arr.dtype, np.number) or np.iscomplexobj(arr):
+            raise ValueError(f"{caller}: {name} has dtype {arr.dtype}, expected real numbers")
+
+
+def _check_values(hist: np.ndarray, fut: np.ndarray, caller: str, single: bool) -> None:
+    """Batched (B, M, 17) and (B, N, 4): finite, unit quaternions, x-y-z-w order."""
+
+    def where(b: int, k: int) -> str:
+        return f"row {k}" if single else f"window {b}, row {k}"
+
+    for name, arr, columns in (
+        ("history", hist, HISTORY_COLUMNS),
+        ("future_inputs", fut, INPUT_NAMES),
+    ):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            b, k, c = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(
+                f"{caller}: {name} holds NaN or infinite values: {where(b, k)}, column {c} "
+                f"({columns[c]}) is {arr[b, k, c]} ({int(bad.sum())} such value(s) in all)"
+            )
+    quat = hist[..., QUAT].astype(np.float64)
+    norm = np.linalg.norm(quat, axis=-1)  # (B, M)
+    off = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE
+    if off.any():
+        b, k = (int(i) for i in np.argwhere(off)[0])
+        cols = ", ".join(HISTORY_COLUMNS[QUAT])
+        raise ValueError(
+            f"{caller}: history {where(b, k)} has a quaternion of norm {norm[b, k]:.3g} in "
+            f"columns {QUAT.start}-{QUAT.stop - 1} ({cols}, x-y-z-w order); expected a unit "
+            f"quaternion (|norm - 1| <= {QUAT_NORM_TOLERANCE})"
+        )
+    unit = quat / norm[..., None]
+    swapped = (np.abs(unit[..., 3]) < _SWAPPED_W_BELOW) & (np.abs(unit[..., 0]) > _SWAPPED_X_ABOVE)
+    for b in np.flatnonzero(swapped.all(axis=-1)):
+        raise ValueError(
+            f"{caller}: history{'' if single else f' window {b}'} looks like w-x-y-z "
+            f"quaternions in the x-y-z-w columns: column {QUAT.start} "
+            f"({HISTORY_COLUMNS[QUAT.start]}) is near +-1 and column {QUAT.stop - 1} "
+            f"({HISTORY_COLUMNS[QUAT.stop - 1]}) near 0 in every row (read as x-y-z-w: a "
+            "vehicle upside down). The order is x-y-z-w, as in the data files: move w to the "
+            "last quaternion column"
+        )

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
 
 import torch
 from torch import nn
+from tqdm.auto import tqdm
 
 from ..config import VehicleParams
 from ..data.windows import Windows
@@ -73,6 +75,7 @@ def time_inference(
         repeats=repeats,
         threads=torch.get_num_threads(),
         device=device_name(dev),
+        load_average=_load_average(),
     )
 
 
@@ -95,7 +98,16 @@ def time_compiled(
         threads=1,
         device=device_name(torch.device("cpu")),
         backend="numba compiled",
+        load_average=_load_average(),
     )
+
+
+def _load_average() -> float | None:
+    """The machine's 1-min load average (None where the OS has none)."""
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return None
 
 
 def _timing_window(caller: str, windows: Windows, repeats: int) -> tuple[int, Windows]:
@@ -114,21 +126,27 @@ def time_models(
     params: VehicleParams,
     repeats: int = 100,
     device: str | torch.device = "cpu",
+    progress: bool = False,
 ) -> tuple[TimingResult, ...]:
     """Batch-1 time of each (label, seed, network) at every horizon of ``windows``: the eager
     network on ``device`` and, for the architectures it supports, the compiled predictor (one
-    CPU thread) beside it. An architecture the compiled predictor does not support is timed
-    eager only (``compiled.unsupported`` says why)."""
+    CPU thread) beside it, ``repeats`` timed calls each. An architecture the compiled predictor
+    does not support is timed eager only (``compiled.unsupported`` says why)."""
     horizons = sorted(windows)
+    jobs = [(label, seed, model, n) for label, seed, model in models for n in horizons]
+    bar = tqdm(total=len(jobs), desc=f"timing ({repeats} calls each)", disable=not progress)
     out = []
-    for label, seed, model in models:
-        for n in horizons:
-            t = time_inference(model, windows[n], repeats=repeats, device=device)
-            out.append(TimingResult(label, seed, t))
-        if unsupported(model) is not None:
-            continue
-        compiled = CompiledPredictor(Predictor(model, windows[horizons[0]].window, params, label))
-        for n in horizons:
-            timing = time_compiled(compiled, windows[n], repeats=repeats)
+    compiled: dict[int, CompiledPredictor | None] = {}
+    for label, seed, model, n in jobs:
+        out.append(TimingResult(label, seed, time_inference(model, windows[n], repeats=repeats,
+                                                            device=device)))  # fmt: skip
+        if id(model) not in compiled:
+            window = windows[horizons[0]].window
+            facade = Predictor(model, window, params, label)
+            compiled[id(model)] = None if unsupported(model) else CompiledPredictor(facade)
+        if compiled[id(model)] is not None:
+            timing = time_compiled(compiled[id(model)], windows[n], repeats=repeats)
             out.append(TimingResult(label, seed, timing))
+        bar.update()
+    bar.close()
     return tuple(out)

@@ -21,13 +21,13 @@ import torch
 from torch import Tensor, nn
 
 from .._version import __version__
-from ..config import VehicleParams, WindowConfig
+from ..config import DEFAULT_ARCHITECTURE, VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
-from ..state import GROUPS
+from ..state import GROUPS, group_errors
 from .machine import device_name
-from .metrics import Curve, group_errors, mae_curve, metrics_from_errors
+from .metrics import Curve, mae_curve, metrics_from_errors
 from .predictors import NetworkPredictor, PhysicsPredictor, Predictor
 from .report import write_report
 from .results import PHYSICS, Example, Report, RunResult, TimingResult, table_rows
@@ -113,32 +113,9 @@ def evaluate_predictors(
     name -> states (T, 13) for the example figure (pieced from windows otherwise). timer:
     batch-1 timing of the candidates that hold a network (none without it).
     """
-    if not candidates:
-        raise ValueError("evaluate: nothing to evaluate")
-    if not windows:
-        raise ValueError("evaluate: no horizon to evaluate")
+    history = _check_windows(candidates, windows)
     horizons = tuple(sorted(windows))
-    histories = {w.window.history for w in windows.values()}
-    if len(histories) != 1:
-        raise ValueError(f"evaluate: windows of different histories M {sorted(histories)}")
-    history = histories.pop()
-    labels = tuple(dict.fromkeys(c.label for c in candidates))
-
-    jobs = [(c, n) for n in horizons for c in candidates]
-    bar = _progress(len(jobs), progress)
-    results: list[RunResult] = []
-    pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
-    predictions: dict[tuple[int, int], Tensor] = {}  # (candidate, N) -> (W, N, 13)
-    for c, n in jobs:
-        bar.set_description(f"{c.label} N={n}")
-        pred = c.predictor(windows[n])
-        errors = group_errors(pred, windows[n].future.states)
-        results.append(RunResult(c.label, c.seed, metrics_from_errors(errors)))
-        pooled.setdefault((c.label, n), []).append(errors)
-        predictions[(id(c), n)] = pred
-        bar.update()
-    bar.close()
-
+    results, pooled, predictions = _run_candidates(candidates, windows, progress)
     curves: dict[str, dict[int, dict[str, Curve]]] = {}
     for (label, n), parts in pooled.items():
         joined = {g: torch.cat([p[g] for p in parts]) for g in GROUPS}
@@ -163,7 +140,7 @@ def evaluate_predictors(
         history=history,
         training_horizon=training_horizon,
         horizons=horizons,
-        labels=labels,
+        labels=tuple(dict.fromkeys(c.label for c in candidates)),
         results=tuple(results),
         table=table_rows(results),
         curves=curves,
@@ -172,6 +149,42 @@ def evaluate_predictors(
         models=tuple({"label": c.label, "seed": c.seed, **c.info} for c in candidates if c.model),
         environment=env,
     )
+
+
+def _check_windows(candidates: Sequence[Candidate], windows: Mapping[int, Windows]) -> int:
+    """The history M shared by the windows of every horizon, after checking there is work."""
+    if not candidates:
+        raise ValueError("evaluate: nothing to evaluate")
+    if not windows:
+        raise ValueError("evaluate: no horizon to evaluate")
+    histories = {w.window.history for w in windows.values()}
+    if len(histories) != 1:
+        raise ValueError(f"evaluate: windows of different histories M {sorted(histories)}")
+    return histories.pop()
+
+
+def _run_candidates(
+    candidates: Sequence[Candidate], windows: Mapping[int, Windows], progress: bool
+) -> tuple[
+    list[RunResult], dict[tuple[str, int], list[dict[str, Tensor]]], dict[tuple[int, int], Tensor]
+]:
+    """Every candidate at every horizon: its metrics, its error norms pooled per (label, N)
+    over seeds, and its predictions per (id(candidate), N), (W, N, 13)."""
+    jobs = [(c, n) for n in sorted(windows) for c in candidates]
+    bar = _progress(len(jobs), progress)
+    results: list[RunResult] = []
+    pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
+    predictions: dict[tuple[int, int], Tensor] = {}
+    for c, n in jobs:
+        bar.set_description(f"{c.label} N={n}")
+        pred = c.predictor(windows[n])
+        errors = group_errors(pred, windows[n].future.states)
+        results.append(RunResult(c.label, c.seed, metrics_from_errors(errors)))
+        pooled.setdefault((c.label, n), []).append(errors)
+        predictions[(id(c), n)] = pred
+        bar.update()
+    bar.close()
+    return results, pooled, predictions
 
 
 def _example(
@@ -258,7 +271,7 @@ def evaluate(
     for lm in loaded:
         predictor = NetworkPredictor(lm.model, batch_size=batch_size, device=device)
         seed = lm.train_config.seed
-        candidates.append(Candidate(lm.variant, predictor, seed, lm.model, _run_info(lm)))
+        candidates.append(Candidate(run_label(lm), predictor, seed, lm.model, _run_info(lm)))
     test = windows[horizons[0]].names
     report = evaluate_predictors(
         candidates,
@@ -270,11 +283,26 @@ def evaluate(
         timer=timer,
         device=device,
         progress=progress,
-        environment={"slungload": __version__, "params_source": dataset.params_source},
+        environment={"slungload": __version__, "params_source": _params_source(loaded, dataset)},
     )
     if out is not None:
         write_report(report, out)
     return report
+
+
+def run_label(lm: LoadedModel) -> str:
+    """A run's label in the tables: its loss variant, prefixed by its architecture unless that
+    is the paper's network ("proposed", "physics-step/proposed"); seeds share a label."""
+    architecture = lm.model_config.architecture
+    return lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
+
+
+def _params_source(loaded: Sequence[LoadedModel], dataset: Any) -> str:
+    """Where the vehicle constants came from: the runs' own (as recorded when they trained;
+    the dataset is then read with them), or the dataset's for the physics predictor alone."""
+    if not loaded:
+        return dataset.params_source
+    return f"the runs' checkpoints; {loaded[0].meta.get('params_source', 'unknown')} at training"
 
 
 def _common_setup(loaded: Sequence[LoadedModel]) -> tuple[int, VehicleParams | None]:
@@ -300,7 +328,10 @@ def _run_info(lm: LoadedModel) -> dict[str, Any]:
         "variant": lm.variant,
         "parameters": sum(p.numel() for p in lm.model.parameters()),
         "configs": {k: v for k, v in lm.meta.items() if k != "format"},
+        "architecture": lm.model_config.architecture,
     }
+    if "constants" in lm.meta:  # fitted before training: name -> value, initial
+        info["constants"] = lm.meta["constants"]
     summary = lm.path.parent / "run.json"
     if summary.is_file():
         try:

@@ -1,12 +1,4 @@
-"""Evaluation on the test flights: errors per state group, MAE per horizon step with quartiles,
-the RMSE table, batch-1 inference time, and the paper's numbers to compare with.
-
-Read top to bottom: the paper's numbers, predictors (physics-only and network, one signature
-over a batch of windows), error metrics, timing, the typed ``Report``, and the entry
-``evaluate`` that loads runs and a dataset, runs every predictor at every horizon and (with
-``out``) writes the report (``report.write_report``).
-
-Metrics (the paper's Section IV-B), per group g of ``state.GROUPS`` (position, velocity,
+"""The paper's metrics (Section IV-B), per group g of ``state.GROUPS`` (position, velocity,
 quaternion, load position), with W test windows and horizon N::
 
     e_g[j, k] = || x_hat_g[j, k] - x_g[j, k] ||       (quaternion: || q_hat (x) q^-1 - q_id ||)
@@ -16,9 +8,8 @@ quaternion, load position), with W test windows and horizon N::
 The quaternion error is the paper's: it is not sign-invariant (q and -q differ by 2); the
 data are sign-continuous (``state.quat_continuous``) and both predictors continue the sign of
 the last measured quaternion, so no sign ambiguity arises. Network quaternions are normalised
-before the error is taken (the slack variables are ignored).
-
-Horizon step k = 1 ... N predicts x_{M-1+k}, i.e. k dt seconds ahead.
+before the error is taken (the slack variables are ignored). Horizon step k = 1 ... N predicts
+x_{M-1+k}, i.e. k dt seconds ahead.
 """
 
 from __future__ import annotations
@@ -31,28 +22,10 @@ import numpy as np
 from torch import Tensor
 
 from ..data.windows import Windows
-from ..state import GROUPS, QUAT, quat_error
+from ..state import GROUPS, group_errors
 
 COMBINED = "combined"
 METRIC_KEYS = (*GROUPS, COMBINED)  # columns of the RMSE table
-
-
-def group_errors(pred: Tensor, true: Tensor) -> dict[str, Tensor]:
-    """Error norm per group: pred, true (W, N, 13) -> {group: (W, N)}, float64.
-
-    Quaternion: || q_hat (x) q^-1 - q_id ||; the others: the Euclidean norm of the difference.
-    """
-    if pred.shape != true.shape:
-        raise ValueError(f"prediction {tuple(pred.shape)} and truth {tuple(true.shape)} differ")
-    pred, true = pred.double(), true.double()
-    errors = {}
-    for name, sl in GROUPS.items():
-        if sl == QUAT:
-            diff = quat_error(pred[..., sl], true[..., sl])
-        else:
-            diff = pred[..., sl] - true[..., sl]
-        errors[name] = diff.norm(dim=-1)
-    return errors
 
 
 @dataclass(frozen=True)

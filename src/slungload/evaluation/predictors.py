@@ -1,24 +1,5 @@
-"""Evaluation on the test flights: errors per state group, MAE per horizon step with quartiles,
-the RMSE table, batch-1 inference time, and the paper's numbers to compare with.
-
-Read top to bottom: the paper's numbers, predictors (physics-only and network, one signature
-over a batch of windows), error metrics, timing, the typed ``Report``, and the entry
-``evaluate`` that loads runs and a dataset, runs every predictor at every horizon and (with
-``out``) writes the report (``report.write_report``).
-
-Metrics (the paper's Section IV-B), per group g of ``state.GROUPS`` (position, velocity,
-quaternion, load position), with W test windows and horizon N::
-
-    e_g[j, k] = || x_hat_g[j, k] - x_g[j, k] ||       (quaternion: || q_hat (x) q^-1 - q_id ||)
-    MAE_g[k]  = mean_j e_g[j, k], with Q1 / Q3 the 25th / 75th percentiles over j
-    RMSE_g    = sqrt( sum_{j,k} e_g[j, k]^2 / (W N) ),  combined = sum of the four RMSE_g
-
-The quaternion error is the paper's: it is not sign-invariant (q and -q differ by 2); the
-data are sign-continuous (``state.quat_continuous``) and both predictors continue the sign of
-the last measured quaternion, so no sign ambiguity arises. Network quaternions are normalised
-before the error is taken (the slack variables are ignored).
-
-Horizon step k = 1 ... N predicts x_{M-1+k}, i.e. k dt seconds ahead.
+"""Predictors evaluated on test windows, one signature over a batch of windows: the
+physics-only open-loop rollout (the paper's "physics" row) and a trained network.
 """
 
 from __future__ import annotations
@@ -32,7 +13,7 @@ from torch import Tensor, nn
 from ..config import VehicleParams
 from ..data.windows import Windows
 from ..physics import rollout
-from ..state import QUAT, quat_normalize
+from ..state import with_unit_quaternion
 
 
 class Predictor(Protocol):
@@ -91,15 +72,8 @@ class NetworkPredictor:
             for i in range(0, len(windows), self.batch_size):
                 w = windows[i : i + self.batch_size].to(self.device)
                 pred = self.model(w.states[:, :m], w.inputs[:, :m], w.inputs[:, m:])
-                out.append(unit_quaternion(pred.states).float().cpu())
+                out.append(with_unit_quaternion(pred.states).float().cpu())
         return _cat(out, windows)
-
-
-def unit_quaternion(states: Tensor) -> Tensor:
-    """States (..., 13) with the quaternion block normalised (evaluation only)."""
-    out = states.clone()
-    out[..., QUAT] = quat_normalize(states[..., QUAT])
-    return out
 
 
 def _cat(parts: list[Tensor], windows: Windows) -> Tensor:

@@ -30,6 +30,8 @@ from .results import PAPER_MODEL_NAMES, PAPER_RMSE_N50, PAPER_TIMING, PHYSICS, R
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
+SMOKE_PRESET = "quick"  # runs trained with it are smoke tests: report.md says so at the top
+BUSY_LOAD = 1.5  # 1-min load average above which timings are flagged (the timer itself is ~1)
 COLUMN_TITLES = {
     "position": "Position (m)",
     "velocity": "Velocity (m/s)",
@@ -63,32 +65,39 @@ def reference_label(report: Report) -> str | None:
 
 
 def write_figures(report: Report, folder: Path) -> list[tuple[str, Path]]:
-    """All figures; returns (caption, path) pairs in display order."""
-    n = max(report.horizons)
-    out: list[tuple[str, Path]] = []
+    """All figures; returns (caption, path) pairs in display order: the MAE figures of every
+    evaluated horizon (the paper's N = 50 first, as the tables), then the example window.
 
-    def mae_figure(labels: Sequence[str], name: str, caption: str) -> None:
+    Each label keeps one colour, dash pattern and marker in every figure. Pairwise MAE
+    figures draw both Q1-Q3 bands (the reference's filled, the other's hatched); the figure of
+    all models draws the reference's band only, so that no band hides a curve.
+    """
+    out: list[tuple[str, Path]] = []
+    styles = plots.label_styles(report.labels)
+    ref = reference_label(report)
+
+    def mae_figure(labels: Sequence[str], n: int, name: str, caption: str) -> None:
         curves = {label: report.curves[label][n] for label in labels}
-        path = plots.plot_mae(
-            curves, folder / name, dt=report.dt, training_horizon=report.training_horizon
-        )
+        bands = list(labels) if len(labels) == 2 else [ref or labels[0]]  # reference first
+        path = plots.plot_mae(curves, folder / name, dt=report.dt,
+                              training_horizon=report.training_horizon, bands=bands,
+                              styles=styles)  # fmt: skip
         out.append((f"MAE per horizon step, {caption} (N = {n})", path))
 
-    ref = reference_label(report)
-    for other in report.labels:
-        if ref is not None and other != ref:
-            mae_figure(
-                [ref, other], f"mae_{_slug(ref)}_vs_{_slug(other)}_N{n}.png", f"{ref} vs {other}"
-            )
-    if len(report.labels) > 2 or ref is None:
-        mae_figure(report.labels, f"mae_all_N{n}.png", "all models")
+    for n in sorted(report.horizons, key=lambda h: (h != PAPER_HORIZON, h)):
+        for other in report.labels:
+            if ref is not None and other != ref:
+                mae_figure([ref, other], n, f"mae_{_slug(ref)}_vs_{_slug(other)}_N{n}.png",
+                           f"{ref} vs {other}")  # fmt: skip
+        if len(report.labels) > 2 or ref is None:
+            mae_figure(report.labels, n, f"mae_all_N{n}.png", "all models")
     if report.example is not None:
         ex = report.example
-        path = plots.plot_prediction(
-            ex, folder / "prediction.png", dt=report.dt, training_horizon=report.training_horizon
-        )
+        path = plots.plot_prediction(ex, folder / "prediction.png", dt=report.dt,
+                                     training_horizon=report.training_horizon,
+                                     styles=styles)  # fmt: skip
         out.append((f"Predicted vs true states, flight {ex.flight} from step {ex.start}", path))
-        path = plots.plot_paths_3d(ex, folder / "paths_3d.png")
+        path = plots.plot_paths_3d(ex, folder / "paths_3d.png", styles=styles)
         out.append((f"Vehicle and load paths, flight {ex.flight}", path))
     return out
 
@@ -190,6 +199,7 @@ def render_markdown(
     lines = [
         "# Evaluation report",
         "",
+        *_smoke_banner(report),
         f"slungload {env.get('slungload', '?')}, torch {env.get('torch', '?')}; "
         f"inference on {env.get('device', '?')} with {env.get('threads', '?')} thread(s).",
         "",
@@ -218,6 +228,7 @@ def render_markdown(
         "the windows of all seeds.",
         "",
     ]
+    lines += _budget_warnings(report)
     lines += _models_section(report)
     for n in sorted(report.horizons, key=lambda h: (h != PAPER_HORIZON, h)):
         lines += _rmse_section(report, n)
@@ -252,14 +263,88 @@ def _models_section(report: Report) -> list[str]:
     for m in report.models:
         lines.append(
             f"| {m.get('label')} | {_dash(m.get('seed'))} | `{m.get('run', '')}` "
-            f"| {_dash(m.get('epochs'))} | {_dash(m.get('parameters'))} |"
+            f"| {_epochs(m)} | {_dash(m.get('parameters'))} |"
         )
     if PHYSICS in report.labels:
         lines.append(
             f"| {PHYSICS} | - | open-loop `physics.rollout` from x_(M-1) with the estimated "
             "(vL, Omega_L) and the true inputs | - | - |"
         )
+    lines += _constants_lines(report)
     return lines + [""]
+
+
+def _constants_lines(report: Report) -> list[str]:
+    """The physical constants each run fitted before training (value, from its initial)."""
+    runs = []
+    for m in report.models:
+        if m.get("constants"):
+            values = ", ".join(
+                f"{name} {v['value']:.4g} (from {v['initial']:.4g})"
+                for name, v in m["constants"].items()
+            )
+            runs.append(f"- {m.get('label')} (seed {_dash(m.get('seed'))}): {values}")
+    if not runs:
+        return []
+    return ["", "Physical constants fitted to the training flights before training:", "", *runs]
+
+
+def smoke_runs(report: Report) -> list[dict]:
+    """The runs trained with the ``quick`` preset (a smoke test of the pipeline)."""
+    return [m for m in report.models if (m.get("configs") or {}).get("preset") == SMOKE_PRESET]
+
+
+def _smoke_banner(report: Report) -> list[str]:
+    """A banner at the top of report.md when any run is a smoke run: its numbers mean nothing."""
+    runs = smoke_runs(report)
+    if not runs:
+        return []
+    if len(runs) == len(report.models):
+        which = "Every run"
+    else:
+        which = "The runs " + ", ".join(f"`{m.get('run', m.get('label'))}`" for m in runs)
+    return [
+        "> **Smoke run: these numbers are not results.** "
+        f"{which} trained with the `{SMOKE_PRESET}` preset: a few epochs on a few windows, to "
+        "check that every stage runs. Their errors, ratios and figures say nothing about the "
+        "method or the paper; train with `--preset default` (or `--preset paper`) for that.",
+        "",
+    ]
+
+
+def time_capped(report: Report) -> list[dict]:
+    """The runs that the wall-clock cap stopped before their epoch budget."""
+    return [m for m in report.models if m.get("stop_reason") == "max_time"]
+
+
+def _epochs(model: dict) -> str:
+    """Epochs trained, and of how many when the time cap cut the budget short."""
+    epochs = _dash(model.get("epochs"))
+    if model.get("stop_reason") != "max_time":
+        return epochs
+    budget = model.get("configs", {}).get("train", {}).get("max_epochs", "?")
+    return f"**{epochs} of {budget}: stopped by the time cap**"
+
+
+def _budget_warnings(report: Report) -> list[str]:
+    """A loud note when a run did not get its optimisation budget: its row is not comparable."""
+    capped = time_capped(report)
+    if not capped:
+        return []
+    lines = ["> **Warning: not every run got its full training budget.**", ">"]
+    for m in capped:
+        budget = m.get("configs", {}).get("train", {}).get("max_epochs", "?")
+        lines.append(
+            f"> - {m.get('label')} (seed {_dash(m.get('seed'))}) was stopped by the time cap at "
+            f"epoch {_dash(m.get('epochs'))} of {budget}."
+        )
+    lines += [
+        ">",
+        "> Its numbers are not comparable with runs that trained to the end. Run the same "
+        "`slungload reproduce` command again: it resumes such runs to their full budget.",
+        "",
+    ]
+    return lines
 
 
 def _rmse_section(report: Report, n: int) -> list[str]:
@@ -349,8 +434,20 @@ def _timing_section(report: Report) -> list[str]:
             "code). `numba compiled`: `CompiledPredictor.predict`, the batch-1 deployment path, "
             "numpy in and out on one CPU thread (`docs/deployment.md`).",
         ]
+        busy = [t.timing.load_average for t in report.timings if _busy(t.timing.load_average)]
+        if busy:
+            lines += [
+                "",
+                f"> **Warning: the machine was busy** (1-min load average up to {max(busy):.1f} "
+                "while timing, of which about 1 is the timing itself): other processes shared "
+                "the cores, so these times are inflated. Time on an idle machine "
+                "(`slungload benchmark`).",
+            ]
     else:
-        lines.append("Not measured (timing was switched off).")
+        lines.append(
+            "Not measured: timing is a separate step (`slungload evaluate --timing`, or the "
+            "full latency benchmark `slungload benchmark`)."
+        )
     lines += [
         "",
         "The paper's (Table II):",
@@ -363,6 +460,11 @@ def _timing_section(report: Report) -> list[str]:
             f"| {t.device} | {t.history} | {t.horizon} | {t.mean_ms:.2f} | {t.std_ms:.2f} |"
         )
     return lines + [""]
+
+
+def _busy(load_average: float | None) -> bool:
+    """Whether another process held a notable share of the cores (beyond the timer's own)."""
+    return load_average is not None and load_average > BUSY_LOAD
 
 
 def _config_section(report: Report) -> list[str]:

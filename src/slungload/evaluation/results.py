@@ -1,24 +1,6 @@
-"""Evaluation on the test flights: errors per state group, MAE per horizon step with quartiles,
-the RMSE table, batch-1 inference time, and the paper's numbers to compare with.
-
-Read top to bottom: the paper's numbers, predictors (physics-only and network, one signature
-over a batch of windows), error metrics, timing, the typed ``Report``, and the entry
-``evaluate`` that loads runs and a dataset, runs every predictor at every horizon and (with
-``out``) writes the report (``report.write_report``).
-
-Metrics (the paper's Section IV-B), per group g of ``state.GROUPS`` (position, velocity,
-quaternion, load position), with W test windows and horizon N::
-
-    e_g[j, k] = || x_hat_g[j, k] - x_g[j, k] ||       (quaternion: || q_hat (x) q^-1 - q_id ||)
-    MAE_g[k]  = mean_j e_g[j, k], with Q1 / Q3 the 25th / 75th percentiles over j
-    RMSE_g    = sqrt( sum_{j,k} e_g[j, k]^2 / (W N) ),  combined = sum of the four RMSE_g
-
-The quaternion error is the paper's: it is not sign-invariant (q and -q differ by 2); the
-data are sign-continuous (``state.quat_continuous``) and both predictors continue the sign of
-the last measured quaternion, so no sign ambiguity arises. Network quaternions are normalised
-before the error is taken (the slack variables are ignored).
-
-Horizon step k = 1 ... N predicts x_{M-1+k}, i.e. k dt seconds ahead.
+"""What an evaluation produced, as typed records (``Report`` and its parts), and the paper's
+numbers to compare with, written once: Table I (RMSE at N = 50) and Table II (batch-1
+inference time).
 """
 
 from __future__ import annotations
@@ -107,6 +89,9 @@ class Timing:
     threads: int  # torch.get_num_threads() during the measurement
     device: str  # e.g. "cpu (x86_64)" or the CUDA device name
     backend: str = "torch eager"  # or "numba compiled" (``time_compiled``)
+    # 1-min load average of the machine when the measurement ended (None: not measured); the
+    # timing process itself adds about 1, anything above that is another process's share.
+    load_average: float | None = None
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,8 @@ class LoadedModel:
     model: nn.Module  # a registered architecture (``model.architecture`` names it)
     variant: str
     window: WindowConfig
-    params: VehicleParams
+    params: VehicleParams  # the dataset's constants it trained with (windows, physics baseline)
+    model_params: VehicleParams  # the constants of its physics: fitted ones, or ``params``
     model_config: ModelConfig
     weights: LossWeights
     train_config: TrainConfig
@@ -49,6 +50,11 @@ def checkpoint_path(path: str | Path) -> Path:
     """A ``.ckpt`` file as given, or a run folder's ``best.ckpt``."""
     path = Path(path).expanduser()
     if path.is_dir():
+        if not (path / BEST).is_file() and (path / LAST).is_file():
+            raise FileNotFoundError(
+                f"{path} has no {BEST} (the run stopped before its first validation); "
+                f"use its latest weights: {path / LAST}"
+            )
         path = path / BEST
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
@@ -68,7 +74,10 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
         # ModelConfig takes the default, the paper's network, which is what it holds.
         model_config = from_dict(ModelConfig, meta["model"])
         params = from_dict(VehicleParams, meta["params"])
-        net = build(model_config, params)
+        # A run that fitted the constants (TrainConfig.fit_constants) built its network with
+        # them; the dataset's own stay in "params" (the windows and the physics baseline).
+        model_params = from_dict(VehicleParams, meta.get("model_params", meta["params"]))
+        net = build(model_config, model_params)
         prefix = "net."
         state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
         net.load_state_dict(state)
@@ -77,6 +86,7 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
             variant=str(meta["variant"]),
             window=from_dict(WindowConfig, meta["window"]),
             params=params,
+            model_params=model_params,
             model_config=model_config,
             weights=from_dict(LossWeights, meta["weights"]),
             train_config=from_dict(TrainConfig, meta["train"]),
@@ -153,8 +163,15 @@ def check_resumable(last: Path, meta: dict[str, Any]) -> None:
     _, saved = _read_checkpoint(last)
     # The epoch budget may be raised on resume, the data folder may have moved, and the same
     # constants may come from vehicle.json or from options.
-    free = {"package_version", "data", "params_source", "train.max_epochs"}
-    differ = [d for d in _differences(saved, meta) if d[0] not in free]
+    # The time cap is a safety net, not part of the schedule: a run it stopped resumes without.
+    free = {"package_version", "data", "params_source", "train.max_epochs", "train.max_time"}
+    # Fitted constants are refitted on resume (the same data give the same fit).
+    refitted = ("constants", "model_params")
+    differ = [
+        d
+        for d in _differences(saved, meta)
+        if d[0] not in free and d[0].split(".")[0] not in refitted
+    ]
     order = ["variant", "preset", "window", "params", "model", "weights", "train"]
     differ.sort(
         key=lambda d: order.index(d[0].split(".")[0]) if d[0].split(".")[0] in order else 99

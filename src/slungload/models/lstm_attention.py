@@ -20,12 +20,13 @@ the horizon u_M ... u_{M+N-1} (as the data windows hold them) and does not use t
 from __future__ import annotations
 
 from itertools import pairwise
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..config import ModelConfig, VehicleParams
+from ..config import DEFAULT_ARCHITECTURE, ModelConfig, VehicleParams
 from ..state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
 from .base import Prediction
 
@@ -141,9 +142,13 @@ class SlungLoadNet(nn.Module):
     ``self.decoder`` is an ``nn.LSTM`` so the parameters have the standard layout and count,
     but the loop runs its step by hand (``_lstm_cell``): at batch 1 the per-call overhead of
     ``nn.LSTM`` is several times the arithmetic.
+
+    An architecture built on this one (same layers, same parameters) changes how each decoder
+    step turns the head's output into the next state by overriding ``start_rollout`` and
+    ``next_state`` (e.g. ``physics_step.PhysicsStepNet``).
     """
 
-    architecture = "lstm-attention"  # its name in ``models.MODELS``
+    architecture = DEFAULT_ARCHITECTURE  # its name in ``models.MODELS``
 
     def __init__(
         self, config: ModelConfig | None = None, params: VehicleParams | None = None
@@ -151,11 +156,11 @@ class SlungLoadNet(nn.Module):
         """``params`` (the vehicle constants) is part of every architecture's signature; the
         paper's network does not use them."""
         super().__init__()
-        cfg = config or ModelConfig()
+        cfg = config or ModelConfig(architecture=self.architecture)
         if cfg.architecture != self.architecture:
             raise ValueError(
-                f"SlungLoadNet is the {self.architecture!r} architecture; the config names "
-                f"{cfg.architecture!r} (build it with models.build)"
+                f"{type(self).__name__} is the {self.architecture!r} architecture; the config "
+                f"names {cfg.architecture!r} (build it with models.build)"
             )
         self.config = cfg
         hidden, layers = cfg.hidden_size, cfg.num_layers
@@ -255,7 +260,8 @@ class SlungLoadNet(nn.Module):
         _check_shapes(x_hist, u_hist, u_future)
         cfg = self.config
         origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
-        z_hist = self.normalize_state(x_hist - origin)  # (B, M, 13)
+        x_rel = x_hist - origin  # (B, M, 13) positions relative to the origin
+        z_hist = self.normalize_state(x_rel)  # (B, M, 13)
         v_hist = self.normalize_input(u_hist)  # (B, M, 4)
         v_future = self.normalize_input(u_future)  # (B, N, 4)
 
@@ -268,8 +274,7 @@ class SlungLoadNet(nn.Module):
         # computed for the whole horizon at once.
         v_dec = torch.cat([v_hist[:, -1:], v_future[:, :-1]], dim=1)  # (B, N, 4)
         input_parts = self.embed.input_part(v_dec).unbind(1)  # N x (B, E0)
-        # Residual mode: x_k = x_{k-1} + delta_std * out, written in network units.
-        gain = self.delta_std / self.state_std if cfg.normalize else None  # (13,)
+        carry = self.start_rollout(x_rel, u_hist, u_future)
 
         state_weight = self.embed.state_weight()  # (13, E0)
         head = self.head.joined()
@@ -277,7 +282,7 @@ class SlungLoadNet(nn.Module):
         hs, cs = list(h.unbind(0)), list(c.unbind(0))  # layers x (B, H)
         z = z_hist[:, -1]  # (B, 13) last measured state, network units
         states, slacks = [], []
-        for part in input_parts:
+        for k, part in enumerate(input_parts):
             context = self.attention(keys, enc, hs[-1])  # (B, H)
             emb = self.embed.from_parts(z, part, state_weight)  # (B, E)
             layer_in = torch.cat([context, emb], dim=-1)  # (B, H + E)
@@ -287,13 +292,7 @@ class SlungLoadNet(nn.Module):
                 hs[i], cs[i] = _lstm_cell(layer_in, hs[i], cs[i], w, b)
                 layer_in = hs[i]
             y = self.head.apply_joined(layer_in, head)  # (B, 13 or 26)
-            step = y[:, :STATE_DIM]  # (B, 13)
-            if not cfg.residual:
-                z = step
-            elif gain is None:
-                z = z + step
-            else:
-                z = z + step * gain
+            z, carry = self.next_state(z, y[:, :STATE_DIM], k, carry)
             states.append(z)
             if cfg.slack:
                 slacks.append(y[:, STATE_DIM:])
@@ -305,6 +304,30 @@ class SlungLoadNet(nn.Module):
             if cfg.normalize:
                 slack = slack * self.delta_std  # see ``Prediction``
         return Prediction(x_hat, slack)
+
+    # --- the decoder's state update (the hook an architecture built on this one overrides) ---
+
+    def start_rollout(self, x_rel: Tensor, u_hist: Tensor, u_future: Tensor) -> Any:
+        """What ``next_state`` carries from one decoder step to the next, computed once per
+        sequence before the loop: here the residual gain delta_std / state_std (13,), or None
+        without normalisation.
+
+        x_rel (B, M, 13) the history in physical units with positions relative to ``origin``;
+        u_hist (B, M, 4), u_future (B, N, 4) as ``forward`` takes them (physical units).
+        """
+        # Residual mode: x_k = x_{k-1} + delta_std * out, written in network units.
+        return self.delta_std / self.state_std if self.config.normalize else None
+
+    def next_state(self, z: Tensor, out: Tensor, k: int, carry: Any) -> tuple[Tensor, Any]:
+        """Decoder step k's next state in network units: z_{M+k} (B, 13) from z_{M-1+k} (the
+        last measured state for k = 0), the head's state rows ``out`` (B, 13) and ``carry``
+        (from ``start_rollout``, returned with the result). The paper's network: ``out``
+        itself, or z + out (times the residual gain) with ``ModelConfig.residual``."""
+        if not self.config.residual:
+            return out, carry
+        if carry is None:
+            return z + out, carry
+        return z + out * carry, carry
 
 
 def _stacked_lstm_weights(lstm: nn.LSTM) -> list[tuple[Tensor, Tensor]]:

@@ -12,9 +12,11 @@ from torch import nn
 
 from ..config import ModelConfig, VehicleParams
 from .lstm_attention import SlungLoadNet
+from .physics_step import PhysicsStepNet
 
 MODELS: dict[str, type[nn.Module]] = {
     SlungLoadNet.architecture: SlungLoadNet,  # the paper's network
+    PhysicsStepNet.architecture: PhysicsStepNet,  # the paper's network on f's step
 }
 
 

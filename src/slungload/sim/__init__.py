@@ -5,25 +5,32 @@ thrust errors, an elastic cable that can go slack, wind and motion-capture noise
 model has something to learn beyond ``physics.py``. See ``docs/simulator.md``.
 """
 
-from .config import Effects, SimConfig
-from .controller import Controller, Measurement, PIDController
-from .dataset import SimulatedDataset, simulate_dataset, vehicle_params
-from .flight import Flight, simulate_flight
-from .maneuvers import MANEUVERS, Maneuver, Reference, make_maneuver
+from __future__ import annotations
 
-__all__ = [
-    "MANEUVERS",
-    "Controller",
-    "Effects",
-    "Flight",
-    "Maneuver",
-    "Measurement",
-    "PIDController",
-    "Reference",
-    "SimConfig",
-    "SimulatedDataset",
-    "make_maneuver",
-    "simulate_dataset",
-    "simulate_flight",
-    "vehicle_params",
-]
+import importlib
+from typing import Any
+
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "config": ("Effects", "SimConfig"),
+    "controller": ("Controller", "Measurement", "PIDController"),
+    "dataset": ("SimulatedDataset", "simulate_dataset", "vehicle_params"),
+    "flight": ("Flight", "simulate_flight"),
+    "maneuvers": ("MANEUVERS", "Maneuver", "Reference", "make_maneuver"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    # Resolved on first use, like the package's own API: the configs and the maneuver table are
+    # read by the command line's help without starting MuJoCo.
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module 'slungload.sim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -13,6 +13,7 @@ import multiprocessing
 import shutil
 import tempfile
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,9 +46,13 @@ class SimulatedDataset:
         return tuple(self.folder / f"{name}.npz" for name in self.flights)
 
 
-def flight_plan(n: int) -> list[tuple[str, str]]:
-    """(maneuver family, flight name) for n flights: families in turn, repetitions numbered."""
-    families = list(MANEUVERS)
+def flight_plan(n: int, maneuvers: Sequence[str] | None = None) -> list[tuple[str, str]]:
+    """(maneuver family, flight name) for n flights: families in turn (all of ``MANEUVERS``,
+    or ``maneuvers``), repetitions numbered."""
+    families = list(MANEUVERS) if maneuvers is None else list(dict.fromkeys(maneuvers))
+    unknown = [f for f in families if f not in MANEUVERS]
+    if unknown or not families:
+        raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
     plan = []
     for i in range(n):
         family = families[i % len(families)]
@@ -118,6 +123,7 @@ def simulate_dataset(
     workers: int = 2,
     progress: bool = True,
     overwrite: bool = False,
+    maneuvers: Sequence[str] | None = None,
 ) -> SimulatedDataset:
     """Simulate ``flights`` flights into ``out_dir`` (npz per flight, splits, vehicle.json).
 
@@ -129,9 +135,11 @@ def simulate_dataset(
         raise ValueError(f"flights must be >= 1, got {flights}")
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise FileExistsError(f"{out}: exists and is not empty (pass overwrite=True to replace)")
+        raise FileExistsError(
+            f"{out}: exists and is not empty (--overwrite, or overwrite=True, replaces it)"
+        )
     start = time.perf_counter()
-    plan = flight_plan(flights)
+    plan = flight_plan(flights, maneuvers)
     root = np.random.SeedSequence(seed)
     split_seed, *flight_seeds = root.spawn(flights + 1)
     out.parent.mkdir(parents=True, exist_ok=True)

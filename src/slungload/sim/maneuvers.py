@@ -204,6 +204,25 @@ MANEUVERS: dict[str, ManeuverFactory] = {
 }
 
 
+# What each maneuver flies (``slungload maneuvers``), in the authors' family names.
+MANEUVER_DESCRIPTIONS: dict[str, str] = {
+    "xy_step": "a sequence of horizontal position steps",
+    "xyz_step": "a sequence of position steps in x, y and z",
+    "slow_ellipses_xy": "horizontal ellipses, 8-11 s a lap",
+    "fast_ellipses_xy": "horizontal ellipses, 4-6 s a lap",
+    "slow_ellipses_xyz": "tilted ellipses (climbing and sinking), 8-11 s a lap",
+    "fast_ellipses_xyz": "tilted ellipses, 4-6 s a lap",
+    "fast_ellipses_xyz_rand": "tilted ellipses of random size and period",
+    "fast_ellipses_xyz_v2": "tilted ellipses, 4-6 s a lap, with yaw rotation",
+    "fast_8_lap_plane": "horizontal figure eights",
+    "fast_8_lap_xyz": "figure eights that climb and sink",
+    "baf_slow": "back and forth along a line, 7-10 s a cycle",
+    "baf_fast": "back and forth along a line, 4-5.5 s a cycle",
+    "baf_very_fast": "back and forth along a line, 2.8-3.6 s a cycle (aggressive)",
+    "roll_35": "roll doublets of about 25-35 degrees (aggressive)",
+}
+
+
 def make_maneuver(name: str, rng: np.random.Generator) -> Maneuver:
     """Draw one maneuver of the named family; unknown names list the known ones."""
     if name not in MANEUVERS:

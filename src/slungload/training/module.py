@@ -1,36 +1,6 @@
-"""Training: the network and its loss in a Lightning module, presets, resume, signals.
-
-One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
-``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
-``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
-signals, ``train``. Its command line is ``slungload train`` (cli.py).
-
-A run folder holds::
-
-    best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
-                            the key "slungload"), so ``load_checkpoint`` rebuilds the model from
-                            the file alone, with ``torch.load(weights_only=True)``
-    run.json                summary (``Run``), written atomically by rank 0
-    csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
-    tensorboard/            the same for TensorBoard
-
-Faults: every checkpoint is written under a temporary name and renamed into place, so a killed
-run never leaves a truncated ``.ckpt``. SIGINT (Ctrl-C) or SIGTERM stops after the current
-batch, saves ``last.ckpt`` and raises ``TrainingInterrupted``; ``resume=True`` continues from
-it (a second Ctrl-C stops at once, without saving). A training step whose loss is not finite is
-skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_steps``);
-``TrainConfig.max_bad_steps`` of them in a row stop the run with ``TrainingDiverged``.
-
-Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
-batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
-draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
-CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
-``max_time`` stops on the clock, so its epoch count depends on the machine.
-
-Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
-re-launches the running command once per extra process, so call ``train`` from a script or
-the command line (``slungload train`` or ``python -m slungload.cli train``), not from a notebook.
-Each process takes an equal share of every epoch's windows.
+"""The network and its loss in a Lightning module: training and validation steps (non-finite
+losses and gradients skipped and counted), the validation RMSE per state group, the optimiser
+and its warm-up + cosine schedule, per-batch reseeding of dropout.
 """
 
 from __future__ import annotations
@@ -50,7 +20,7 @@ from ..loss import compute_loss
 from ..models.base import Prediction
 from ..models.checkpoints import CKPT_KEY
 from ..models.lstm_attention import SlungLoadNet
-from ..state import GROUPS, QUAT, quat_error, with_unit_quaternion
+from ..state import GROUPS, group_errors, with_unit_quaternion
 from .batches import augment_yaw
 
 MONITOR = "val/total"  # drives early stopping and the best checkpoint
@@ -197,13 +167,9 @@ class SlungLoadModule(L.LightningModule):
         terms, pred = self._loss_terms(batch)
         self._log_terms(terms, "val", len(batch[0]))
         truth = batch[0][:, self.history :]  # (B, N, 13)
-        x_hat = with_unit_quaternion(pred.states)
-        for i, cols in enumerate(GROUPS.values()):
-            if cols == QUAT:
-                err = quat_error(x_hat[..., cols], truth[..., cols])
-            else:
-                err = x_hat[..., cols] - truth[..., cols]
-            self._sq_err[i] += err.double().square().sum()
+        errors = group_errors(with_unit_quaternion(pred.states), truth)  # group -> (B, N)
+        for i, name in enumerate(GROUPS):
+            self._sq_err[i] += errors[name].square().sum()
         self._count += truth.shape[0] * truth.shape[1]
 
     def on_validation_epoch_end(self) -> None:

@@ -1,36 +1,6 @@
-"""Training: the network and its loss in a Lightning module, presets, resume, signals.
-
-One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
-``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
-``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
-signals, ``train``. Its command line is ``slungload train`` (cli.py).
-
-A run folder holds::
-
-    best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
-                            the key "slungload"), so ``load_checkpoint`` rebuilds the model from
-                            the file alone, with ``torch.load(weights_only=True)``
-    run.json                summary (``Run``), written atomically by rank 0
-    csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
-    tensorboard/            the same for TensorBoard
-
-Faults: every checkpoint is written under a temporary name and renamed into place, so a killed
-run never leaves a truncated ``.ckpt``. SIGINT (Ctrl-C) or SIGTERM stops after the current
-batch, saves ``last.ckpt`` and raises ``TrainingInterrupted``; ``resume=True`` continues from
-it (a second Ctrl-C stops at once, without saving). A training step whose loss is not finite is
-skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_steps``);
-``TrainConfig.max_bad_steps`` of them in a row stop the run with ``TrainingDiverged``.
-
-Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
-batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
-draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
-CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
-``max_time`` stops on the clock, so its epoch count depends on the machine.
-
-Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
-re-launches the running command once per extra process, so call ``train`` from a script or
-the command line (``slungload train`` or ``python -m slungload.cli train``), not from a notebook.
-Each process takes an equal share of every epoch's windows.
+"""Workarounds around Lightning for robust runs: checkpoints written through a temporary file
+(``AtomicCheckpointIO``), ``last.ckpt`` saved on SIGTERM/SIGINT (``SaveOnInterrupt``,
+``_sigint_as_sigterm``), a CSV log that a resumed run appends to, and quiet output.
 """
 
 from __future__ import annotations
@@ -148,24 +118,27 @@ class _ResumableCSVLogger(CSVLogger):
 
 
 @contextlib.contextmanager
-def _quiet_lightning(quiet: bool) -> Iterator[None]:
-    """Silence Lightning's warnings about our deliberate choices, and its info lines if quiet."""
+def _quiet_lightning() -> Iterator[None]:
+    """Keep Lightning's output to what a user needs (the progress bar, warnings that matter):
+    silence its info lines (accelerator and TPU lines, tips, the SIGTERM notice, checkpoint
+    restoring) and its warnings about our deliberate choices."""
     levels: dict[str, int] = {}
     with warnings.catch_warnings():
         # Windows are tensors in memory (no workers needed); resuming into the run folder is
-        # the point of resume.
+        # the point of resume; checkpoints are read with weights_only=True on purpose.
         # Lightning 2.6 on torch 2.13 warns about its own use of torch's pytree.
         for pattern in (
             r".*does not have many workers.*",
             r".*exists and is not empty.*",
             r".*treespec, LeafSpec.*",
             r".*`training_step` returned `None`.*",  # a skipped non-finite step, on purpose
+            r".*weights_only.*",
+            r".*callbacks used to create the checkpoint.*",  # the time cap's Timer, on resume
         ):
             warnings.filterwarnings("ignore", message=pattern)
-        if quiet:
-            for name in ("lightning.pytorch", "lightning.fabric"):
-                levels[name] = logging.getLogger(name).level
-                logging.getLogger(name).setLevel(logging.WARNING)
+        for name in ("lightning.pytorch", "lightning.fabric", "lightning"):
+            levels[name] = logging.getLogger(name).level
+            logging.getLogger(name).setLevel(logging.WARNING)
         try:
             yield
         finally:

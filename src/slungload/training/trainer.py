@@ -1,9 +1,9 @@
-"""Training: the network and its loss in a Lightning module, presets, resume, signals.
+"""Training: one entry function, ``train(data, out=...) -> Run``.
 
-One entry function, ``train(data, out=...) -> Run``; its inverse for the trained file is
-``checkpoints.load_checkpoint(path) -> LoadedModel``, and the batches it trains on come from
-``batches.py``. Read top to bottom: presets, the Lightning module, checkpoint writing and
-signals, ``train``. Its command line is ``slungload train`` (cli.py).
+Its inverse for the trained file is ``models.checkpoints.load_checkpoint(path) ->
+LoadedModel``; the Lightning module is ``module.py``, the batches come from ``batches.py``, the
+schedules from ``presets.py``, and ``runtime.py`` holds the Lightning workarounds. Its command
+line is ``slungload train`` (cli.py).
 
 A run folder holds::
 
@@ -24,8 +24,9 @@ skipped (no weight update) and counted (``train/skipped_steps``, ``Run.skipped_s
 Reproducibility: ``seed`` seeds the weights; each epoch's subsample of training windows and each
 batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an epoch boundary
 draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
-CPU runs with the same seed and no wall-clock budget give identical weights. A preset with
-``max_time`` stops on the clock, so its epoch count depends on the machine.
+CPU runs with the same seed give identical weights, unless the wall-clock cap
+(``TrainConfig.max_time``, a safety net) stops one: its epoch count then depends on the machine,
+``Run.stop_reason`` is "max_time", and ``train(..., resume=True, time_cap=False)`` continues it.
 
 Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
 re-launches the running command once per extra process, so call ``train`` from a script or
@@ -52,6 +53,7 @@ from lightning.pytorch.callbacks import (
 )
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
+from torch import nn
 
 from .._version import __version__
 from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
@@ -61,6 +63,7 @@ from ..loss import model_config_for
 from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
 from ..models.registry import build
 from .batches import WindowData
+from .identify import identify
 from .module import MONITOR, SlungLoadModule
 from .presets import Preset, get_preset
 from .runtime import (
@@ -141,6 +144,8 @@ def train(
     params: VehicleParams | None = None,
     progress: bool = True,
     num_threads: int | None = None,
+    time_cap: bool = True,
+    fit_constants: bool = False,
 ) -> Run:
     """Train one model variant on a dataset folder (or a loaded ``Dataset``) into ``out``.
 
@@ -149,75 +154,134 @@ def train(
     outputs). ``window``/``params`` are used only when ``data`` is a folder. ``resume=True``
     continues from ``out/last.ckpt`` (epochs, optimiser, schedule and early-stopping state);
     without it, an ``out`` that already holds a run is refused. ``num_threads`` sets torch's
-    CPU threads for this process.
+    CPU threads for this process. ``time_cap=False`` drops the preset's wall-clock cap
+    (``TrainConfig.max_time``, a safety net): a run it stopped then resumes to its full budget.
+    ``fit_constants=True`` (or the preset's ``TrainConfig.fit_constants``) fits the physics
+    model's constants to the training flights first (``identify``) and trains with them.
 
     Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
     ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
     """
     out = Path(out).expanduser()
+    last = _check_run_folder(out, resume)
+    _check_counts(devices=devices, max_epochs=max_epochs, num_threads=num_threads)
+    accelerator = _accelerator(device)
+    if num_threads is not None:
+        torch.set_num_threads(num_threads)
+    chosen = get_preset(preset)
+    config = replace(chosen.config, seed=seed)
+    if max_epochs is not None:
+        config = replace(config, max_epochs=max_epochs)
+    if not time_cap:
+        config = replace(config, max_time=None)
+    if fit_constants:
+        config = replace(config, fit_constants=True)
+    dataset = (
+        data if isinstance(data, Dataset) else load_dataset(data, window=window, params=params)
+    )
+    model_config = model_config_for(variant, model_config)
+    meta = _checkpoint_meta(variant, chosen.name, model_config, weights, config, dataset)
+    model_params = dataset.params  # the constants of the physics loss and of the network's f
+    if config.fit_constants:
+        fitted = identify(dataset)
+        model_params = fitted.params
+        meta.update(constants=fitted.table, model_params=to_dict(model_params))
+    if resume:
+        check_resumable(last, meta)
+
+    L.seed_everything(seed, workers=False, verbose=False)  # the network's initial weights
+    module = SlungLoadModule(
+        _new_network(model_config, dataset, model_params),
+        variant=variant,
+        params=model_params,
+        weights=weights,
+        window=dataset.window,
+        config=config,
+        meta=meta,
+    )
+    datamodule = WindowData(
+        dataset.splits["train"], dataset.splits["val"], config, val_windows=config.val_windows
+    )
+    callbacks = _callbacks(out, config)
+    start = time.perf_counter()
+    trainer = _fit(
+        module, datamodule, callbacks, out, accelerator, devices, config, progress, resume
+    )
+    seconds = time.perf_counter() - start
+
+    best_cb, _, stop_cb, _ = callbacks
+    run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
+    run = replace(run, skipped_steps=module.skipped_steps)
+    if trainer.is_global_zero:
+        write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
+    return run
+
+
+def _check_run_folder(out: Path, resume: bool) -> Path:
+    """The run folder's ``last.ckpt``, after checking that ``out`` can take or continue a run."""
     last = out / LAST
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"run folder {out} is a file, expected a folder")
     if resume and not last.is_file():
         raise FileNotFoundError(f"cannot resume: {last} does not exist")
     if not resume and last.is_file():
-        raise FileExistsError(f"{out} already holds a run ({LAST}); pass resume=True or a new out")
+        raise FileExistsError(
+            f"{out} already holds a run ({LAST}): continue it with --resume (resume=True) or "
+            "choose another --out (out=)"
+        )
+    return last
+
+
+def _check_counts(*, devices: int, max_epochs: int | None, num_threads: int | None) -> None:
     if devices < 1:
         raise ValueError(f"devices must be >= 1, got {devices}")
     if max_epochs is not None and max_epochs < 1:
         raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
     if num_threads is not None and num_threads < 1:
         raise ValueError(f"num_threads (torch CPU threads) must be >= 1, got {num_threads}")
-    accelerator = _accelerator(device)
-    if num_threads is not None:
-        torch.set_num_threads(num_threads)
 
-    chosen = get_preset(preset)
-    config = replace(chosen.config, seed=seed)
-    if max_epochs is not None:
-        config = replace(config, max_epochs=max_epochs)
 
-    dataset = (
-        data if isinstance(data, Dataset) else load_dataset(data, window=window, params=params)
-    )
-    window = dataset.window
-    model_config = model_config_for(variant, model_config)
-
-    L.seed_everything(seed, workers=False, verbose=False)
-    net = build(model_config, dataset.params)
+def _new_network(model_config: ModelConfig, dataset: Dataset, params: VehicleParams) -> nn.Module:
+    """A fresh network of the configured architecture with the model constants ``params``,
+    normalised on the training windows (draws its weights from torch's generator: seed it
+    first)."""
+    net = build(model_config, params)
     train_windows = dataset.splits["train"]
     if model_config.normalize and len(train_windows):
-        net.fit_normalization(
-            train_windows.states, train_windows.inputs, origin_step=window.history - 1
-        )
-    meta = {
+        origin = dataset.window.history - 1  # the step ``forward`` measures positions from
+        net.fit_normalization(train_windows.states, train_windows.inputs, origin_step=origin)
+    return net
+
+
+def _checkpoint_meta(
+    variant: str,
+    preset: str,
+    model_config: ModelConfig,
+    weights: LossWeights,
+    config: TrainConfig,
+    dataset: Dataset,
+) -> dict[str, Any]:
+    """Every config of the run as plain dicts: embedded in each checkpoint (``CKPT_KEY``), so
+    ``load_checkpoint`` rebuilds the network from the file alone."""
+    return {
         "format": CKPT_FORMAT,
         "package_version": __version__,
         "variant": variant,
-        "preset": chosen.name,
+        "preset": preset,
         "model": to_dict(model_config),
         "weights": to_dict(weights),
         "train": to_dict(config),
-        "window": to_dict(window),
+        "window": to_dict(dataset.window),
         "params": to_dict(dataset.params),
         "params_source": dataset.params_source,
         "data": str(dataset.folder),
     }
-    if resume:
-        check_resumable(last, meta)
-    module = SlungLoadModule(
-        net,
-        variant=variant,
-        params=dataset.params,
-        weights=weights,
-        window=window,
-        config=config,
-        meta=meta,
-    )
-    datamodule = WindowData(
-        train_windows, dataset.splits["val"], config, val_windows=config.val_windows
-    )
 
+
+def _callbacks(
+    out: Path, config: TrainConfig
+) -> tuple[ModelCheckpoint, ModelCheckpoint, EarlyStopping, SaveOnInterrupt]:
+    """best.ckpt, last.ckpt, early stopping, and the save on a signal, in that order."""
     best_cb = ModelCheckpoint(
         dirpath=out,
         filename=BEST.removesuffix(".ckpt"),
@@ -237,11 +301,24 @@ def train(
     # epoch's validation (Lightning does not rerun it), so that one epoch has no val/total;
     # the check skips it instead of failing the resumed run.
     stop_cb = EarlyStopping(monitor=MONITOR, mode="min", patience=config.patience, strict=False)
-    interrupt_cb = SaveOnInterrupt(last)
-    callbacks = [best_cb, last_cb, stop_cb, interrupt_cb]
-    start = time.perf_counter()
-    with _quiet_lightning(not progress), _sigint_as_sigterm() as sigints:
-        trainer = _make_trainer(out, accelerator, devices, config, callbacks, progress)
+    return best_cb, last_cb, stop_cb, SaveOnInterrupt(out / LAST)
+
+
+def _fit(
+    module: SlungLoadModule,
+    datamodule: WindowData,
+    callbacks: tuple[Any, ...],
+    out: Path,
+    accelerator: str,
+    devices: int,
+    config: TrainConfig,
+    progress: bool,
+    resume: bool,
+) -> L.Trainer:
+    """Fit (from ``last.ckpt`` when resuming); a signal becomes ``TrainingInterrupted``."""
+    last, interrupt_cb = out / LAST, callbacks[-1]
+    with _quiet_lightning(), _sigint_as_sigterm() as sigints:
+        trainer = _make_trainer(out, accelerator, devices, config, list(callbacks), progress)
         try:
             trainer.fit(
                 module,
@@ -255,16 +332,10 @@ def train(
             raise TrainingInterrupted(
                 f"training stopped by {signal.Signals(signum).name} at epoch "
                 f"{trainer.current_epoch}, step {trainer.global_step}; {saved}; continue with "
-                "resume=True (slungload train --resume)",
+                "the same command and --resume (resume=True)",
                 signum,
             ) from None
-    seconds = time.perf_counter() - start
-
-    run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
-    run = replace(run, skipped_steps=module.skipped_steps)
-    if trainer.is_global_zero:
-        write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
-    return run
+    return trainer
 
 
 def _make_trainer(
@@ -295,7 +366,7 @@ def _make_trainer(
         ],
         default_root_dir=out,
         enable_progress_bar=progress,
-        enable_model_summary=progress,
+        enable_model_summary=False,  # its table ends in '0 Total Flops'; run.json says enough
         use_distributed_sampler=False,  # EpochBatches shards the windows itself
         log_every_n_steps=1,
         num_sanity_val_steps=1,

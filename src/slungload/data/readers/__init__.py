@@ -3,7 +3,8 @@
 
 ``READERS`` maps a format name to its reader and the file suffixes it claims; a dataset folder's
 flights are its files with a claimed suffix (``flight_files``), each read by the reader of its
-suffix, or by the reader named by an explicit ``format``. A new source is a module here with a
+suffix, or by the reader named by an explicit ``format``. The flights lie at the top of the
+folder or under ``data/`` (the authors' release layout). A new source is a module here with a
 ``read(path, params, notes) -> Flight`` function and one entry below.
 """
 
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...config import VehicleParams
-from ..flight import DataWarning, Flight, FlightFormatError
+from ..flight import DatasetError, DataWarning, Flight, FlightFormatError
 from . import npz
 
 
@@ -50,9 +51,29 @@ def flight_suffixes() -> list[str]:
     return [s for reader in READERS.values() for s in reader.suffixes]
 
 
+DATA_SUBFOLDER = "data"  # the authors' release: DATASET/data/NAME.npz, lists in DATASET/
+
+
 def flight_files(folder: Path) -> dict[str, Path]:
-    """Flight name (file stem) -> file, for every file in ``folder`` with a claimed suffix,
-    sorted by name."""
+    """Flight name (file stem) -> file, for every file with a claimed suffix, sorted by name.
+
+    The flights are at the top of ``folder`` (the simulator's layout) or under
+    ``folder/data/`` (the authors' release layout, with the split lists beside ``data/``);
+    flights in both places are a ``DatasetError`` (which ones would be meant is unclear).
+    """
+    top = _claimed(folder)
+    sub = folder / DATA_SUBFOLDER
+    below = _claimed(sub) if sub.is_dir() else {}
+    if top and below:
+        raise DatasetError(
+            f"{folder}: flight files both at the top ({len(top)}) and under {DATA_SUBFOLDER}/ "
+            f"({len(below)}); keep one place (the authors' layout: DATASET/{DATA_SUBFOLDER}/*.npz "
+            "with train.txt, val.txt, test.txt beside data/)"
+        )
+    return top or below
+
+
+def _claimed(folder: Path) -> dict[str, Path]:
     suffixes = set(flight_suffixes())
     files = [p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes]
     return {p.stem: p for p in sorted(files)}

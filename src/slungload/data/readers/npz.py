@@ -43,7 +43,18 @@ def read(path: Path, params: VehicleParams, notes: list[str]) -> Flight:
     unknown = sorted(set(raw) - set(FLIGHT_KEYS) - set(OPTIONAL_KEYS) - set(IGNORED_KEYS))
     if unknown:
         notes.append(f"{path}: ignoring unknown keys {unknown}")
+    return from_arrays(raw, path, params)
 
+
+def from_arrays(
+    raw: dict[str, np.ndarray], path: Path, params: VehicleParams, name: str | None = None
+) -> Flight:
+    """Validate arrays of the published schema (every key of ``FLIGHT_KEYS``) into a ``Flight``.
+
+    The checks of ``read`` (shapes, finite values, the time step against ``params.dt``, unit
+    quaternions x-y-z-w) with ``path`` in every message; other sources (``data.importing``)
+    call it on what they are about to write, so an imported flight meets the same checks.
+    """
     time = _numeric(raw["time"], "time", path)
     if time.ndim == 2 and 1 in time.shape:  # (T, 1) or (1, T), as MATLAB writes vectors
         time = time.reshape(-1)
@@ -73,4 +84,5 @@ def read(path: Path, params: VehicleParams, notes: list[str]) -> Flight:
     inputs = np.empty((steps, INPUT_DIM))
     inputs[:, THRUST] = arrays["T_ref"]
     inputs[:, RATES] = arrays["w_ref"]
-    return Flight(path.stem, path, time, states, inputs, estimate_load_state(states, params))
+    aux = estimate_load_state(states, params)
+    return Flight(name or path.stem, path, time, states, inputs, aux)

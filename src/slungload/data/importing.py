@@ -1,0 +1,503 @@
+"""``slungload import``: real flight logs (ROS 1 / ROS 2 bags, PX4 ULog, CSV) into a dataset.
+
+Each log is read by its source module in ``data/readers/`` into streams by role, already in the
+package's frames (``readers/logs.py``); this module then, per log:
+
+1. cleans each stream: samples with a NaN (a motion-capture dropout) or a zero quaternion are
+   dropped, repeated stamps keep their first sample, and stamps that go back in time are an
+   error; a stream left empty is an error (for the load: "the load is never seen");
+2. turns a normalised thrust into newtons with the thrust map
+   ``T = throttle / hover_throttle * (mass_quad + mass_load) * gravity`` (the hover throttle
+   holds the vehicle *with its load*; PX4's ``MPC_THR_HOVER``);
+3. keeps the time where every stream has samples, and splits it where any stream has no sample
+   for longer than ``max_gap`` (or stops with an error, ``on_gap="error"``); pieces shorter
+   than ``min_duration`` are dropped with a note;
+4. resamples each piece on a grid of step ``params.dt`` from its first instant: positions and
+   velocities linearly, the attitude by slerp, the commands by holding the last set-point
+   (``commands="hold"``, a set-point holds until the next one; or linearly); without a
+   velocity stream, v is the causal second-order backward difference
+   (3 p_k - 4 p_{k-1} + p_{k-2}) / (2 h) of the resampled position (first order at step 1,
+   step 0 repeats step 1), exact for a quadratic and never looking ahead, like the load-state
+   estimate;
+5. validates the arrays with the ``.npz`` reader's own checks (``readers.npz.from_arrays``).
+
+Then the flights are split by flight (a seeded draw towards the paper's 58/17/25 % of steps,
+or all in ``train``) and written in the authors' release layout (``OUT/data/NAME.npz``,
+``OUT/train.txt`` ... naming files with ``.npz``, ``OUT/vehicle.json`` with the constants and
+how the import was made) into a temporary folder that is renamed to ``OUT`` at the end:
+a failure leaves nothing behind. A log that cannot be imported raises ``LogError`` (a
+``ValueError``) naming the file and the topic or column.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import VEHICLE_FILE, VehicleParams, to_dict
+from ..fileio import SPLITS, write_json, write_npz, write_splits
+from .flight import FlightFormatError
+from .readers import DATA_SUBFOLDER, frames
+from .readers.logs import ROLES, LogError, RawLog, Stream
+from .readers.npz import from_arrays
+
+LOG_FORMATS = {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog", ".csv": "csv"}
+MAPPING_SECTIONS = {"ros1": "ros", "ros2": "ros", "ulog": "ulog", "csv": "csv"}
+SPLIT_FRACTIONS = {"train": 0.58, "val": 0.17, "test": 0.25}  # the paper's, of steps here
+STAMP_EPS = 1e-6  # s: a sample stamped this close after a grid instant counts as at it
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """How logs become flights (defaults stated in the module's docstring)."""
+
+    hover_throttle: float | None = None  # None: the log's own (ULog), else an error if needed
+    max_gap: float = 0.1  # s, longest time a stream may go without a sample
+    on_gap: str = "split"  # "split" the flight at a longer gap, or "error"
+    min_duration: float = 1.0  # s, shorter pieces are dropped
+    commands: str = "hold"  # "hold" the last set-point, or "linear"
+    split: str = "seeded"  # "seeded" draw by flight, or "train" (every flight in train.txt)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.hover_throttle is not None and not 0.0 < self.hover_throttle <= 1.0:
+            raise ValueError(f"hover throttle must be in (0, 1], got {self.hover_throttle}")
+        if not self.max_gap > 0:
+            raise ValueError(f"max gap must be > 0 s, got {self.max_gap}")
+        if self.min_duration < 0:
+            raise ValueError(f"min duration must be >= 0 s, got {self.min_duration}")
+        for name, known in (
+            ("on_gap", ("split", "error")),
+            ("commands", ("hold", "linear")),
+            ("split", ("seeded", "train")),
+        ):
+            if getattr(self, name) not in known:
+                raise ValueError(f"{name} must be one of {known}, got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True)
+class ImportedFlight:
+    name: str
+    log: Path
+    start: float  # s, the log's stamp of the first sample
+    arrays: dict[str, np.ndarray] = field(repr=False)
+
+    @property
+    def steps(self) -> int:
+        return len(self.arrays["time"])
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    """What ``import_logs`` wrote."""
+
+    folder: Path
+    flights: dict[str, int]  # name -> steps
+    logs: dict[str, Path]  # name -> the log it came from
+    splits: dict[str, list[str]]
+    params: VehicleParams
+    notes: tuple[str, ...]
+
+    def summary(self) -> str:
+        steps = sum(self.flights.values())
+        sizes = ", ".join(f"{s} {len(self.splits[s])}" for s in SPLITS)
+        seconds = steps * self.params.dt
+        lines = [
+            f"imported {len(self.flights)} flight(s) ({steps} steps, {seconds:.1f} s at "
+            f"dt = {self.params.dt} s) from {len(set(self.logs.values()))} log(s) into "
+            f"{self.folder} ({sizes})"
+        ]
+        lines += [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+def find_logs(inputs: list[str | Path]) -> list[tuple[Path, str]]:
+    """(path, format) of every log named: files by suffix, a rosbag2 folder (holding
+    ``metadata.yaml``), or a folder of such logs (not recursive)."""
+    found: list[tuple[Path, str]] = []
+    for item in inputs:
+        path = Path(item).expanduser()
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such log file or folder")
+        if path.is_dir():
+            if (path / "metadata.yaml").is_file():
+                found.append((path, "ros2"))
+                continue
+            inside = [
+                (p, _format_of(p)) for p in sorted(path.iterdir()) if _format_of(p) is not None
+            ]
+            if not inside:
+                raise LogError(
+                    f"{path}: holds no logs ({', '.join(f'*{s}' for s in LOG_FORMATS)}, rosbag2 "
+                    "folders)"
+                )
+            found += inside  # type: ignore[arg-type]
+        else:
+            kind = _format_of(path)
+            if kind is None:
+                raise LogError(
+                    f"{path}: unknown log format '{path.suffix}'; known: "
+                    f"{', '.join(LOG_FORMATS)} and rosbag2 folders"
+                )
+            found.append((path, kind))
+    if not found:
+        raise LogError("no log given")
+    return found
+
+
+def _format_of(path: Path) -> str | None:
+    if path.is_dir():
+        return "ros2" if (path / "metadata.yaml").is_file() else None
+    return LOG_FORMATS.get(path.suffix.lower())
+
+
+def read_log(
+    path: Path,
+    kind: str,
+    mapping: dict[str, Any] | None = None,
+    *,
+    preset: str | None = None,
+    progress: bool = False,
+) -> RawLog:
+    """One log's streams by its format. ``mapping`` holds the source's settings, or sections
+    "ros", "ulog", "csv" of them; ``preset`` names the bags' defaults ("mavros", "px4")."""
+    mapping = dict(mapping or {})
+    sections = set(MAPPING_SECTIONS.values())
+    if any(isinstance(mapping.get(s), dict) for s in sections):
+        mapping = dict(mapping.get(MAPPING_SECTIONS[kind], {}))
+    if kind in ("ros1", "ros2"):
+        if preset is not None:
+            mapping["preset"] = preset
+        from .readers.rosbag import read_bag
+
+        return read_bag(path, mapping, progress=progress)
+    if kind == "ulog":
+        from .readers.ulog import read_ulog
+
+        return read_ulog(path, mapping)
+    from .readers.csv_log import read_csv
+
+    return read_csv(path, mapping)
+
+
+def import_logs(
+    inputs: list[str | Path],
+    out: str | Path,
+    *,
+    params: VehicleParams | None = None,
+    mapping: dict[str, Any] | None = None,
+    preset: str | None = None,
+    options: ImportOptions = ImportOptions(),  # noqa: B008 (frozen)
+    overwrite: bool = False,
+    progress: bool = True,
+) -> ImportResult:
+    """Import flight logs into the dataset folder ``out`` (see the module's docstring).
+
+    ``params``: the vehicle constants (``dt`` is the dataset step; the masses and gravity enter
+    the thrust map); None uses the paper's, with a note. ``mapping``: topics, columns and frames
+    (``load_mapping`` reads a file), ``preset``: the bags' defaults ("mavros" or "px4").
+    Refuses a non-empty ``out`` unless ``overwrite``. Nothing is written unless every log
+    imports.
+    """
+    from tqdm.auto import tqdm
+
+    out = Path(out).expanduser()
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
+        raise FileExistsError(f"{out}: exists and is not empty (--overwrite replaces it)")
+    logs = find_logs(inputs)
+    notes: list[str] = []
+    if params is None:
+        params = VehicleParams()
+        notes.append(
+            f"no vehicle constants given: the paper's are used and written to vehicle.json "
+            f"({params})"
+        )
+    flights: list[ImportedFlight] = []
+    settings: dict[str, Any] = {}
+    bar = tqdm(logs, desc="importing logs", unit="log", disable=not progress or len(logs) < 2)
+    for path, kind in bar:
+        raw = read_log(path, kind, mapping, preset=preset, progress=progress)
+        pieces, log_notes, hover = resample_log(raw, params, options)
+        notes += raw.notes + log_notes
+        settings[str(path)] = {"format": raw.format, **raw.settings}
+        if hover is not None:
+            settings[str(path)]["hover_throttle"] = hover
+        stem = path.stem if path.is_file() else path.name
+        for k, (start, arrays) in enumerate(pieces):
+            name = stem if len(pieces) == 1 else f"{stem}_{k:02d}"
+            flights.append(ImportedFlight(name, path, start, arrays))
+    names = [f.name for f in flights]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise LogError(f"two logs give flights of the same name {twice}: rename one of the logs")
+    for f in flights:  # the .npz reader's own checks, on exactly what is written
+        try:
+            from_arrays(f.arrays, f.log, params, f.name)
+        except FlightFormatError as exc:
+            raise LogError(f"{exc} (flight {f.name} after resampling)") from None
+
+    splits = split_by_flight(names, [f.steps for f in flights], options)
+    if options.split == "seeded" and len(flights) < 3:
+        notes.append(f"{len(flights)} flight(s): all in train.txt (a split needs 3 or more)")
+    meta = {
+        "vehicle": to_dict(params),
+        "import": {
+            "version": _version(),
+            "dt": params.dt,
+            "interpolation": {
+                "position, velocity, load": "linear",
+                "attitude": "slerp",
+                "commands": options.commands,
+                "missing velocity": "backward difference (3 p_k - 4 p_k-1 + p_k-2) / 2h",
+            },
+            "thrust_map": "T = throttle / hover_throttle * (mass_quad + mass_load) * gravity",
+            "options": {
+                k: getattr(options, k)
+                for k in ("max_gap", "on_gap", "min_duration", "split", "seed")
+            },
+            "logs": settings,
+            "flights": {
+                f.name: {"log": str(f.log), "start": f.start, "steps": f.steps} for f in flights
+            },
+        },
+    }
+    _write(out, flights, splits, meta)
+    return ImportResult(
+        out,
+        {f.name: f.steps for f in flights},
+        {f.name: f.log for f in flights},
+        splits,
+        params,
+        tuple(notes),
+    )
+
+
+def _write(out: Path, flights: list[ImportedFlight], splits: dict, meta: dict) -> None:
+    """Everything into a temporary folder beside ``out``, renamed to ``out`` at the end."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        for f in flights:
+            write_npz(tmp / DATA_SUBFOLDER / f"{f.name}.npz", f.arrays)
+        write_splits(tmp, splits)
+        write_json(tmp / VEHICLE_FILE, meta)
+        if out.exists():
+            shutil.rmtree(out) if out.is_dir() else out.unlink()
+        tmp.rename(out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+
+
+def _version() -> str:
+    try:
+        return importlib.metadata.version("slungload")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
+# --- one log -> flights ---------------------------------------------------------------------
+
+
+def resample_log(
+    raw: RawLog,
+    params: VehicleParams,
+    options: ImportOptions = ImportOptions(),  # noqa: B008
+) -> tuple[list[tuple[float, dict[str, np.ndarray]]], list[str], float | None]:
+    """Pieces of one log as published-schema arrays at step ``params.dt``: a list of (the log's
+    stamp of the first sample, arrays), the notes, and the hover throttle used (or None)."""
+    path = raw.path
+    notes: list[str] = []
+    missing = [r for r in ROLES if r not in raw.streams and r != "velocity"]
+    if missing:
+        raise LogError(f"{path}: no {', '.join(missing)} in the log")
+    streams = {role: _clean(role, s, path, notes) for role, s in raw.streams.items()}
+
+    hover = None
+    if raw.thrust_normalized:
+        hover = options.hover_throttle or raw.hover_throttle
+        source = streams["thrust"].source
+        if hover is None:
+            raise LogError(
+                f"{path}: {source} is a normalised throttle; give the hover throttle (the "
+                "throttle that holds the vehicle with its load, PX4's MPC_THR_HOVER: "
+                "--hover-throttle) to turn it into newtons"
+            )
+        if not 0.0 < hover <= 1.0:
+            raise LogError(f"{path}: hover throttle {hover} is not in (0, 1]")
+        scale = (params.mass_quad + params.mass_load) * params.gravity / hover
+        thrust = streams["thrust"]
+        streams["thrust"] = Stream(thrust.source, thrust.time, thrust.values * scale)
+        how = "given" if options.hover_throttle else f"{path}'s MPC_THR_HOVER"
+        notes.append(
+            f"{path}: thrust = throttle / {hover:g} ({how}) * (mQ + mL) g = "
+            f"throttle * {scale:.4g} N"
+        )
+
+    t0 = min(float(s.time[0]) for s in streams.values())
+    start = max(float(s.time[0]) for s in streams.values())
+    end = min(float(s.time[-1]) for s in streams.values())
+    if end - start < params.dt:
+        spans = "; ".join(
+            f"{s.source}: {s.time[0] - t0:.3f} to {s.time[-1] - t0:.3f} s" for s in streams.values()
+        )
+        raise LogError(f"{path}: the streams do not overlap in time ({spans})")
+    pieces = _pieces(streams, start, end, options, path, t0)
+    kept = [(a, b) for a, b in pieces if b - a >= max(options.min_duration, params.dt)]
+    dropped = len(pieces) - len(kept)
+    if len(pieces) > 1:
+        notes.append(
+            f"{path}: split at {len(pieces) - 1} gaps longer than {options.max_gap} s into "
+            f"{len(pieces)} pieces"
+        )
+    if dropped:
+        notes.append(f"{path}: {dropped} pieces shorter than {options.min_duration} s dropped")
+    if not kept:
+        raise LogError(
+            f"{path}: no piece of at least {options.min_duration} s without a gap longer than "
+            f"{options.max_gap} s"
+        )
+    return [(a, _resample(streams, a, b, params.dt, options)) for a, b in kept], notes, hover
+
+
+def _clean(role: str, stream: Stream, path: Path, notes: list[str]) -> Stream:
+    t, v = np.asarray(stream.time, np.float64), np.asarray(stream.values, np.float64)
+    good = np.isfinite(t) & np.isfinite(v).all(axis=1)
+    if role == "attitude":
+        norm = np.linalg.norm(np.where(np.isfinite(v), v, 0.0), axis=1)
+        good &= norm > 0.5
+        v = v / np.where(norm > 0, norm, 1.0)[:, None]
+    if not good.all() and good.any():
+        notes.append(f"{path}: {stream.source}: {int((~good).sum())} samples without a value")
+    t, v = t[good], v[good]
+    if len(t) == 0:
+        if role == "load":
+            raise LogError(f"{path}: the load is never seen: {stream.source} has no sample")
+        raise LogError(f"{path}: {stream.source} ({role}) has no sample")
+    steps = np.diff(t)
+    back = np.flatnonzero(steps < 0)
+    if len(back):
+        i = back[0] + 1
+        raise LogError(
+            f"{path}: {stream.source}: stamps out of order at message {i} "
+            f"({t[i]:.6f} s after {t[i - 1]:.6f} s)"
+        )
+    repeat = np.flatnonzero(steps == 0) + 1
+    if len(repeat):
+        keep = np.ones(len(t), dtype=bool)
+        keep[repeat] = False
+        t, v = t[keep], v[keep]
+        notes.append(f"{path}: {stream.source}: {len(repeat)} repeated stamps, first sample kept")
+    return Stream(stream.source, t, v)
+
+
+def _pieces(
+    streams: dict[str, Stream],
+    start: float,
+    end: float,
+    options: ImportOptions,
+    path: Path,
+    t0: float,
+) -> list[tuple[float, float]]:
+    """[start, end] without the gaps (longer than max_gap) of any stream."""
+    holes: list[tuple[float, float]] = []
+    for s in streams.values():
+        steps = np.diff(s.time)
+        for i in np.flatnonzero(steps > options.max_gap):
+            a, b = float(s.time[i]), float(s.time[i + 1])
+            if b <= start or a >= end:
+                continue
+            if options.on_gap == "error":
+                raise LogError(
+                    f"{path}: {s.source}: no sample for {b - a:.3f} s from t = {a - t0:.3f} s "
+                    f"(longer than the gap limit of {options.max_gap} s)"
+                )
+            holes.append((a, b))
+    pieces, cursor = [], start
+    for a, b in sorted(holes):
+        if a > cursor:
+            pieces.append((cursor, a))
+        cursor = max(cursor, b)
+    if end > cursor:
+        pieces.append((cursor, end))
+    return pieces
+
+
+def _resample(
+    streams: dict[str, Stream], a: float, b: float, dt: float, options: ImportOptions
+) -> dict[str, np.ndarray]:
+    n = int(np.floor((b - a) / dt + 1e-9)) + 1
+    grid = a + dt * np.arange(n)
+
+    def linear(s: Stream) -> np.ndarray:
+        return np.stack(
+            [np.interp(grid, s.time, s.values[:, j]) for j in range(s.values.shape[1])], 1
+        )
+
+    def command(s: Stream) -> np.ndarray:
+        if options.commands == "linear":
+            return linear(s)
+        i = np.searchsorted(s.time, grid + STAMP_EPS, side="right") - 1
+        return s.values[np.clip(i, 0, len(s.time) - 1)]
+
+    p = linear(streams["position"])
+    if "velocity" in streams:
+        v = linear(streams["velocity"])
+    else:
+        v = backward_velocity(p, dt)
+    q = frames.slerp(grid, streams["attitude"].time, streams["attitude"].values)
+    return {
+        "time": dt * np.arange(n),
+        "p": p,
+        "v": v,
+        "attitude": q[:, [1, 2, 3, 0]],  # w-x-y-z -> x-y-z-w, the files' order
+        "p_load": linear(streams["load"]),
+        "w_ref": command(streams["rates"]),
+        "T_ref": command(streams["thrust"]),
+    }
+
+
+def backward_velocity(p: np.ndarray, dt: float) -> np.ndarray:
+    """Causal velocity from positions (T, 3): (3 p_k - 4 p_{k-1} + p_{k-2}) / (2 dt) from step
+    2, (p_1 - p_0) / dt at step 1, step 0 repeating step 1."""
+    v = np.empty_like(p)
+    if len(p) < 2:
+        v[:] = 0.0
+        return v
+    v[1] = (p[1] - p[0]) / dt
+    v[0] = v[1]
+    v[2:] = (3 * p[2:] - 4 * p[1:-1] + p[:-2]) / (2 * dt)
+    return v
+
+
+# --- splits -----------------------------------------------------------------------------
+
+
+def split_by_flight(
+    names: list[str], steps: list[int], options: ImportOptions
+) -> dict[str, list[str]]:
+    """Whole flights per split: all in train, or a seeded draw in which each flight (longest
+    first, ties in random order) goes to the split furthest below its share of the steps
+    (58/17/25 %), every split getting one when there are three or more."""
+    if options.split == "train" or len(names) < 3:
+        return {"train": sorted(names), "val": [], "test": []}
+    rng = np.random.default_rng(options.seed)
+    order = sorted(rng.permutation(len(names)), key=lambda i: -steps[i])
+    total = sum(steps)
+    got = {s: 0 for s in SPLITS}
+    out: dict[str, list[str]] = {s: [] for s in SPLITS}
+    for rank, i in enumerate(order):
+        empty = [s for s in SPLITS if not out[s]]
+        if empty and len(order) - rank <= len(empty):
+            split = empty[0]
+        else:
+            split = max(SPLITS, key=lambda s: SPLIT_FRACTIONS[s] * total - got[s])
+        out[split].append(names[i])
+        got[split] += steps[i]
+    return {s: sorted(v) for s, v in out.items()}

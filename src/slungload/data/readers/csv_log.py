@@ -1,0 +1,132 @@
+"""Flight logs as CSV: one header row, one column per number, mapped by a column map.
+
+The mapping keys (defaults in ``CSV_DEFAULTS``: the published schema's keys with ``_x``,
+``_y``, ``_z``, ``_w`` suffixes) name the columns of time, ``p`` (3), ``v`` (3, optional:
+``""`` or absent columns give finite differences of ``p``), ``attitude`` (4, in the order
+x, y, z, w), ``p_load`` (3), ``w_ref`` (3) and ``T_ref`` (1); ``time_unit`` ("s", "ms", "us",
+"ns") scales the time column; ``thrust`` says whether ``T_ref`` is in newtons ("N") or a
+normalised throttle ("normalized", converted by the thrust map); ``world`` ("enu" or "ned"),
+``body`` (the attitude's body axes) and ``rates`` (the body rates' axes) are "flu" or "frd".
+
+Streams may be logged at different rates in one file: a blank cell means "not sampled in this
+row", and each quantity uses the rows where all its columns hold a number. A cell that is
+neither blank nor a number is an error naming the row and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import frames
+from .logs import LogError, RawLog, Stream, choice, merge_settings
+
+
+def _cols(key: str, axes: str) -> list[str]:
+    return [f"{key}_{a}" for a in axes]
+
+
+CSV_DEFAULTS: dict[str, Any] = {
+    "time": "time",
+    "time_unit": "s",
+    "p": _cols("p", "xyz"),
+    "v": _cols("v", "xyz"),
+    "attitude": _cols("attitude", "xyzw"),
+    "p_load": _cols("p_load", "xyz"),
+    "w_ref": _cols("w_ref", "xyz"),
+    "T_ref": "T_ref",
+    "thrust": "N",
+    "world": "enu",
+    "body": "flu",
+    "rates": "flu",
+}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+_SIZES = {"p": 3, "v": 3, "attitude": 4, "p_load": 3, "w_ref": 3, "T_ref": 1}
+_ROLE = {
+    "p": "position",
+    "v": "velocity",
+    "attitude": "attitude",
+    "p_load": "load",
+    "w_ref": "rates",
+    "T_ref": "thrust",
+}
+
+
+def read_csv(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
+    """The streams of one CSV log."""
+    path = Path(path)
+    what = str(path)
+    settings = merge_settings(CSV_DEFAULTS, mapping, what)
+    world = choice(settings, "world", frames.WORLD_FRAMES, what)
+    body = choice(settings, "body", frames.BODY_FRAMES, what)
+    rates_frame = choice(settings, "rates", frames.BODY_FRAMES, what)
+    unit = choice(settings, "time_unit", tuple(TIME_UNITS), what)
+    thrust_unit = choice(settings, "thrust", ("n", "normalized"), what)
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LogError(f"{path}: cannot be read as CSV text ({exc})") from None
+    if not rows:
+        raise LogError(f"{path}: empty file, expected a header row of column names")
+    header = [h.strip() for h in rows[0]]
+    body_rows = rows[1:]
+    notes: list[str] = []
+
+    def columns(key: str) -> list[str] | None:
+        value = settings[key]
+        if value in ("", None, []):
+            return None
+        names = [value] if isinstance(value, str) else list(value)
+        size = _SIZES.get(key, 1)
+        if len(names) != size:
+            raise LogError(f"{path}: mapping key {key!r} names {len(names)} columns, needs {size}")
+        return names
+
+    def numbers(name: str, key: str) -> np.ndarray:
+        if name not in header:
+            raise LogError(
+                f"{path}: no column {name!r} (mapping key {key!r}); columns: {', '.join(header)}"
+            )
+        j = header.index(name)
+        out = np.full(len(body_rows), np.nan)
+        for i, row in enumerate(body_rows):
+            cell = row[j].strip() if j < len(row) else ""
+            if cell:
+                try:
+                    out[i] = float(cell)
+                except ValueError:
+                    raise LogError(
+                        f"{path}: row {i + 2}, column {name!r}: {cell!r} is not a number"
+                    ) from None
+        return out
+
+    time_col = columns("time")
+    if time_col is None:
+        raise LogError(f"{path}: mapping key 'time' must name the time column")
+    time = numbers(time_col[0], "time") * TIME_UNITS[unit]
+    stamped = np.isfinite(time)
+    streams: dict[str, Stream] = {}
+    for key, role in _ROLE.items():
+        names = columns(key)
+        if key == "v":  # optional: absent default columns, or "", mean finite differences
+            explicit = bool((mapping or {}).get("v"))
+            if names is None or (not explicit and not all(n in header for n in names)):
+                notes.append(f"{path}: no velocity columns: the velocity is a finite difference")
+                continue
+        if names is None:
+            raise LogError(f"{path}: mapping key {key!r} must name its columns")
+        values = np.stack([numbers(n, key) for n in names], axis=1)
+        rows_of = stamped & np.isfinite(values).all(axis=1)
+        t, v = time[rows_of], values[rows_of]
+        if key in ("p", "v", "p_load"):
+            v = frames.world_vectors(v, world)
+        elif key == "attitude":
+            v = frames.attitudes(v[:, [3, 0, 1, 2]], world, body)  # x-y-z-w -> w-x-y-z
+        elif key == "w_ref":
+            v = frames.body_vectors(v, rates_frame)
+        streams[role] = Stream(f"column{'s' if len(names) > 1 else ''} {', '.join(names)}", t, v)
+    return RawLog(path, "csv", streams, thrust_unit == "normalized", settings, notes)

@@ -1,0 +1,110 @@
+"""Frame conventions of flight logs, converted to the package's: world z up, body z up (FLU).
+
+The package's world frame is any z-up frame (ENU in ROS terms; the dynamics do not care where
+x points) and its body frame has z along the thrust (FLU: forward, left, up, ROS REP 103).
+PX4 and many autopilots use NED for the world and FRD for the body:
+
+- a world vector in NED becomes ENU as (x, y, z) -> (y, x, -z): a rotation of pi about
+  (1, 1, 0) / sqrt 2;
+- a body vector in FRD becomes FLU as (x, y, z) -> (x, -y, -z): a rotation of pi about x
+  (body rates, being vectors in the body frame, convert the same way);
+- an attitude q (body -> world) becomes q_ENU<-NED (x) q (x) q_FLU<-FRD^-1.
+
+Quaternions here are numpy arrays w-x-y-z, shape (..., 4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WORLD_FRAMES = ("enu", "ned")  # "enu": any z-up world frame, taken as it is
+BODY_FRAMES = ("flu", "frd")
+
+_S = np.sqrt(0.5)
+Q_ENU_FROM_NED = np.array([0.0, _S, _S, 0.0])  # w-x-y-z, pi about (1, 1, 0)/sqrt 2
+Q_FLU_FROM_FRD = np.array([0.0, 1.0, 0.0, 0.0])  # pi about x
+
+
+def quat_multiply(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Hamilton product of w-x-y-z quaternions, broadcast over leading axes."""
+    w1, x1, y1, z1 = np.moveaxis(np.asarray(q1, float), -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(np.asarray(q2, float), -1, 0)
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=-1,
+    )
+
+
+def quat_conjugate(q: np.ndarray) -> np.ndarray:
+    return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def world_vectors(v: np.ndarray, frame: str) -> np.ndarray:
+    """(..., 3) positions or velocities in ``frame`` ("enu" or "ned") -> z-up world."""
+    _check(frame, WORLD_FRAMES, "world")
+    v = np.asarray(v, float)
+    return v.copy() if frame == "enu" else np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+def body_vectors(w: np.ndarray, frame: str) -> np.ndarray:
+    """(..., 3) body rates (or any body vector) in ``frame`` ("flu" or "frd") -> FLU."""
+    _check(frame, BODY_FRAMES, "body")
+    w = np.asarray(w, float)
+    return w.copy() if frame == "flu" else w * np.array([1.0, -1.0, -1.0])
+
+
+def attitudes(q: np.ndarray, world: str, body: str) -> np.ndarray:
+    """(..., 4) w-x-y-z body -> world rotations in the ``world`` and ``body`` frames -> the
+    package's (z-up world, FLU body)."""
+    _check(world, WORLD_FRAMES, "world")
+    _check(body, BODY_FRAMES, "body")
+    q = np.asarray(q, float)
+    if world == "ned":
+        q = quat_multiply(Q_ENU_FROM_NED, q)
+    if body == "frd":
+        q = quat_multiply(q, quat_conjugate(Q_FLU_FROM_FRD))
+    return q
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors (..., 3) by unit quaternions (..., 4) w-x-y-z: R(q) v."""
+    q = np.asarray(q, float)
+    v = np.asarray(v, float)
+    u, w = q[..., 1:], q[..., :1]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def slerp(t: np.ndarray, times: np.ndarray, quats: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (n, 4) sampled at increasing
+    ``times`` (n,), at the instants ``t`` (m,) inside [times[0], times[-1]]; the shorter arc
+    (q and -q are the same rotation)."""
+    times = np.asarray(times, float)
+    quats = np.asarray(quats, float)
+    t = np.asarray(t, float)
+    if len(times) == 1:
+        return np.repeat(quats, len(t), axis=0)
+    i = np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+    u = np.clip((t - times[i]) / (times[i + 1] - times[i]), 0.0, 1.0)[:, None]
+    q0, q1 = quats[i], quats[i + 1].copy()
+    dot = np.sum(q0 * q1, axis=-1)
+    q1[dot < 0] *= -1.0
+    dot = np.abs(dot)[:, None]
+    angle = np.arccos(np.clip(dot, -1.0, 1.0))
+    sin = np.sin(angle)
+    near = sin < 1e-9
+    safe = np.where(near, 1.0, sin)
+    a = np.where(near, 1.0 - u, np.sin((1.0 - u) * angle) / safe)
+    b = np.where(near, u, np.sin(u * angle) / safe)
+    out = a * q0 + b * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def _check(frame: str, known: tuple[str, ...], what: str) -> None:
+    if frame not in known:
+        raise ValueError(f"unknown {what} frame {frame!r}; known: {', '.join(known)}")

@@ -1,0 +1,156 @@
+"""PX4 ULog flight logs (``.ulg``), read with ``pyulog`` (imported only when a log is read).
+
+Topics (the mapping keys, defaults in ``ULOG_DEFAULTS``; ``name`` or ``name:instance``):
+
+- ``position`` and ``velocity``: ``vehicle_local_position`` (``x y z``, ``vx vy vz``, NED;
+  samples flagged ``xy_valid`` / ``z_valid`` = 0 are dropped);
+- ``attitude``: ``vehicle_attitude`` (``q[0..3]`` w-x-y-z, FRD body -> NED);
+- ``rates``: ``vehicle_rates_setpoint`` (``roll pitch yaw``, FRD);
+- ``thrust``: ``vehicle_thrust_setpoint`` (``xyz[2]``, normalised, negative up); when the log
+  has no such topic, ``thrust_body[2]`` of the rates set-point (older PX4), with a note;
+- ``load``: the load's position, from a logged motion-capture topic (``x y z`` or
+  ``position[0..2]``, NED), e.g. ``vehicle_mocap_odometry:1`` when a second rigid body is
+  streamed to PX4. PX4 logs no load by itself: without ``load`` the import stops with an
+  error that lists the logged topics that carry a position.
+
+The load's position must be in the same local frame as the vehicle's: with a motion-capture
+system fused by the EKF, ``vehicle_local_position`` and the mocap frame share their axes but
+the EKF's origin may differ; then take the vehicle's position from its own mocap topic too
+(``position = "vehicle_mocap_odometry"``). Times: each message's ``timestamp`` (microseconds
+since boot). Every vector is converted NED -> z up and FRD -> FLU (``frames``). The hover
+throttle of the thrust map is the log's ``MPC_THR_HOVER`` parameter unless given.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import frames
+from .logs import LogError, RawLog, Stream, merge_settings
+
+ULOG_DEFAULTS: dict[str, str] = {
+    "position": "vehicle_local_position",
+    "velocity": "vehicle_local_position",  # "" : finite differences of the position
+    "attitude": "vehicle_attitude",
+    "rates": "vehicle_rates_setpoint",
+    "thrust": "vehicle_thrust_setpoint",
+    "load": "",  # required: the load's motion-capture topic
+}
+HOVER_PARAMETER = "MPC_THR_HOVER"
+
+_POSITION_FIELDS = (("x", "y", "z"), ("position[0]", "position[1]", "position[2]"))
+_VELOCITY_FIELDS = (("vx", "vy", "vz"), ("velocity[0]", "velocity[1]", "velocity[2]"))
+_QUAT_FIELDS = (("q[0]", "q[1]", "q[2]", "q[3]"),)
+_RATE_FIELDS = (("roll", "pitch", "yaw"),)
+_THRUST_FIELDS = (("xyz[2]",), ("thrust_body[2]",))
+
+
+def read_ulog(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
+    """The streams of one ``.ulg`` file."""
+    from pyulog import ULog
+
+    path = Path(path)
+    try:
+        log = ULog(str(path))
+    except Exception as exc:  # pyulog raises bare exceptions and struct errors on bad files
+        msg = f"{path}: cannot be read as a PX4 ULog ({type(exc).__name__}: {exc})"
+        raise LogError(msg) from None
+    topics = {f"{d.name}:{d.multi_id}": d.data for d in log.data_list}
+    hover = log.initial_parameters.get(HOVER_PARAMETER)
+    return ulog_streams(topics, path, mapping, hover_throttle=hover)
+
+
+def ulog_streams(
+    topics: dict[str, dict[str, np.ndarray]],
+    path: Path,
+    mapping: dict[str, Any] | None = None,
+    *,
+    hover_throttle: float | None = None,
+) -> RawLog:
+    """Streams from a ULog's topics as arrays: ``"name:instance"`` -> field -> (n,) values
+    (``timestamp`` in microseconds), as ``pyulog`` gives them. The conversion is tested on
+    arrays; ``read_ulog`` feeds it a parsed file."""
+    settings = merge_settings(ULOG_DEFAULTS, mapping, str(path))
+    notes: list[str] = []
+    if not settings["load"]:
+        carriers = sorted(
+            name for name, data in topics.items() if _fields(data, _POSITION_FIELDS) is not None
+        )
+        raise LogError(
+            f"{path}: the log holds no load position: name the topic that carries it with the "
+            f"mapping key 'load' (name or name:instance); topics with a position: "
+            f"{', '.join(carriers) or 'none'}"
+        )
+
+    def topic(key: str) -> tuple[str, dict[str, np.ndarray]]:
+        spec = str(settings[key])
+        name = spec if ":" in spec else f"{spec}:0"
+        if name not in topics:
+            have = ", ".join(sorted(topics)) or "none"
+            raise LogError(f"{path}: no topic {spec!r} (mapping key {key!r}); the log has: {have}")
+        return name, topics[name]
+
+    def series(key: str, options: tuple[tuple[str, ...], ...], what: str):
+        name, data = topic(key)
+        cols = _fields(data, options)
+        if cols is None:
+            raise LogError(
+                f"{path}: topic {name} ({key}) has no {what} fields "
+                f"({' or '.join(' '.join(o) for o in options)}); it has: {', '.join(sorted(data))}"
+            )
+        t = np.asarray(data["timestamp"], np.float64) * 1e-6
+        return name, t, np.stack([np.asarray(data[c], np.float64) for c in cols], axis=1), data
+
+    streams: dict[str, Stream] = {}
+    name, t, pos, data = series("position", _POSITION_FIELDS, "position")
+    keep = _valid(data, ("xy_valid", "z_valid"))
+    if not keep.all():
+        notes.append(f"{path}: topic {name}: {int((~keep).sum())} samples flagged invalid dropped")
+    streams["position"] = Stream(f"topic {name}", t[keep], frames.world_vectors(pos[keep], "ned"))
+    if settings["velocity"]:
+        name, t, vel, data = series("velocity", _VELOCITY_FIELDS, "velocity")
+        keep = _valid(data, ("v_xy_valid", "v_z_valid"))
+        streams["velocity"] = Stream(
+            f"topic {name}", t[keep], frames.world_vectors(vel[keep], "ned")
+        )
+    else:
+        notes.append(f"{path}: no velocity topic: the velocity is a finite difference of p")
+    name, t, q, _ = series("attitude", _QUAT_FIELDS, "quaternion")
+    streams["attitude"] = Stream(f"topic {name}", t, frames.attitudes(q, "ned", "frd"))
+    name, t, rates, rates_data = series("rates", _RATE_FIELDS, "body rate")
+    streams["rates"] = Stream(f"topic {name}", t, frames.body_vectors(rates, "frd"))
+    thrust_spec = str(settings["thrust"])
+    thrust_name = thrust_spec if ":" in thrust_spec else f"{thrust_spec}:0"
+    if thrust_spec and thrust_name in topics:
+        name, t, thrust, _ = series("thrust", _THRUST_FIELDS, "thrust")
+    elif _fields(rates_data, _THRUST_FIELDS) is not None:
+        name, t, thrust, _ = series("rates", _THRUST_FIELDS, "thrust")
+        notes.append(f"{path}: thrust from thrust_body[2] of topic {name}")
+    elif thrust_spec:
+        topic("thrust")  # raises: names the missing topic
+        raise AssertionError  # pragma: no cover
+    else:
+        raise LogError(f"{path}: no thrust: set the mapping key 'thrust' to a set-point topic")
+    streams["thrust"] = Stream(f"topic {name}", t, -thrust)  # body z is down in FRD
+    name, t, load, _ = series("load", _POSITION_FIELDS, "position")
+    streams["load"] = Stream(f"topic {name}", t, frames.world_vectors(load, "ned"))
+    return RawLog(path, "ulog", streams, True, settings, notes, hover_throttle=hover_throttle)
+
+
+def _fields(data: dict[str, np.ndarray], options: tuple[tuple[str, ...], ...]):
+    for cols in options:
+        if all(c in data for c in cols):
+            return cols
+    return None
+
+
+def _valid(data: dict[str, np.ndarray], flags: tuple[str, ...]) -> np.ndarray:
+    n = len(data["timestamp"])
+    keep = np.ones(n, dtype=bool)
+    for flag in flags:
+        if flag in data:
+            keep &= np.asarray(data[flag]) != 0
+    return keep

@@ -1,0 +1,102 @@
+"""The physics-step network: the paper's network correcting one step of the discrete model.
+
+Each decoder step starts from the discrete model f (``physics.step``) and adds the network's
+correction, in physical units::
+
+    x_hat_{k+1} = f(x_hat_k, u_k, a_k) + delta_std * out_k
+    a_{k+1}     = the load state that f returns with it
+
+for k = M-1 ... M+N-2, with x_hat_{M-1} the last measured state, out_k the head's 13 state
+rows and a = (vL, Omega_L) the unmeasured load state: a_{M-1} is the causal estimate from the
+last two measured states (``data.flight.estimate_load_state``, as the data's estimate at that
+step), and from there f carries it; the network never sees or corrects it. In network units
+the correction is out_k * delta_std / state_std, the paper network's residual gain, so the
+head's output has the same scale in both architectures: one step's typical change.
+
+A zero head (last head layer's weight and bias zero) therefore predicts ``physics.rollout``
+from the estimated load state, the paper's physics-only row, and the slack outputs are zero.
+Same layers, parameters, attention and decoder as ``SlungLoadNet``; only the decoder's state
+update (``start_rollout``/``next_state``) differs. Shapes: B batch, M history steps (M >= 2),
+N horizon steps.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from .. import physics
+from ..config import ModelConfig, VehicleParams
+from ..data.flight import estimate_load_state
+from .lstm_attention import SlungLoadNet
+
+
+class PhysicsCarry(NamedTuple):
+    """What the physics-step decoder carries from step k to k + 1 (physical units)."""
+
+    x: Tensor  # (B, 13) x_hat_k, positions relative to the origin (``SlungLoadNet.origin``)
+    aux: Tensor  # (B, 6) a_k = (vL m/s, Omega_L rad/s), carried by f alone
+    inputs: tuple[Tensor, ...]  # N x (B, 4) u_{M-1} ... u_{M+N-2}, (T N, omega rad/s)
+    scale: Tensor | None  # (13,) delta_std, state units; None without normalisation
+
+
+class PhysicsStepNet(SlungLoadNet):
+    """``SlungLoadNet`` whose decoder steps correct the discrete model: x_hat_{k+1} =
+    f(x_hat_k, u_k, a_k) + delta_std * out_k (see the module doc).
+
+    Takes and returns what ``SlungLoadNet`` does (physical units, ``Prediction`` with slack as
+    in the paper network) and has the same parameters: 238,906 with the default
+    ``ModelConfig`` (the physics adds none). The vehicle constants ``params`` are a plain
+    attribute, not a buffer: a checkpoint records them in its configs and ``load_checkpoint``
+    rebuilds the network with them. Needs M >= 2 history steps (the load-state estimate is a
+    backward difference).
+    """
+
+    architecture = "physics-step"  # its name in ``models.MODELS``
+
+    def __init__(
+        self, config: ModelConfig | None = None, params: VehicleParams | None = None
+    ) -> None:
+        cfg = config or ModelConfig(architecture=self.architecture)
+        if not cfg.residual:
+            # The head's output is always a correction added to f's step: there is no
+            # "predict the state itself" form of this architecture.
+            raise ValueError(
+                "PhysicsStepNet adds its output to a step of the discrete model; it has no "
+                "residual=False form (use the 'lstm-attention' architecture for that)"
+            )
+        super().__init__(cfg, params)
+        self.params = params or VehicleParams()
+
+    def start_rollout(self, x_rel: Tensor, u_hist: Tensor, u_future: Tensor) -> PhysicsCarry:
+        """The decoder's starting point: x_{M-1}, the estimate a_{M-1} and the physical inputs
+        f takes at each step, computed once per sequence.
+
+        x_rel (B, M, 13) history, positions relative to the origin; u_hist (B, M, 4);
+        u_future (B, N, 4); physical units. f runs in these relative coordinates: it depends
+        on positions only through pL - p, so shifting p and pL by the origin commutes with it
+        (and float32 keeps more digits near zero).
+        """
+        if x_rel.shape[1] < 2:
+            raise ValueError(
+                f"PhysicsStepNet needs M >= 2 history steps to estimate the load state "
+                f"(vL, Omega_L); got M = {x_rel.shape[1]}"
+            )
+        aux = estimate_load_state(x_rel[:, -2:], self.params)[:, -1]  # (B, 6) at step M-1
+        inputs = torch.cat([u_hist[:, -1:], u_future[:, :-1]], dim=1)  # (B, N, 4)
+        scale = self.delta_std if self.config.normalize else None
+        return PhysicsCarry(x_rel[:, -1], aux, inputs.unbind(1), scale)
+
+    def next_state(
+        self, z: Tensor, out: Tensor, k: int, carry: PhysicsCarry
+    ) -> tuple[Tensor, PhysicsCarry]:
+        """z_{M+k} = normalised f(x_hat_{M-1+k}, u_{M-1+k}, a_{M-1+k}) + out * delta_std.
+
+        ``z`` (the previous state in network units) is not needed: ``carry.x`` holds the same
+        state in physical units, which f takes. out (B, 13) -> z (B, 13) and the next carry.
+        """
+        x, aux = physics.step(carry.x, carry.inputs[k], carry.aux, self.params)
+        x = x + out if carry.scale is None else torch.addcmul(x, out, carry.scale)
+        return self.normalize_state(x), carry._replace(x=x, aux=aux)

@@ -1,0 +1,202 @@
+"""Where physics-informed training helps: the data-efficiency study (``slungload study data``).
+
+Each loss variant (and architecture) is trained on nested subsets of the training flights,
+6, 12, 24, ... of them, with the validation and test flights fixed, over seeds; the table and
+the figure give the combined RMSE at N = 50 on the test flights against the number of training
+flights, beside the physics model's (which no training changes).
+
+Layout of ``out``: ``data/`` (simulated unless given), ``subsets/train<k>/`` (the k first
+flights of a seeded order as train.txt, the same val.txt and test.txt; the listed flights
+linked, not copied), ``runs/train<k>/<architecture>-<variant>-s<seed>/``, ``study.csv``,
+``study.md``, ``study.png``. Finished runs are kept, so an interrupted study can be re-run.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .config import DEFAULT_ARCHITECTURE, VEHICLE_FILE, ModelConfig
+from .data.dataset import check_folder, read_splits
+from .evaluation.evaluator import evaluate
+from .evaluation.metrics import COMBINED
+from .evaluation.results import PHYSICS
+from .experiment import PAPER_VARIANTS, run_training_jobs
+from .fileio import write_splits, write_text
+from .sim import simulate_dataset
+
+TRAIN_SHARE = 0.58  # of a simulated dataset's windows in training (sim.dataset.SPLIT_FRACTIONS)
+
+
+@dataclass(frozen=True)
+class StudyRow:
+    """Combined RMSE at the study's horizon of one model trained on ``flights`` flights."""
+
+    flights: int
+    label: str  # "physics", or architecture/variant
+    seed: int | None
+    rmse: float
+
+
+def study_data(
+    *,
+    out: str | Path,
+    flights: Sequence[int] = (6, 12, 24, 48),
+    data: str | Path | None = None,
+    variants: Sequence[str] = PAPER_VARIANTS,
+    architectures: Sequence[str] = (DEFAULT_ARCHITECTURE,),
+    seeds: Sequence[int] = (0,),
+    preset: str = "default",
+    horizon: int = 50,
+    sim_seed: int = 0,
+    workers: int = 2,
+    progress: bool = True,
+) -> list[StudyRow]:
+    """Train every (architecture, variant, seed) on the first k training flights for each k
+    in ``flights`` and evaluate at ``horizon`` on the fixed test flights; writes the table and
+    the figure into ``out`` and returns the rows."""
+    sizes = sorted({int(k) for k in flights})
+    if not sizes or sizes[0] < 1:
+        raise ValueError(f"--flights must be positive counts, got {flights}")
+    out = Path(out)
+    data = (
+        Path(data)
+        if data is not None
+        else _simulated(out / "data", sizes[-1], sim_seed, workers, progress)
+    )
+    subsets = _nested_subsets(data, out / "subsets", sizes, sim_seed)
+    jobs = []
+    for k, folder in subsets.items():
+        for arch in architectures:
+            for variant in variants:
+                for seed in seeds:
+                    run = out / "runs" / f"train{k}" / f"{arch}-{variant}-s{seed}"
+                    if not (run / "run.json").is_file():
+                        jobs.append(_job(folder, run, variant, arch, seed, preset))
+    run_training_jobs(jobs, workers=workers, progress=progress)
+    rows = []
+    for k, folder in subsets.items():
+        runs = sorted((out / "runs" / f"train{k}").glob("*/run.json"))
+        report = evaluate(
+            [r.parent for r in runs], data=folder, horizons=(horizon,), progress=False
+        )
+        rows += [StudyRow(k, r.label, r.seed, r.metrics.rmse[COMBINED]) for r in report.results]
+    write_study(rows, out, horizon)
+    return rows
+
+
+def _simulated(folder: Path, largest: int, seed: int, workers: int, progress: bool) -> Path:
+    """A simulated dataset with at least ``largest`` training flights (made once)."""
+    if not (folder / "train.txt").is_file():
+        count = max(48, math.ceil(1.15 * largest / TRAIN_SHARE))
+        simulate_dataset(folder, flights=count, seed=seed, workers=workers, progress=progress)
+    return folder
+
+
+def _nested_subsets(data: Path, root: Path, sizes: list[int], seed: int) -> dict[int, Path]:
+    """For each k a dataset folder whose train.txt holds the first k training flights of one
+    seeded order (so each subset contains the smaller ones), with the same val and test."""
+    data, files = check_folder(data)
+    splits = read_splits(data)
+    pool = list(np.random.default_rng(seed).permutation(splits["train"]))
+    if len(pool) < sizes[-1]:
+        raise ValueError(
+            f"{data}: {len(pool)} training flights, fewer than the {sizes[-1]} asked for"
+        )
+    out = {}
+    for k in sizes:
+        folder = root / f"train{k}"
+        folder.mkdir(parents=True, exist_ok=True)
+        for name in [*pool[:k], *splits["val"], *splits["test"]]:  # only the listed flights
+            link = folder / files[name].name
+            if not link.exists():
+                os.symlink(files[name].resolve(), link)
+        if (data / VEHICLE_FILE).is_file():
+            shutil.copyfile(data / VEHICLE_FILE, folder / VEHICLE_FILE)
+        write_splits(folder, {"train": pool[:k], "val": splits["val"], "test": splits["test"]})
+        out[k] = folder
+    return out
+
+
+def _job(data: Path, run: Path, variant: str, arch: str, seed: int, preset: str) -> dict:
+    return dict(
+        data=data,
+        out=run,
+        variant=variant,
+        preset=preset,
+        seed=seed,
+        model_config=ModelConfig(architecture=arch),
+        progress=False,
+        num_threads=1,
+        resume=(run / "last.ckpt").is_file(),
+    )
+
+
+def write_study(rows: Sequence[StudyRow], out: Path, horizon: int) -> None:
+    """study.csv (every run), study.md (mean +- std over seeds) and study.png."""
+    lines = ["flights,label,seed,combined_rmse"]
+    lines += [f"{r.flights},{r.label},{'' if r.seed is None else r.seed},{r.rmse}" for r in rows]
+    write_text(out / "study.csv", "\n".join(lines) + "\n")
+    table = _mean_std(rows)
+    labels = list(dict.fromkeys(label for (_, label) in table))
+    sizes = sorted({k for (k, _) in table})
+    md = [
+        f"# Data-efficiency study: combined RMSE at N = {horizon} on the test flights",
+        "",
+        "| training flights | " + " | ".join(labels) + " |",
+        "|---|" + "---|" * len(labels),
+    ]
+    for k in sizes:
+        cells = [_cell(table.get((k, label))) for label in labels]
+        md.append(f"| {k} | " + " | ".join(cells) + " |")
+    write_text(out / "study.md", "\n".join(md) + "\n")
+    _figure(table, labels, sizes, out / "study.png", horizon)
+
+
+def _mean_std(rows: Sequence[StudyRow]) -> dict[tuple[int, str], tuple[float, float, int]]:
+    groups: dict[tuple[int, str], list[float]] = {}
+    for r in rows:
+        groups.setdefault((r.flights, r.label), []).append(r.rmse)
+    return {
+        key: (statistics.fmean(v), statistics.stdev(v) if len(v) > 1 else 0.0, len(v))
+        for key, v in groups.items()
+    }
+
+
+def _cell(value: tuple[float, float, int] | None) -> str:
+    if value is None:
+        return "-"
+    mean, std, n = value
+    return f"{mean:.3f}" + (f" ± {std:.3f}" if n > 1 else "")
+
+
+def _figure(table, labels: list[str], sizes: list[int], path: Path, horizon: int) -> None:
+    from matplotlib.figure import Figure
+
+    from .fileio import atomic_path
+
+    fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
+    ax = fig.add_subplot()
+    for i, label in enumerate(labels):
+        ks = [k for k in sizes if (k, label) in table]
+        mean = np.array([table[(k, label)][0] for k in ks])
+        std = np.array([table[(k, label)][1] for k in ks])
+        style = (
+            dict(color="0.3", linestyle=":") if label == PHYSICS else dict(marker="os^vD"[i % 5])
+        )
+        ax.errorbar(ks, mean, yerr=std, capsize=3, label=label, **style)
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(sizes, [str(k) for k in sizes])
+    ax.set_xlabel("training flights")
+    ax.set_ylabel(f"combined RMSE at N = {horizon}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)

@@ -1,0 +1,140 @@
+"""Shared fixtures: synthetic flights and dataset folders, the command line, quick training.
+
+The fixtures serve the plain helpers of ``flights.py`` (one implementation of each); the
+factories are session-scoped, so module-scoped fixtures may use them too.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import flights
+import pytest
+import torch
+from flights import SMALL, TINY, WINDOW_ARGS
+
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.data.dataset import Dataset, load_dataset
+from slungload.data.windows import make_windows
+
+
+@pytest.fixture(scope="session")
+def physics_flight() -> Callable[..., flights.Flight]:
+    """Factory ``physics_flight(name, seed=0, steps=40) -> Flight``: a flight of the paper's
+    discrete model (``flights.physics_flight``)."""
+    return flights.physics_flight
+
+
+@pytest.fixture(scope="session")
+def write_dataset() -> Callable[..., Path]:
+    """Factory ``write_dataset(folder, lengths=None, splits=None, *, physics=False,
+    vehicle=True) -> folder``: flights, split lists and vehicle.json
+    (``flights.write_dataset``)."""
+    return flights.write_dataset
+
+
+@pytest.fixture
+def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str, str]]:
+    """``run_cli(*argv) -> (exit code, stdout, stderr)``: ``slungload.cli.main`` in this
+    process; the arguments may be paths."""
+    from slungload.cli import main
+
+    def run(*argv: str | Path) -> tuple[int, str, str]:
+        code = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return run
+
+
+@pytest.fixture(scope="session")
+def train_tiny() -> Callable[..., Any]:
+    """Factory ``train_tiny(data, out, **overrides) -> Run``: ``train`` of the TINY network
+    on SMALL windows with the quick preset, one thread, no progress bar."""
+    from slungload.training.trainer import train
+
+    def run(data: Path | Dataset, out: Path, **overrides: Any):
+        options = {"preset": "quick", "model_config": TINY, "window": SMALL,
+                   "progress": False, "num_threads": 1, **overrides}  # fmt: skip
+        return train(data, out=out, **options)
+
+    return run
+
+
+class TinyRun(NamedTuple):
+    data: Path  # the dataset folder
+    dataset: Dataset  # that folder loaded with SMALL windows
+    out: Path  # the run folder
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory: pytest.TempPathFactory, train_tiny) -> TinyRun:
+    """One quick epoch of the TINY network on physics flights in the file schema: train_0
+    (40 steps), train_1 (43), val_2 (46), test_3 (49), test_4 (52). Shared by every module
+    that needs a trained run: use it read-only."""
+    root = tmp_path_factory.mktemp("tiny_run")
+    names = [f"{split}_{i}" for i, split in enumerate(["train", "train", "val", "test", "test"])]
+    lengths = {name: 40 + 3 * i for i, name in enumerate(names)}
+    splits = {s: [n for n in names if n.startswith(s)] for s in ("train", "val", "test")}
+    data = flights.write_dataset(root / "data", lengths, splits, physics=True)
+    dataset = load_dataset(data, window=SMALL, cache_dir=root / "cache")
+    train_tiny(dataset, root / "run", max_epochs=1)
+    return TinyRun(data, dataset, root / "run")
+
+
+@pytest.fixture(scope="session")
+def untrained_predictor() -> Callable[..., Any]:
+    """Factory ``untrained_predictor(config=ModelConfig(), seed=0) -> Predictor``: the
+    network of ``config`` with random weights (torch seed ``seed``), its normalisation (if
+    any) fitted on windows of three physics flights; the paper's M = 50, N = 25."""
+    from slungload.deploy.predictor import Predictor
+    from slungload.models.lstm_attention import SlungLoadNet
+
+    paper = WindowConfig(history=50, horizon=25)
+    fitting = [flights.physics_flight(f"f{i}", i, 150) for i in range(3)]
+    windows = make_windows(fitting, paper)
+
+    def make(config: ModelConfig = ModelConfig(), seed: int = 0) -> Predictor:  # noqa: B008
+        torch.manual_seed(seed)
+        model = SlungLoadNet(config)
+        if config.normalize:
+            model.fit_normalization(windows.states, windows.inputs, origin_step=paper.history - 1)
+        return Predictor(model.eval(), paper, VehicleParams(), "proposed")
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def subprocess_env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The environment of a ``slungload`` subprocess: its own dataset cache, one thread."""
+    cache = tmp_path_factory.mktemp("cache")
+    return {**os.environ, "SLUNGLOAD_CACHE": str(cache), "OMP_NUM_THREADS": "1"}
+
+
+@pytest.fixture(scope="session")
+def train_command() -> Callable[..., list[str]]:
+    """Factory ``train_command(data, out, *extra) -> argv``: ``python -m slungload.cli train``
+    with the quick preset on the CPU, one thread, SMALL windows, quiet."""
+
+    def command(data: Path, out: Path, *extra: str) -> list[str]:
+        return [
+            sys.executable, "-m", "slungload.cli", "train", "--data", str(data), "--out",
+            str(out), "--preset", "quick", "--device", "cpu", "--threads", "1", "--quiet",
+            *WINDOW_ARGS, *extra,
+        ]  # fmt: skip
+
+    return command
+
+
+@pytest.fixture(scope="session")
+def weights_of() -> Callable[[Path], dict[str, torch.Tensor]]:
+    """``weights_of(checkpoint) -> state_dict``: a checkpoint's network weights, on the CPU."""
+
+    def weights(path: Path) -> dict[str, torch.Tensor]:
+        return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
+
+    return weights

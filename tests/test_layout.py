@@ -1,0 +1,127 @@
+"""The package's layout: every import points down the data flow, and no import circle.
+
+config/state/fileio -> physics -> sim -> data -> models, loss -> training -> evaluation ->
+deploy -> experiment -> cli (docs/design.md). Read from the source's import statements, so a
+function-level import counts as much as a top-level one.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import slungload
+
+PACKAGE = Path(slungload.__file__).parent
+ORDER = {  # wing -> floor; a module may import its own floor and those below
+    "_version": 0, "config": 0, "state": 0, "fileio": 0,
+    "physics": 1,
+    "sim": 2,
+    "data": 3,
+    "models": 4, "loss": 4,
+    "training": 5,
+    "evaluation": 6,
+    "deploy": 7,
+    "experiment": 8, "study": 8,
+    "cli": 9,
+}  # fmt: skip
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def imports(path: Path) -> set[str]:
+    """slungload modules that ``path`` imports (``from . import x`` counts as module x)."""
+    name = module_name(path)
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target == "slungload" or target.startswith("slungload."):
+                subs = [f"{target}.{a.name}" for a in node.names]
+                found |= {s for s in subs if _is_module(s)} or {target}
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names if a.name.startswith("slungload")}
+    return found
+
+
+def _is_module(name: str) -> bool:
+    rel = Path(*name.split(".")[1:])
+    return (PACKAGE / rel).with_suffix(".py").is_file() or (PACKAGE / rel / "__init__.py").is_file()
+
+
+def wing(module: str) -> str:
+    return module.split(".")[1] if module.count(".") else ""
+
+
+def graph() -> dict[str, set[str]]:
+    return {
+        module_name(p): imports(p) for p in PACKAGE.rglob("*.py") if p != PACKAGE / "__init__.py"
+    }
+
+
+def upward_imports(edges: dict[str, set[str]]) -> list[str]:
+    """Imports of the package root or of a module on a higher floor."""
+    out = []
+    for module, targets in sorted(edges.items()):
+        for target in sorted(targets):
+            if target == "slungload":
+                out.append(f"{module} imports the package root (import the module instead)")
+            elif ORDER[wing(target)] > ORDER[wing(module)]:
+                out.append(f"{module} -> {target}")
+    return out
+
+
+def find_circle(edges: dict[str, set[str]]) -> list[str] | None:
+    """One import circle (a path that comes back to its start), or None."""
+    state: dict[str, int] = {}  # 1 on the current path, 2 done
+
+    def visit(node: str, path: list[str]) -> list[str] | None:
+        state[node] = 1
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == 1:
+                return [*path, node, nxt]
+            if nxt not in state and (found := visit(nxt, [*path, node])):
+                return found
+        state[node] = 2
+        return None
+
+    for node in sorted(edges):
+        if node not in state and (found := visit(node, [])):
+            return found
+    return None
+
+
+def test_every_import_points_down_the_data_flow():
+    assert upward_imports(graph()) == []
+
+
+def test_every_wing_has_a_floor():
+    assert {wing(m) for m in graph()} <= set(ORDER)
+
+
+def test_no_import_circle():
+    assert find_circle(graph()) is None
+
+
+def test_the_checks_find_an_upward_import_and_a_circle():
+    # The two rules must be able to fail: made-up graphs with the faults the package once had.
+    bad = {
+        "slungload.evaluation.evaluation": {"slungload.evaluation.report", "slungload.deploy.x"},
+        "slungload.evaluation.report": {"slungload.evaluation.evaluation"},
+    }
+    assert upward_imports(bad) == ["slungload.evaluation.evaluation -> slungload.deploy.x"]
+    assert find_circle(bad) == [
+        "slungload.evaluation.evaluation",
+        "slungload.evaluation.report",
+        "slungload.evaluation.evaluation",
+    ]
+    # And the reader sees this package's real imports, relative ones included.
+    assert "slungload.evaluation.results" in imports(PACKAGE / "deploy" / "timing.py")

@@ -1,0 +1,951 @@
+"""Flight logs into datasets (``slungload import``), the authors' release layout, vehicle keys.
+
+Bags are written here with ``rosbags``' own writers and message types (``mavros_msgs`` is not
+in rosbags' typestores: its definition is registered from ``readers.rosbag.MSG_DEFINITIONS``,
+as a ROS install would carry it); a ULog is written by a small writer below (pyulog only
+reads); CSV by hand. Each is imported back and compared with what was written.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.typesys import get_types_from_msg
+
+from slungload.cli import main
+from slungload.config import VehicleParams, load_vehicle, vehicle_from_dict
+from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.flight import DatasetError
+from slungload.data.importing import ImportOptions, backward_velocity, import_logs
+from slungload.data.readers import frames, read_flight
+from slungload.data.readers.logs import LogError
+from slungload.data.readers.rosbag import ATTITUDE_TARGET, MSG_DEFINITIONS
+from slungload.data.readers.ulog import ulog_streams
+from slungload.data.summary import summarize
+from slungload.fileio import read_npz, write_json, write_npz, write_splits
+
+PARAMS = VehicleParams()
+HOVER = 0.42
+T0_NS = 1_700_000_000_123_456_789  # a realistic ROS time, ns
+POSE, LOAD = "/vrpn_client_node/quad/pose", "/vrpn_client_node/load/pose"
+VEL, CMD = "/mavros/local_position/velocity_local", "/mavros/setpoint_raw/attitude"
+THRUST_PER_THROTTLE = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity / HOVER
+
+
+# --- flights to write -----------------------------------------------------------------------
+
+
+def truth(t: np.ndarray) -> dict[str, np.ndarray]:
+    """A smooth flight at times t: the published schema (attitude x-y-z-w), z up, FLU."""
+    p = np.stack([np.sin(0.5 * t), 0.5 * np.cos(0.3 * t), 1.0 + 0.1 * t], axis=1)
+    v = np.stack([0.5 * np.cos(0.5 * t), -0.15 * np.sin(0.3 * t), 0.1 + 0 * t], axis=1)
+    yaw, roll = 0.2 * t, 0.1 * np.sin(t)
+    q_yaw = np.stack([np.cos(yaw / 2), 0 * t, 0 * t, np.sin(yaw / 2)], axis=1)
+    q_roll = np.stack([np.cos(roll / 2), np.sin(roll / 2), 0 * t, 0 * t], axis=1)
+    q = frames.quat_multiply(q_yaw, q_roll)  # w-x-y-z
+    theta, rate = 0.3, 3.0
+    xi = np.stack(
+        [
+            np.sin(theta) * np.cos(rate * t),
+            np.sin(theta) * np.sin(rate * t),
+            -np.cos(theta) + 0 * t,
+        ],
+        axis=1,
+    )
+    return {
+        "time": t,
+        "p": p,
+        "v": v,
+        "attitude": q[:, [1, 2, 3, 0]],
+        "p_load": p + PARAMS.cable_length * xi,
+        "w_ref": np.stack([0.1 * np.sin(t), 0.05 * np.cos(t), 0.2 + 0 * t], axis=1),
+        "T_ref": (14.2 + 0.1 * np.sin(t))[:, None],
+    }
+
+
+def simulated_flight() -> dict[str, np.ndarray]:
+    """A short MuJoCo flight (noisy mocap, the PID's commands) in the published schema."""
+    from slungload.sim import simulate_flight
+
+    return simulate_flight("fast_ellipses_xy", seed=3, steps=70).arrays
+
+
+def sim_params() -> VehicleParams:
+    from slungload.sim import SimConfig, vehicle_params
+
+    return vehicle_params(SimConfig())
+
+
+# --- ROS bags -------------------------------------------------------------------------------
+
+
+def typestore(ros1: bool):
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    store.register(get_types_from_msg(MSG_DEFINITIONS[ATTITUDE_TARGET], ATTITUDE_TARGET))
+    return store
+
+
+class Msgs:
+    """Message builders of one typestore (ROS 1 headers carry a seq)."""
+
+    def __init__(self, store, ros1: bool) -> None:
+        self.store, self.ros1 = store, ros1
+        self.t = store.types
+
+    def header(self, ns: int):
+        stamp = self.t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
+        extra = {"seq": 0} if self.ros1 else {}
+        return self.t["std_msgs/msg/Header"](**extra, stamp=stamp, frame_id="world")
+
+    def vec(self, xyz, name="geometry_msgs/msg/Vector3"):
+        return self.t[name](x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2]))
+
+    def quat(self, xyzw):
+        x, y, z, w = (float(c) for c in xyzw)
+        return self.t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w)
+
+    def pose(self, ns, p, xyzw=(0, 0, 0, 1)):
+        pose = self.t["geometry_msgs/msg/Pose"](
+            position=self.vec(p, "geometry_msgs/msg/Point"), orientation=self.quat(xyzw)
+        )
+        return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(ns), pose=pose)
+
+    def twist(self, ns, v):
+        twist = self.t["geometry_msgs/msg/Twist"](linear=self.vec(v), angular=self.vec((0, 0, 0)))
+        return self.t["geometry_msgs/msg/TwistStamped"](header=self.header(ns), twist=twist)
+
+    def command(self, ns, rates, thrust_n, mask=0):
+        return self.t[ATTITUDE_TARGET](
+            header=self.header(ns),
+            type_mask=mask,
+            orientation=self.quat((0, 0, 0, 1)),
+            body_rate=self.vec(rates),
+            thrust=float(thrust_n / THRUST_PER_THROTTLE),
+        )
+
+
+def mavros_topics(m: Msgs, arrays: dict, times: dict[str, np.ndarray] | None = None) -> dict:
+    """topic -> (type, [(ns, message)]) of a flight: mocap poses, velocity, AttitudeTarget.
+    ``times`` (per topic, s after T0) samples ``truth`` there instead of using ``arrays``."""
+    out = {}
+
+    def at(topic: str):
+        if times is None:
+            return arrays["time"], arrays
+        return times[topic], truth(times[topic])
+
+    t, a = at(POSE)
+    ns = T0_NS + np.round(t * 1e9).astype(np.int64)
+    out[POSE] = (
+        "geometry_msgs/msg/PoseStamped",
+        [(int(n), m.pose(int(n), a["p"][i], a["attitude"][i])) for i, n in enumerate(ns)],
+    )
+    t, a = at(LOAD)
+    ns = T0_NS + np.round(t * 1e9).astype(np.int64)
+    out[LOAD] = (
+        "geometry_msgs/msg/PoseStamped",
+        [(int(n), m.pose(int(n), a["p_load"][i])) for i, n in enumerate(ns)],
+    )
+    t, a = at(VEL)
+    ns = T0_NS + np.round(t * 1e9).astype(np.int64)
+    out[VEL] = (
+        "geometry_msgs/msg/TwistStamped",
+        [(int(n), m.twist(int(n), a["v"][i])) for i, n in enumerate(ns)],
+    )
+    t, a = at(CMD)
+    ns = T0_NS + np.round(t * 1e9).astype(np.int64)
+    out[CMD] = (
+        ATTITUDE_TARGET,
+        [(int(n), m.command(int(n), a["w_ref"][i], a["T_ref"][i, 0])) for i, n in enumerate(ns)],
+    )
+    return out
+
+
+def write_bag(path: Path, topics: dict, store, *, ros1: bool, storage: str = "mcap") -> Path:
+    """Write ``topic -> (type, [(ns, message)])`` with rosbags' own writer, in bag-time order
+    (the messages' own order within a topic is kept; bag time is the header stamp)."""
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        writer, serialize = Writer(path), store.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer, serialize = Writer(path, version=9, storage_plugin=plugin), store.serialize_cdr
+    with writer:
+        conns = {
+            topic: writer.add_connection(topic, msgtype, typestore=store)
+            for topic, (msgtype, _) in topics.items()
+        }
+        rows = [
+            (ns, k, topic, msg)
+            for topic, (_, msgs) in topics.items()
+            for k, (ns, msg) in enumerate(msgs)
+        ]
+        for ns, _, topic, msg in sorted(rows, key=lambda r: (r[0], r[1])):
+            writer.write(conns[topic], ns, serialize(msg, topics[topic][0]))
+    return path
+
+
+def imported(folder: Path) -> dict[str, dict[str, np.ndarray]]:
+    return {p.stem: read_npz(p) for p in sorted((folder / "data").glob("*.npz"))}
+
+
+def rotation_angle(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:
+    dot = np.abs(np.sum(q1_xyzw * q2_xyzw, axis=-1))
+    return 2 * np.arccos(np.clip(dot, -1.0, 1.0))
+
+
+# --- round trips through bags ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("ros1", [False, True], ids=["ros2-mcap", "ros1-bag"])
+def test_simulated_flight_round_trip_through_a_bag(tmp_path, ros1):
+    """Every topic at the flight's own instants and dt = the flight's step: the grid falls on
+    the samples, so the interpolation error is zero and the import returns the flight (thrust
+    to float32, the AttitudeTarget's type)."""
+    arrays, params = simulated_flight(), sim_params()
+    store = typestore(ros1)
+    bag = write_bag(
+        tmp_path / ("flight.bag" if ros1 else "flight"),
+        mavros_topics(Msgs(store, ros1), arrays),
+        store,
+        ros1=ros1,
+    )
+    result = import_logs(
+        [bag],
+        tmp_path / "ds",
+        params=params,
+        options=ImportOptions(hover_throttle=HOVER, split="train"),
+        progress=False,
+    )
+    assert result.flights == {"flight": 70}
+    got = imported(tmp_path / "ds")["flight"]
+    np.testing.assert_allclose(got["time"], arrays["time"], atol=1e-12)
+    for key in ("p", "v", "p_load", "w_ref"):
+        np.testing.assert_allclose(got[key], arrays[key], atol=1e-6, err_msg=key)
+    assert rotation_angle(got["attitude"], arrays["attitude"]).max() < 1e-6
+    np.testing.assert_allclose(got["T_ref"], arrays["T_ref"], rtol=1e-6)
+    ds = load_dataset(tmp_path / "ds", use_cache=False, window=_window())
+    assert ds.params == params and list(ds.flights) == ["flight"]
+
+
+def _window():
+    from slungload.config import WindowConfig
+
+    return WindowConfig(history=10, horizon=5)
+
+
+@pytest.mark.parametrize(
+    ("ros1", "storage"), [(False, "sqlite3"), (True, "bag")], ids=["ros2-sqlite3", "ros1-bag"]
+)
+def test_multi_rate_bag_matches_the_flight_within_the_interpolation_error(tmp_path, ros1, storage):
+    """Mocap at 120 Hz with jitter, velocity at 50 Hz, commands at 40 Hz, none on the 30 ms
+    grid: positions and attitude within the linear / slerp bound h^2/8 max|f''|, commands
+    within the hold bound h max|f'|."""
+    rng = np.random.default_rng(0)
+    span = 4.0
+
+    def stamps(rate: float, offset: float) -> np.ndarray:
+        t = offset + np.arange(0, span, 1 / rate)
+        return t + rng.uniform(-0.1, 0.1, len(t)) / rate
+
+    times = {POSE: stamps(120, 0.003), LOAD: stamps(120, 0.001), VEL: stamps(50, 0.0)}
+    times[CMD] = stamps(40, 0.01)
+    store = typestore(ros1)
+    name = "multi.bag" if ros1 else "multi"
+    bag = write_bag(
+        tmp_path / name,
+        mavros_topics(Msgs(store, ros1), {}, times),
+        store,
+        ros1=ros1,
+        storage=storage,
+    )
+    import_logs(
+        [bag],
+        tmp_path / "ds",
+        params=PARAMS,
+        options=ImportOptions(hover_throttle=HOVER, split="train"),
+        progress=False,
+    )
+    got = imported(tmp_path / "ds")["multi"]
+    start = max(t[0] for t in times.values())
+    expected = truth(start + got["time"])
+    h_mocap, h_vel, h_cmd = 1.1 / 120, 1.1 / 50, 1.1 / 40
+    # |p''| <= 0.25, |pL''| <= 0.25 + 9 * 0.7 * sin 0.3; |v''| <= 0.125; |w'|, |T'| <= 0.1
+    assert np.abs(got["p"] - expected["p"]).max() < h_mocap**2 / 8 * 0.3 + 1e-6
+    assert np.abs(got["p_load"] - expected["p_load"]).max() < h_mocap**2 / 8 * 2.2 + 1e-6
+    assert np.abs(got["v"] - expected["v"]).max() < h_vel**2 / 8 * 0.15 + 1e-6
+    assert rotation_angle(got["attitude"], expected["attitude"]).max() < h_mocap**2 / 8 * 0.5
+    assert np.abs(got["w_ref"] - expected["w_ref"]).max() < h_cmd * 0.1 + 1e-6
+    assert np.abs(got["T_ref"] - expected["T_ref"]).max() < h_cmd * 0.1 + 1e-4
+    end = min(t[-1] for t in times.values())
+    assert len(got["time"]) == int((end - start) / PARAMS.dt) + 1
+
+
+def test_velocity_from_finite_differences_when_the_bag_has_none(tmp_path):
+    t = np.arange(0, 3, 0.01)
+    store = typestore(False)
+    topics = mavros_topics(Msgs(store, False), {}, {POSE: t, LOAD: t, VEL: t, CMD: t})
+    del topics[VEL]
+    bag = write_bag(tmp_path / "novel", topics, store, ros1=False)
+    result = import_logs(
+        [bag],
+        tmp_path / "ds",
+        mapping={"velocity": ""},
+        options=ImportOptions(hover_throttle=HOVER),
+        progress=False,
+    )
+    assert any("finite difference" in n for n in result.notes)
+    assert any("paper's are used" in n for n in result.notes)
+    got = imported(tmp_path / "ds")["novel"]
+    expected = truth(got["time"])
+    # BDF2: error h^2/3 |p'''| (|p'''| <= 0.125) from step 2; steps 0, 1 first order h/2 |p''|
+    assert np.abs(got["v"][2:] - expected["v"][2:]).max() < PARAMS.dt**2 / 3 * 0.13 + 1e-5
+    assert np.abs(got["v"][:2] - expected["v"][:2]).max() < PARAMS.dt / 2 * 0.26
+
+
+def test_px4_ros2_preset_with_vehicle_rates_setpoint(tmp_path):
+    """PX4 over ROS 2: px4_msgs/VehicleRatesSetpoint (FRD rates, thrust_body[2] negative up)
+    registered from MSG_DEFINITIONS, mocap from vrpn_mocap, no velocity topic."""
+    from slungload.data.readers.rosbag import RATES_SETPOINT
+
+    store = typestore(False)
+    store.register(get_types_from_msg(MSG_DEFINITIONS[RATES_SETPOINT], RATES_SETPOINT))
+    m = Msgs(store, False)
+    t = np.arange(0, 3, 0.01)
+    topics = mavros_topics(m, {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t))
+    a = truth(t)
+    setpoints = [
+        store.types[RATES_SETPOINT](
+            timestamp=0,
+            roll=float(a["w_ref"][i, 0]),
+            pitch=float(-a["w_ref"][i, 1]),
+            yaw=float(-a["w_ref"][i, 2]),
+            thrust_body=np.array([0, 0, -a["T_ref"][i, 0] / THRUST_PER_THROTTLE], np.float32),
+            reset_integral=False,
+        )
+        for i in range(len(t))
+    ]
+    px4 = {
+        "/vrpn_mocap/quad/pose": topics[POSE],
+        "/vrpn_mocap/load/pose": topics[LOAD],
+        "/fmu/in/vehicle_rates_setpoint": (
+            RATES_SETPOINT,
+            [(ns, s) for (ns, _), s in zip(topics[CMD][1], setpoints, strict=True)],
+        ),
+    }
+    bag = write_bag(tmp_path / "px4bag", px4, store, ros1=False)
+    result = import_logs(
+        [bag],
+        tmp_path / "ds",
+        params=PARAMS,
+        preset="px4",
+        options=ImportOptions(hover_throttle=HOVER),
+        progress=False,
+    )
+    assert any("finite difference" in n for n in result.notes)
+    got = imported(tmp_path / "ds")["px4bag"]
+    expected = truth(got["time"])
+    np.testing.assert_allclose(got["w_ref"], expected["w_ref"], atol=1e-6)
+    np.testing.assert_allclose(got["T_ref"], expected["T_ref"], rtol=1e-6)
+
+
+def test_backward_velocity_is_causal_and_exact_for_a_quadratic():
+    t = 0.03 * np.arange(20)
+    p = np.stack([t**2, 3 * t, 0 * t], axis=1)
+    v = backward_velocity(p, 0.03)
+    np.testing.assert_allclose(v[2:], np.stack([2 * t, 3 + 0 * t, 0 * t], axis=1)[2:], atol=1e-12)
+    changed = p.copy()
+    changed[10:] += 1.0  # the future does not move the past
+    np.testing.assert_array_equal(backward_velocity(changed, 0.03)[:10], v[:10])
+
+
+def test_gap_splits_the_flight_and_short_pieces_are_dropped(tmp_path):
+    t = np.arange(0, 5, 0.01)
+    store = typestore(False)
+    keep = (t < 2.0) | (t > 2.5)
+    topics = mavros_topics(
+        Msgs(store, False), {}, {POSE: t[keep], LOAD: t, VEL: t, CMD: np.arange(0, 5, 0.02)}
+    )
+    bag = write_bag(tmp_path / "gappy", topics, store, ros1=False)
+    result = import_logs(
+        [bag],
+        tmp_path / "ds",
+        params=PARAMS,
+        options=ImportOptions(hover_throttle=HOVER, split="train"),
+        progress=False,
+    )
+    assert sorted(result.flights) == ["gappy_00", "gappy_01"]
+    flights = imported(tmp_path / "ds")
+    assert abs(len(flights["gappy_00"]["time"]) * PARAMS.dt - 2.0) < 2 * PARAMS.dt
+    result = import_logs(
+        [bag],
+        tmp_path / "ds2",
+        params=PARAMS,
+        options=ImportOptions(hover_throttle=HOVER, min_duration=2.2),
+        progress=False,
+    )
+    assert list(result.flights) == ["gappy"] and any("dropped" in n for n in result.notes)
+
+
+# --- bad logs: one clear line, exit status 2, nothing written ------------------------------------
+
+
+def _bad_bag(tmp_path: Path, spoil) -> Path:
+    t = np.arange(0, 3, 0.01)
+    store = typestore(False)
+    msgs = Msgs(store, False)
+    topics = mavros_topics(msgs, {}, {POSE: t, LOAD: t, VEL: t, CMD: t})
+    spoil(topics, msgs)
+    return write_bag(tmp_path / "bad", topics, store, ros1=False)
+
+
+def _drop(topic):
+    def spoil(topics, msgs):
+        del topics[topic]
+
+    return spoil
+
+
+def _wrong_type(topics, msgs):
+    topics[LOAD] = (
+        "geometry_msgs/msg/TwistStamped",
+        [(ns, msgs.twist(ns, (0, 0, 0))) for ns, _ in topics[LOAD][1]],
+    )
+
+
+def _gap(topics, msgs):
+    kind, rows = topics[POSE]
+    topics[POSE] = (kind, rows[:100] + rows[150:])
+
+
+def _out_of_order(topics, msgs):
+    """Messages 40 and 41 swapped, bag times kept: the header stamps go back at 41."""
+    kind, rows = topics[LOAD]
+    swapped = [m for _, m in rows]
+    swapped[40], swapped[41] = swapped[41], swapped[40]
+    topics[LOAD] = (kind, [(ns, m) for (ns, _), m in zip(rows, swapped, strict=True)])
+
+
+def _never_seen(topics, msgs):
+    kind, rows = topics[LOAD]
+    topics[LOAD] = (kind, [(ns, msgs.pose(ns, (np.nan, np.nan, np.nan))) for ns, _ in rows])
+
+
+def _no_load_messages(topics, msgs):
+    kind, _ = topics[LOAD]
+    topics[LOAD] = (kind, [])
+
+
+def _ignored_rates(topics, msgs):
+    kind, rows = topics[CMD]
+    topics[CMD] = (kind, [(ns, msgs.command(ns, (0, 0, 0), 14.0, mask=7)) for ns, _ in rows])
+
+
+BAD_BAGS = {
+    "missing topic": (_drop(LOAD), [LOAD, "no topic", "the bag has"], []),
+    "wrong message type": (_wrong_type, [LOAD, "TwistStamped", "PoseStamped"], []),
+    "gap longer than the limit": (
+        _gap,
+        [POSE, "no sample for 0.5", "gap limit"],
+        ["--on-gap", "error"],
+    ),
+    "stamps out of order": (_out_of_order, [LOAD, "out of order at message 41"], []),
+    "load never seen": (_never_seen, [LOAD, "load is never seen"], []),
+    "load topic empty": (_no_load_messages, [LOAD, "load is never seen"], []),
+    "rates ignored": (_ignored_rates, [CMD, "type_mask 7", "body rates"], []),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_BAGS))
+def test_bad_bag_is_one_clear_error_and_writes_nothing(tmp_path, capsys, case):
+    spoil, words, extra = BAD_BAGS[case]
+    bag = _bad_bag(tmp_path, spoil)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    out = tmp_path / "ds"
+    code = main(
+        ["import", str(bag), "--out", str(out), "--hover-throttle", "0.4", "--quiet", *extra]
+    )
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("slungload import: error: "), err
+    for word in [str(bag), *words]:
+        assert word in lines[0], (word, lines[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no ds, no temporary folder
+
+
+def test_normalised_thrust_needs_a_hover_throttle(tmp_path):
+    t = np.arange(0, 2, 0.01)
+    store = typestore(False)
+    bag = write_bag(
+        tmp_path / "b",
+        mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t)),
+        store,
+        ros1=False,
+    )
+    with pytest.raises(LogError, match=f"{CMD} is a normalised throttle.*--hover-throttle"):
+        import_logs([bag], tmp_path / "ds", params=PARAMS, progress=False)
+    assert not (tmp_path / "ds").exists()
+
+
+def test_existing_folder_is_refused_unless_overwrite(tmp_path):
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="not empty"):
+        import_logs([tmp_path / "none.bag"], out, progress=False)
+    assert (out / "keep.txt").read_text() == "mine"
+
+
+def test_unknown_mapping_key_lists_the_known_ones(tmp_path):
+    t = np.arange(0, 2, 0.01)
+    store = typestore(False)
+    bag = write_bag(
+        tmp_path / "b",
+        mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t)),
+        store,
+        ros1=False,
+    )
+    with pytest.raises(LogError, match=r"unknown mapping keys \['lod_pose'\].*load_pose"):
+        import_logs([bag], tmp_path / "ds", mapping={"lod_pose": "/x"}, progress=False)
+
+
+def test_mapping_file_and_cli_import_then_inspect(tmp_path, capsys):
+    t = np.arange(0, 4, 0.01)
+    store = typestore(False)
+    topics = mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t))
+    renamed = {"/optitrack/drone": topics[POSE], "/optitrack/box": topics[LOAD], CMD: topics[CMD]}
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    for i in range(3):
+        write_bag(bags / f"run_{i}", renamed, store, ros1=False)
+    mapping = tmp_path / "topics.toml"
+    mapping.write_text(
+        '[ros]\nvehicle_pose = "/optitrack/drone"\nload_pose = "/optitrack/box"\nvelocity = ""\n'
+    )
+    vehicle = tmp_path / "my_vehicle.json"
+    vehicle.write_text(json.dumps({"mass_quadrotor": 1.5, "load_mass": 0.2, "rope_length": 0.65}))
+    out = tmp_path / "ds"
+    code = main(
+        ["import", str(bags), "--out", str(out), "--map", str(mapping), "--vehicle", str(vehicle),
+         "--hover-throttle", "0.45", "--quiet"]
+    )  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "imported 3 flight(s)" in captured.out and "finite difference" in captured.out
+    assert sorted(p.name for p in out.iterdir()) == [
+        "data",
+        "test.txt",
+        "train.txt",
+        "val.txt",
+        "vehicle.json",
+    ]
+    splits = read_splits(out)  # a seeded draw by flight: one each for three equal flights
+    assert sorted(n for v in splits.values() for n in v) == ["run_0", "run_1", "run_2"]
+    assert all(len(v) == 1 for v in splits.values())
+    assert all(
+        line.endswith(".npz")
+        for s in ("train", "val", "test")
+        for line in (out / f"{s}.txt").read_text().split()
+    )
+    params = load_vehicle(out)
+    assert (params.mass_quad, params.mass_load, params.cable_length) == (1.5, 0.2, 0.65)
+    meta = json.loads((out / "vehicle.json").read_text())["import"]
+    assert meta["interpolation"]["attitude"] == "slerp" and len(meta["flights"]) == 3
+    assert main(["inspect", str(out), "--history", "10", "--horizon", "5"]) == 0
+    assert "run_0" not in capsys.readouterr().err
+
+
+# --- frames -------------------------------------------------------------------------------------
+
+
+def test_ned_and_frd_vectors():
+    np.testing.assert_array_equal(frames.world_vectors([1.0, 2.0, -3.0], "ned"), [2.0, 1.0, 3.0])
+    np.testing.assert_array_equal(frames.world_vectors([1.0, 2.0, 3.0], "enu"), [1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(frames.body_vectors([1.0, 2.0, 3.0], "frd"), [1.0, -2.0, -3.0])
+    with pytest.raises(ValueError, match="unknown world frame 'nwu'"):
+        frames.world_vectors([0, 0, 0], "nwu")
+
+
+def _axis_angle(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def test_px4_attitudes_on_known_rotations():
+    e = np.eye(3)
+    # level, nose north: in ENU the nose points along +y (yaw +90 deg), up is up
+    q = frames.attitudes(_axis_angle([0, 0, 1], 0.0), "ned", "frd")
+    np.testing.assert_allclose(q, _axis_angle([0, 0, 1], np.pi / 2), atol=1e-12)
+    # yaw 90 deg in NED (nose east): ENU identity
+    q = frames.attitudes(_axis_angle([0, 0, 1], np.pi / 2), "ned", "frd")
+    assert min(np.abs(q - [1, 0, 0, 0]).max(), np.abs(q + [1, 0, 0, 0]).max()) < 1e-12
+    # pitch up 30 deg (about FRD's right axis), nose north: nose (0, cos, sin) in ENU
+    th = np.radians(30)
+    q = frames.attitudes(_axis_angle([0, 1, 0], th), "ned", "frd")
+    np.testing.assert_allclose(frames.rotate(q, e[0]), [0, np.cos(th), np.sin(th)], atol=1e-12)
+    # body up (FLU z) tilts back, away from the nose: (0, -sin, cos)
+    np.testing.assert_allclose(frames.rotate(q, e[2]), [0, -np.sin(th), np.cos(th)], atol=1e-12)
+    # roll right 20 deg about the nose: FLU's left wing (y) rises
+    ph = np.radians(20)
+    q = frames.attitudes(_axis_angle([1, 0, 0], ph), "ned", "frd")
+    left = frames.rotate(q, e[1])
+    np.testing.assert_allclose(left, [-np.cos(ph), 0, np.sin(ph)], atol=1e-12)
+
+
+def test_attitude_and_rate_conversions_agree_with_the_attitude_update():
+    """q+ = q (x) exp(h w / 2) in PX4's frames maps to the same update in ours with the rates
+    converted by body_vectors: the attitude and rate conversions are consistent."""
+    rng = np.random.default_rng(1)
+    q0 = rng.normal(size=4)
+    q0 /= np.linalg.norm(q0)
+    w, h = rng.normal(size=3), 0.05
+    step = _axis_angle(w, h * np.linalg.norm(w))
+    q1 = frames.quat_multiply(q0, step)
+    w_flu = frames.body_vectors(w, "frd")
+    ours = frames.quat_multiply(
+        frames.attitudes(q0, "ned", "frd"), _axis_angle(w_flu, h * np.linalg.norm(w_flu))
+    )
+    np.testing.assert_allclose(ours, frames.attitudes(q1, "ned", "frd"), atol=1e-12)
+    # and against rotation matrices: R' = M R B with M: NED -> ENU, B: FLU <-> FRD
+    m = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
+    b = np.diag([1.0, -1.0, -1.0])
+    r = np.stack([frames.rotate(q0, col) for col in np.eye(3)], axis=1)
+    q = frames.attitudes(q0, "ned", "frd")
+    r_conv = np.stack([frames.rotate(q, col) for col in np.eye(3)], axis=1)
+    np.testing.assert_allclose(r_conv, m @ r @ b, atol=1e-12)
+
+
+def test_slerp():
+    q0, q1 = _axis_angle([0, 0, 1], 0.0), _axis_angle([0, 0, 1], np.pi / 2)
+    got = frames.slerp(np.array([0.0, 0.5, 1.0]), np.array([0.0, 1.0]), np.stack([q0, -q1]))
+    half = _axis_angle([0, 0, 1], np.pi / 4)
+    assert min(np.abs(got[1] - half).max(), np.abs(got[1] + half).max()) < 1e-12
+    np.testing.assert_allclose(np.linalg.norm(got, axis=1), 1.0)
+
+
+# --- PX4 ULog -------------------------------------------------------------------------------
+
+
+def write_ulog(path: Path, topics: dict[tuple[str, int], dict[str, np.ndarray]], params: dict):
+    """A minimal ULog (header, formats, parameters, subscriptions, data) as PX4 writes it:
+    ``(name, instance) -> field -> values`` with ``timestamp`` (uint64, us) and float fields
+    (``name[i]`` for arrays)."""
+
+    def message(kind: str, payload: bytes) -> bytes:
+        return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+    out = bytearray(b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", 0))
+    out += message("B", bytes(16) + bytes(24))
+    for name in sorted({n for n, _ in topics}):
+        fields = next(f for (n, _), f in topics.items() if n == name)
+        arrays: dict[str, int] = {}
+        for key in fields:
+            if key != "timestamp":
+                base = key.split("[")[0]
+                arrays[base] = arrays.get(base, 0) + 1
+        spec = "uint64_t timestamp;" + "".join(
+            f"float[{n}] {b};" if any(k.startswith(f"{b}[") for k in fields) else f"float {b};"
+            for b, n in arrays.items()
+        )
+        out += message("F", f"{name}:{spec}".encode())
+    for key, value in params.items():
+        name = f"float {key}".encode()
+        out += message("P", bytes([len(name)]) + name + struct.pack("<f", value))
+    ids = {}
+    for i, (name, instance) in enumerate(topics):
+        ids[(name, instance)] = i
+        out += message("A", struct.pack("<BH", instance, i) + name.encode())
+    rows = []
+    for key, fields in topics.items():
+        order = [k for k in fields if k != "timestamp"]
+        for j, stamp in enumerate(fields["timestamp"]):
+            payload = struct.pack("<HQ", ids[key], int(stamp))
+            payload += struct.pack(f"<{len(order)}f", *(float(fields[k][j]) for k in order))
+            rows.append((int(stamp), message("D", payload)))
+    for _, row in sorted(rows, key=lambda r: r[0]):
+        out += row
+    path.write_bytes(bytes(out))
+    return path
+
+
+def px4_topics(t_us: dict[str, np.ndarray], with_load: bool = True) -> dict:
+    """PX4's topics (NED, FRD, normalised thrust) of the ``truth`` flight."""
+    m = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])  # ENU <-> NED (its own inverse)
+
+    def at(key):
+        return truth(t_us[key] * 1e-6)
+
+    a = at("position")
+    p, v = a["p"] @ m, a["v"] @ m
+    topics = {
+        ("vehicle_local_position", 0): {
+            "timestamp": t_us["position"],
+            **{k: p[:, i] for i, k in enumerate("xyz")},
+            **{f"v{k}": v[:, i] for i, k in enumerate("xyz")},
+        }
+    }
+    a = at("attitude")
+    q_flu = a["attitude"][:, [3, 0, 1, 2]]
+    # inverse of frames.attitudes(., "ned", "frd"): q_ned_frd = M^-1 q B
+    q_ned = frames.quat_multiply(
+        frames.quat_conjugate(frames.Q_ENU_FROM_NED),
+        frames.quat_multiply(q_flu, frames.Q_FLU_FROM_FRD),
+    )
+    topics[("vehicle_attitude", 0)] = {
+        "timestamp": t_us["attitude"],
+        **{f"q[{i}]": q_ned[:, i] for i in range(4)},
+    }
+    a = at("rates")
+    w = a["w_ref"] * [1, -1, -1]
+    topics[("vehicle_rates_setpoint", 0)] = {
+        "timestamp": t_us["rates"],
+        "roll": w[:, 0],
+        "pitch": w[:, 1],
+        "yaw": w[:, 2],
+    }
+    a = at("thrust")
+    topics[("vehicle_thrust_setpoint", 0)] = {
+        "timestamp": t_us["thrust"],
+        "xyz[0]": 0 * a["time"],
+        "xyz[1]": 0 * a["time"],
+        "xyz[2]": -a["T_ref"][:, 0] / THRUST_PER_THROTTLE,
+    }
+    if with_load:
+        a = at("load")
+        pl = a["p_load"] @ m
+        topics[("vehicle_mocap_odometry", 1)] = {
+            "timestamp": t_us["load"],
+            **{f"position[{i}]": pl[:, i] for i in range(3)},
+        }
+    return topics
+
+
+def test_ulog_round_trip(tmp_path):
+    """A ULog written here (PX4's topics in NED / FRD, MPC_THR_HOVER as a parameter) and read
+    by pyulog comes back as the flight within the interpolation error."""
+    us = {k: np.arange(0, 3_000_000, r) + o for k, r, o in
+          [("position", 10_000, 1000), ("attitude", 4_000, 0), ("rates", 20_000, 500),
+           ("thrust", 20_000, 700), ("load", 8_333, 300)]}  # fmt: skip
+    log = write_ulog(tmp_path / "px4.ulg", px4_topics(us), {"MPC_THR_HOVER": HOVER})
+    with pytest.raises(LogError, match=r"px4.ulg: the log holds no load position.*"
+                       r"vehicle_local_position:0, vehicle_mocap_odometry:1"):  # fmt: skip
+        import_logs([log], tmp_path / "x", params=PARAMS, progress=False)
+    result = import_logs(
+        [log],
+        tmp_path / "ds",
+        params=PARAMS,
+        mapping={"load": "vehicle_mocap_odometry:1"},
+        options=ImportOptions(split="train"),
+        progress=False,
+    )
+    assert any("MPC_THR_HOVER" in n for n in result.notes)
+    got = imported(tmp_path / "ds")["px4"]
+    start = max(v[0] for v in us.values()) * 1e-6
+    expected = truth(start + got["time"])
+    assert np.abs(got["p"] - expected["p"]).max() < 0.01**2 / 8 * 0.3 + 1e-6
+    assert np.abs(got["v"] - expected["v"]).max() < 1e-5
+    assert np.abs(got["p_load"] - expected["p_load"]).max() < 0.0084**2 / 8 * 2.2 + 1e-6
+    assert rotation_angle(got["attitude"], expected["attitude"]).max() < 1e-5
+    assert np.abs(got["w_ref"] - expected["w_ref"]).max() < 0.02 * 0.1 + 1e-6
+    assert np.abs(got["T_ref"] - expected["T_ref"]).max() < 0.02 * 0.1 + 1e-4
+
+
+def test_ulog_conversion_on_arrays_and_missing_topics(tmp_path):
+    us = {
+        k: np.arange(0, 2_000_000, 10_000)
+        for k in ("position", "attitude", "rates", "thrust", "load")
+    }
+    topics = {f"{n}:{i}": f for (n, i), f in px4_topics(us).items()}
+    raw = ulog_streams(topics, tmp_path / "a.ulg", {"load": "vehicle_mocap_odometry:1"})
+    expected = truth(us["position"] * 1e-6)
+    np.testing.assert_allclose(raw.streams["position"].values, expected["p"], atol=1e-12)
+    np.testing.assert_allclose(raw.streams["rates"].values, expected["w_ref"], atol=1e-12)
+    np.testing.assert_allclose(
+        raw.streams["thrust"].values[:, 0] * THRUST_PER_THROTTLE,
+        expected["T_ref"][:, 0],
+        rtol=1e-12,
+    )
+    del topics["vehicle_rates_setpoint:0"]
+    with pytest.raises(
+        LogError, match=r"a.ulg: no topic 'vehicle_rates_setpoint' \(mapping key 'rates'\)"
+    ):
+        ulog_streams(topics, tmp_path / "a.ulg", {"load": "vehicle_mocap_odometry:1"})
+
+
+# --- CSV ----------------------------------------------------------------------------------------
+
+
+def _write_csv(path: Path, columns: dict[str, np.ndarray]) -> Path:
+    names = list(columns)
+    n = max(len(c) for c in columns.values())
+    lines = [",".join(names)]
+    for i in range(n):
+        cells = []
+        for name in names:
+            c = columns[name]
+            cells.append("" if i >= len(c) or np.isnan(c[i]) else repr(float(c[i])))
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_csv_round_trip_with_the_default_columns(tmp_path):
+    a = truth(PARAMS.dt * np.arange(80))
+    columns = {"time": a["time"]}
+    for key in ("p", "v", "attitude", "p_load", "w_ref"):
+        axes = "xyzw" if key == "attitude" else "xyz"
+        columns.update({f"{key}_{ax}": a[key][:, i] for i, ax in enumerate(axes)})
+    columns["T_ref"] = a["T_ref"][:, 0]
+    log = _write_csv(tmp_path / "flight.csv", columns)
+    import_logs([log], tmp_path / "ds", params=PARAMS, progress=False)
+    got = imported(tmp_path / "ds")["flight"]
+    for key in ("time", "p", "v", "p_load", "w_ref", "T_ref"):
+        np.testing.assert_allclose(got[key], a[key], atol=1e-12, err_msg=key)
+    assert rotation_angle(got["attitude"], a["attitude"]).max() < 1e-7
+
+
+def test_csv_with_a_column_map_ned_frd_ms_and_normalised_thrust(tmp_path):
+    """Mocap at 100 Hz and commands at 50 Hz in rows of their own (blank cells elsewhere),
+    NED / FRD, time in ms, throttle: the column map brings them back."""
+    m = np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1.0]])
+    t_mocap, t_cmd = np.arange(0, 3, 0.01), np.arange(0.005, 3, 0.02)
+    a, c = truth(t_mocap), truth(t_cmd)
+    q = frames.quat_multiply(
+        frames.quat_conjugate(frames.Q_ENU_FROM_NED),
+        frames.quat_multiply(a["attitude"][:, [3, 0, 1, 2]], frames.Q_FLU_FROM_FRD),
+    )
+    names = ["t_ms", "N0", "N1", "N2", "Q0", "Q1", "Q2", "Q3", "L0", "L1", "L2"]
+    names += ["wx", "wy", "wz", "throttle"]
+    mocap = np.column_stack([t_mocap * 1000, a["p"] @ m, q, a["p_load"] @ m])
+    w = c["w_ref"] * [1, -1, -1]
+    cmd = np.column_stack([t_cmd * 1000, w, c["T_ref"][:, 0] / THRUST_PER_THROTTLE])
+    rows = [(r[0], ",".join(map(repr, r.tolist())) + ",,,,") for r in mocap]
+    rows += [
+        (r[0], f"{float(r[0])!r}" + "," * 11 + ",".join(map(repr, r[1:].tolist()))) for r in cmd
+    ]
+    log = tmp_path / "mocap.csv"
+    log.write_text(",".join(names) + "\n" + "".join(f"{r}\n" for _, r in sorted(rows)))
+    mapping = {
+        "time": "t_ms", "time_unit": "ms", "p": ["N0", "N1", "N2"], "v": "",
+        "attitude": ["Q1", "Q2", "Q3", "Q0"], "p_load": ["L0", "L1", "L2"],
+        "w_ref": ["wx", "wy", "wz"], "T_ref": "throttle", "thrust": "normalized",
+        "world": "ned", "body": "frd", "rates": "frd",
+    }  # fmt: skip
+    (tmp_path / "map.json").write_text(json.dumps({"csv": mapping}))
+    out = tmp_path / "ds"
+    code = main(["import", str(log), "--out", str(out), "--map", str(tmp_path / "map.json"),
+                 "--hover-throttle", str(HOVER), "--quiet"])  # fmt: skip
+    assert code == 0
+    got = imported(out)["mocap"]
+    expected = truth(0.005 + got["time"])  # the commands start last, at 5 ms
+    assert np.abs(got["p"] - expected["p"]).max() < 1e-4
+    assert rotation_angle(got["attitude"], expected["attitude"]).max() < 1e-4
+    assert np.abs(got["w_ref"] - expected["w_ref"]).max() < 0.02 * 0.1 + 1e-9
+    assert np.abs(got["T_ref"] - expected["T_ref"]).max() < 0.02 * 0.1 + 1e-9
+    assert np.abs(got["v"][2:] - expected["v"][2:]).max() < 1e-3
+
+
+def test_csv_errors_name_the_column(tmp_path, capsys):
+    log = tmp_path / "bad.csv"
+    log.write_text("time,p_x\n0.0,1.0\n")
+    code = main(["import", str(log), "--out", str(tmp_path / "ds"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and "bad.csv: no column 'p_y' (mapping key 'p')" in err
+    log.write_text("time,p_x\n0.0,abc\n")
+    with pytest.raises(LogError, match=r"bad.csv: row 2, column 'p_x': 'abc' is not a number"):
+        import_logs([log], tmp_path / "ds", mapping={"p": ["p_x"] * 3}, progress=False)
+    assert not (tmp_path / "ds").exists()
+
+
+# --- the authors' release layout and vehicle keys -----------------------------------------------
+
+
+def _release(folder: Path, names: list[str]) -> Path:
+    for i, name in enumerate(names):
+        write_npz(folder / "data" / f"{name}.npz", truth(PARAMS.dt * np.arange(40 + i)))
+    (folder / "train.txt").write_text("".join(f"{n}.npz\n" for n in names[:-2]))
+    (folder / "val.txt").write_text(f"{names[-2]}.npz\n")
+    (folder / "test.txt").write_text(f"{names[-1]}.npz\n")
+    return folder
+
+
+def test_authors_release_layout_loads_and_inspects(tmp_path, capsys):
+    folder = _release(tmp_path / "DATASET", ["xy_step", "xy_step_04", "baf_fast_01", "roll_35_00"])
+    ds = load_dataset(folder, params=PARAMS, window=_window(), use_cache=False)
+    assert sorted(ds.flights) == ["baf_fast_01", "roll_35_00", "xy_step", "xy_step_04"]
+    assert ds.splits["val"].names == ("baf_fast_01",)
+    assert ds.flights["xy_step"].path == folder / "data" / "xy_step.npz"
+    summary = summarize(folder, params=PARAMS, window=_window())
+    assert summary.splits["train"].flights == 2
+    assert main(["inspect", str(folder), "--history", "10", "--horizon", "5"]) == 0
+    assert "train" in capsys.readouterr().out
+    write_npz(folder / "stray.npz", truth(PARAMS.dt * np.arange(40)))
+    with pytest.raises(DatasetError, match="both at the top .* and under data/"):
+        load_dataset(folder, params=PARAMS, window=_window(), use_cache=False)
+
+
+def test_write_splits_names_files_with_npz_and_reads_both(tmp_path):
+    for name in ("a", "b", "c"):
+        write_npz(tmp_path / f"{name}.npz", truth(PARAMS.dt * np.arange(20)))
+    write_splits(tmp_path, {"train": ["a", "b.npz"], "val": ["c"], "test": []})
+    assert (tmp_path / "train.txt").read_text() == "a.npz\nb.npz\n"
+    assert (tmp_path / "val.txt").read_text() == "c.npz\n"
+    assert read_splits(tmp_path) == {"train": ["a", "b"], "val": ["c"], "test": []}
+    (tmp_path / "train.txt").write_text("a\nb\n")  # our old lists, without the suffix
+    assert read_splits(tmp_path)["train"] == ["a", "b"]
+
+
+def test_vehicle_keys_aliases_and_unknown_keys(tmp_path):
+    p = vehicle_from_dict({"mass_quadrotor": 1.5, "Load-Mass": 0.2, "L": 0.65, "h": 0.02, "g": 9.8})
+    assert p == VehicleParams(mass_quad=1.5, mass_load=0.2, cable_length=0.65, dt=0.02, gravity=9.8)
+    assert vehicle_from_dict({"quad_mass": 1.1, "cable_length": 0.5}).mass_quad == 1.1
+    write_json(tmp_path / "vehicle.json", {"mass_quad": 1.2, "weight": 3})
+    accepted = r"accepted keys: mass_quad \(or mass_quadrotor"
+    with pytest.raises(ValueError, match=r"vehicle.json: .*unknown .* \['weight'\]; " + accepted):
+        load_vehicle(tmp_path)
+    write_json(tmp_path / "vehicle.json", {"mass_quad": 1.2, "mass_quadrotor": 1.3})
+    with pytest.raises(ValueError, match="'mass_quad' and 'mass_quadrotor' both set mass_quad"):
+        load_vehicle(tmp_path)
+    write_json(tmp_path / "vehicle.json", {"vehicle": {"mass_quadrotor": 1.4}, "sim": {"x": 1}})
+    assert load_vehicle(tmp_path).mass_quad == 1.4
+    write_json(tmp_path / "vehicle.json", {"mass_quad": "heavy"})
+    with pytest.raises(ValueError, match="'mass_quad' must be a number"):
+        load_vehicle(tmp_path)
+
+
+def test_imported_flight_reads_like_any_npz(tmp_path):
+    """What import writes is a published-schema flight: read_flight takes it unchanged."""
+    a = truth(PARAMS.dt * np.arange(50))
+    columns = {"time": a["time"]}
+    for key in ("p", "v", "attitude", "p_load", "w_ref"):
+        axes = "xyzw" if key == "attitude" else "xyz"
+        columns.update({f"{key}_{ax}": a[key][:, i] for i, ax in enumerate(axes)})
+    columns["T_ref"] = a["T_ref"][:, 0]
+    import_logs(
+        [_write_csv(tmp_path / "f.csv", columns)], tmp_path / "ds", params=PARAMS, progress=False
+    )
+    flight = read_flight(tmp_path / "ds" / "data" / "f.npz", PARAMS)
+    assert len(flight) == 50
+
+
+def test_log_libraries_load_only_when_a_log_is_read():
+    """``slungload --help`` and the import pipeline's module do not import rosbags / pyulog."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, slungload.cli as c, slungload.data.importing; c.build_parser(); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'rosbags', 'pyulog'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

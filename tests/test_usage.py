@@ -1,0 +1,131 @@
+"""What a new user meets first: fast help, split lists, the maneuver list, and ablations that
+give every variant its training budget whatever the machine's load."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from slungload.cli import main
+from slungload.evaluation.report import _budget_warnings, _epochs
+from slungload.experiment import _training_jobs, stopped_by_time_cap
+from slungload.sim.dataset import flight_plan
+from slungload.sim.maneuvers import MANEUVER_DESCRIPTIONS, MANEUVERS
+from slungload.training.presets import PRESETS
+
+
+def test_help_loads_neither_torch_nor_mujoco():
+    # Every subcommand's --help is built from name tables in light modules.
+    code = (
+        "import sys\n"
+        "from slungload.cli import build_parser\n"
+        "p = build_parser()\n"
+        "for c in ('simulate', 'train', 'evaluate', 'reproduce', 'split', 'export'):\n"
+        "    try:\n"
+        "        p.parse_args([c, '--help'])\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "heavy = [m for m in ('torch', 'mujoco', 'lightning') if m in sys.modules]\n"
+        "assert not heavy, heavy\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_every_maneuver_says_what_it_flies(capsys):
+    assert set(MANEUVER_DESCRIPTIONS) == set(MANEUVERS)
+    assert main(["maneuvers"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(MANEUVERS)
+    assert any(line.startswith("roll_35") and "roll" in line.split(None, 1)[1] for line in lines)
+
+
+def test_simulate_can_fly_chosen_maneuvers():
+    plan = flight_plan(5, ["roll_35", "baf_fast"])
+    assert [family for family, _ in plan] == ["roll_35", "baf_fast"] * 2 + ["roll_35"]
+    with pytest.raises(ValueError, match="unknown maneuvers"):
+        flight_plan(2, ["no_such_maneuver"])
+
+
+def flights(folder, count: int):
+    folder.mkdir()
+    for i in range(count):
+        (folder / f"f{i:02d}.npz").write_bytes(b"")  # listing only: split reads no flight
+    return folder
+
+
+def read(folder, split: str) -> list[str]:
+    """Flight names of a split list (written with the authors' ``.npz`` suffix)."""
+    return [n.removesuffix(".npz") for n in (folder / f"{split}.txt").read_text().split()]
+
+
+def test_split_draws_shares_by_flight(capsys, tmp_path):
+    data = flights(tmp_path / "d", 12)
+    assert main(["split", str(data), "--val", "0.25", "--test", "0.25", "--seed", "3"]) == 0
+    names = {s: read(data, s) for s in ("train", "val", "test")}
+    assert [len(names[s]) for s in ("train", "val", "test")] == [6, 3, 3]
+    assert sorted(sum(names.values(), [])) == [f"f{i:02d}" for i in range(12)]  # each once
+    # Seeded: the same draw again; existing lists are kept unless --overwrite.
+    code = main(["split", str(data)])
+    assert code == 2 and "--overwrite" in capsys.readouterr().err
+    assert main(["split", str(data), "--val", "0.25", "--test", "0.25", "--seed", "3",
+                 "--overwrite"]) == 0  # fmt: skip
+    assert {s: read(data, s) for s in names} == names
+
+
+def test_split_takes_named_flights(capsys, tmp_path):
+    data = flights(tmp_path / "d", 4)
+    assert main(["split", str(data), "--val", "f01", "--test", "f02,f03.npz"]) == 0
+    assert (read(data, "train"), read(data, "val"), read(data, "test")) == (
+        ["f00"],
+        ["f01"],
+        ["f02", "f03"],
+    )
+    code = main(["split", str(data), "--val", "nope", "--overwrite"])
+    assert code == 2 and "nope" in capsys.readouterr().err
+
+
+def write_run(folder, *, epochs: int, reason: str, budget: int = 45):
+    folder.mkdir(parents=True)
+    summary = {"epochs": epochs, "stop_reason": reason, "config": {"train": {"max_epochs": budget}}}
+    (folder / "run.json").write_text(json.dumps(summary))
+    (folder / "last.ckpt").write_bytes(b"")
+
+
+def test_reproduce_resumes_runs_the_time_cap_stopped(tmp_path):
+    runs = tmp_path / "runs"
+    write_run(runs / "proposed-s0", epochs=24, reason="max_time")
+    write_run(runs / "no-slack-s0", epochs=45, reason="max_epochs")
+    write_run(runs / "no-physics-s0", epochs=30, reason="early_stopping")
+    assert stopped_by_time_cap(runs / "proposed-s0")
+    assert not stopped_by_time_cap(runs / "no-slack-s0")
+    jobs = _training_jobs(
+        tmp_path,
+        tmp_path / "data",
+        seeds=(0,),
+        variants=("proposed", "no-slack", "no-physics"),
+        preset="default",
+        device="cpu",
+    )
+    # Only the capped run trains again: resumed from last.ckpt, without the cap.
+    assert [(j["variant"], j["resume"], j["time_cap"]) for j in jobs] == [("proposed", True, False)]
+
+
+def test_the_report_says_loudly_when_the_time_cap_cut_a_run_short():
+    capped = {"label": "proposed", "seed": 0, "epochs": 24, "stop_reason": "max_time",
+              "configs": {"train": {"max_epochs": 45}}}  # fmt: skip
+    full = {"label": "no-slack", "seed": 0, "epochs": 45, "stop_reason": "max_epochs"}
+    text = "\n".join(_budget_warnings(SimpleNamespace(models=(capped, full))))
+    assert "stopped by the time cap at epoch 24 of 45" in text and "no-slack" not in text
+    assert _budget_warnings(SimpleNamespace(models=(full,))) == []
+    assert "24 of 45" in _epochs(capped) and _epochs(full) == "45"
+
+
+def test_the_default_budget_is_epochs_with_the_clock_only_a_safety_net():
+    config = PRESETS["default"].config
+    # 45 epochs take ~5-8 min on this machine; the cap is far beyond a loaded machine's time.
+    assert config.max_epochs == 45 and config.max_time >= 6 * 600
