@@ -77,9 +77,6 @@ def physics_flight(name: str, seed: int = 0, steps: int = 40) -> Flight:
     return Flight(name, states, u, aux)
 
 
-swinging_flight = physics_flight  # its former name, still imported by test_physics_step.py
-
-
 def flight_arrays(steps: int = 60, *, dt: float = 0.03, t0: float = 0.0, seed: int = 0) -> dict:
     """An analytic flight in the published schema; ``seed`` shifts the phases."""
     t = t0 + dt * np.arange(steps)

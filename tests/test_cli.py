@@ -94,3 +94,24 @@ def test_quick_reproduce_writes_a_plausible_report(run_cli, tmp_path):
     for group, paper in PAPER_RMSE_N50["physics"].items():
         if group != "combined":
             assert 0.5 * paper < float(physics[group]) < 2.0 * paper, group
+
+
+def test_export_out_names_a_file_or_an_existing_folder(run_cli, tiny_run, tmp_path):
+    missing = tmp_path / "nowhere" / "deeper" / "m.onnx"
+    code, _, err = run_cli("export", tiny_run.out, "--out", missing)
+    assert code == 2 and len(err.strip().splitlines()) == 1
+    assert f"folder {missing.parent} does not exist" in err
+    assert not (tmp_path / "nowhere").exists()  # not created
+    code, out, err = run_cli("export", tiny_run.out, "--out", tmp_path)  # an existing folder
+    assert code == 0, err
+    assert (tmp_path / f"{tiny_run.out.name}-n4.onnx").is_file()
+    assert (tmp_path / f"{tiny_run.out.name}-n4.json").is_file()
+    assert f"{tiny_run.out.name}-n4.onnx" in out
+
+
+def test_export_help_says_what_out_takes(capsys):
+    with pytest.raises(SystemExit):
+        main(["export", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "existing folder, to write <run name>-n<N>.onnx there" in text
+    assert "A missing folder is an error, not created" in text

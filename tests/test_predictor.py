@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -87,3 +90,92 @@ def test_non_finite_values_and_bad_checkpoints_are_refused(tiny_run, tmp_path) -
     bad.write_text("hello")
     with pytest.raises(ValueError, match="bad.ckpt"):
         Predictor.from_checkpoint(bad)
+
+
+def test_predict_runs_on_one_torch_thread_by_default(tiny_run) -> None:
+    seen: list[int] = []
+    history, future = predict_args(tiny_run.dataset.splits["val"][:1])
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for threads, expected in ((1, 1), (3, 3), (None, 2)):
+            kwargs = {} if threads == 1 else {"threads": threads}  # 1 is the default
+            predictor = Predictor.from_checkpoint(tiny_run.out, **kwargs)
+            assert predictor.threads == threads
+            hook = predictor.network.register_forward_pre_hook(
+                lambda module, args: seen.append(torch.get_num_threads())
+            )
+            predictor.predict(history[0], future[0])
+            hook.remove()
+            assert seen[-1] == expected, (threads, seen)
+            assert torch.get_num_threads() == 2  # restored after the call
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ValueError, match="threads must be >= 1"):
+        Predictor.from_checkpoint(tiny_run.out, threads=0)
+
+
+def test_flight_window_cuts_predict_arguments_from_a_flight(tiny_run, physics_flight) -> None:
+    from slungload.data.readers import read_flight
+    from slungload.deploy.predictor import flight_window
+
+    flight = read_flight(tiny_run.data / "test_4.npz")  # package layout, q w-x-y-z
+    predictor = Predictor.from_checkpoint(tiny_run.out)
+    start = 7
+    w = flight_window(flight, start, history=M, horizon=N)
+    assert (w.history.shape, w.future_inputs.shape, w.truth.shape) == ((M, 17), (N, 4), (N, 13))
+    rows = file_rows(torch.from_numpy(flight.states), torch.from_numpy(flight.inputs))
+    np.testing.assert_array_equal(w.history, rows[start : start + M])
+    np.testing.assert_array_equal(w.future_inputs, flight.inputs[start + M : start + M + N])
+    np.testing.assert_array_equal(w.truth, rows[start + M : start + M + N, :13])  # x-y-z-w
+    # The same window as the data module's: the same prediction.
+    windows = tiny_run.dataset.splits["test"]
+    index = next(
+        i
+        for i in range(len(windows))
+        if np.allclose(windows.states[i, 0].numpy(), flight.states[start])
+    )
+    history, future = predict_args(windows[index : index + 1])
+    np.testing.assert_allclose(
+        predictor.predict(w.history, w.future_inputs), predictor.predict(history[0], future[0]),
+        atol=1e-6,
+    )  # fmt: skip
+    # Plain arrays work too (a Flight-like object), and windows that do not fit are refused.
+    tail = len(flight.states) - M - N
+    assert flight_window(physics_flight("p", 1, 30), 0, history=M, horizon=N).truth.shape == (N, 13)
+    with pytest.raises(ValueError, match=rf"do not fit in test_4 .*start must be 0 \.\.\. {tail}"):
+        flight_window(flight, tail + 1, history=M, horizon=N)
+    with pytest.raises(ValueError, match="history and horizon must be >= 1"):
+        flight_window(flight, 0, history=0, horizon=N)
+
+
+def readme_controller_snippet() -> str:
+    """The python block under README's "Use a trained model in a controller" heading."""
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## Use a trained model in a controller", 1)[1].split("\n## ", 1)[0]
+    match = re.search(r"```python\n(.*?)```", section, re.DOTALL)
+    assert match, "README: no python block under 'Use a trained model in a controller'"
+    return match.group(1)
+
+
+def test_readme_controller_snippet_runs(
+    tiny_run, physics_flight, tmp_path, monkeypatch, capsys
+) -> None:
+    """The README's snippet, as written, against a tiny run and a flight at the paths it names
+    (``reproduce --out out`` writes them there)."""
+    from flights import file_arrays
+
+    from slungload.fileio import write_npz
+
+    code = readme_controller_snippet()
+    run = re.search(r'from_checkpoint\("([^"]+)"\)', code).group(1)
+    flight = re.search(r'read_flight\("([^"]+)"\)', code).group(1)
+    (tmp_path / run).parent.mkdir(parents=True)
+    (tmp_path / run).symlink_to(tiny_run.out, target_is_directory=True)
+    write_npz(tmp_path / flight, file_arrays(physics_flight("long", 3, 200)))
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(code, "README.md", "exec"), namespace)
+    assert namespace["states"].shape == namespace["truth"].shape == (25, 13)
+    assert namespace["model"].threads == 1
+    assert "position 0.75 s ahead:" in capsys.readouterr().out

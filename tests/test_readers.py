@@ -483,6 +483,34 @@ def test_bad_bag_is_one_clear_error_and_writes_nothing(tmp_path, capsys, case):
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no ds, no temporary folder
 
 
+def test_one_bad_log_among_good_ones_leaves_the_old_folder_untouched(tmp_path):
+    """Logs are all read and checked before anything is written; --overwrite replaces the
+    folder only once the new one is complete."""
+    t = np.arange(0, 2, 0.01)
+    store = typestore(False)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    good = mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t))
+    write_bag(logs / "a_good", good, store, ros1=False)
+    write_bag(logs / "b_bad", {k: v for k, v in good.items() if k != LOAD}, store, ros1=False)
+    out = tmp_path / "ds"
+    out.mkdir()
+    (out / "old.txt").write_text("previous dataset")
+    options = ImportOptions(hover_throttle=HOVER)
+    with pytest.raises(LogError, match=f"b_bad: no topic '{LOAD}'"):
+        import_logs([logs], out, params=PARAMS, options=options, overwrite=True, progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ds", "logs"]
+    assert [p.name for p in out.iterdir()] == ["old.txt"]
+    import_logs([logs / "a_good"], out, options=options, overwrite=True, progress=False)
+    assert sorted(p.name for p in out.iterdir()) == [
+        "data",
+        "test.txt",
+        "train.txt",
+        "val.txt",
+        "vehicle.json",
+    ]
+
+
 def test_normalised_thrust_needs_a_hover_throttle(tmp_path):
     t = np.arange(0, 2, 0.01)
     store = typestore(False)

@@ -89,10 +89,10 @@ def test_every_file_exists_and_is_not_empty(written, report):
     for name in names:
         assert (written / name).stat().st_size > 0, name
     pngs = sorted((written / "figures").glob("*.png"))
-    assert {p.name for p in pngs} >= {
-        "mae_proposed_vs_physics_N16.png",
-        "mae_proposed_vs_no-physics_N16.png",
-        "mae_all_N16.png",
+    assert {p.name for p in pngs} == {  # the MAE figures of every evaluated horizon
+        *(f"mae_proposed_vs_physics_N{n}.png" for n in report.horizons),
+        *(f"mae_proposed_vs_no-physics_N{n}.png" for n in report.horizons),
+        *(f"mae_all_N{n}.png" for n in report.horizons),
         "prediction.png",
         "paths_3d.png",
     }
@@ -185,6 +185,7 @@ def test_evaluate_end_to_end(tmp_path, monkeypatch, tiny_run):
     assert windows[(PHYSICS, 8)] == windows[("proposed", 8)] == (49 - 14 + 1) + (52 - 14 + 1)
     assert all(math.isfinite(v) for r in report.results for v in r.metrics.rmse.values())
     assert (out / "report.md").is_file() and (out / "figures" / "prediction.png").is_file()
+    assert "**Smoke run" in (out / "report.md").read_text()  # the run's preset was "quick"
     assert {(t.timing.history, t.timing.horizon) for t in report.timings} == {(M, 4), (M, 8)}
 
 
@@ -193,3 +194,124 @@ def test_evaluate_refuses_nothing_to_do(tmp_path):
         evaluate([], data=tmp_path, include_physics=False, progress=False)
     with pytest.raises(ValueError, match="horizons"):
         evaluate([], data=tmp_path, horizons=(0,), progress=False)
+
+
+# --- figures: every horizon, one look per label, nothing hidden ----------------------------
+
+
+@pytest.fixture
+def figures(monkeypatch) -> list:
+    """The matplotlib Figures the plot functions save, in order (they still write the PNGs)."""
+    from slungload.evaluation import plots
+
+    saved = []
+    save = plots._save
+
+    def capture(fig, path):
+        saved.append(fig)
+        return save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", capture)
+    return saved
+
+
+def line_look(line) -> tuple:
+    return (line.get_color(), line.get_linestyle(), line.get_marker())
+
+
+def test_label_styles_stay_distinct_for_many_labels():
+    from slungload.evaluation.plots import label_styles
+
+    labels = [PHYSICS, "proposed", "no-slack", "no-physics"]
+    labels += [f"{arch}/{variant}" for arch in ("physics-step", "gru") for variant in labels[1:]]
+    labels += [f"extra-{i}" for i in range(30)]
+    styles = label_styles(labels)
+    looks = [(s.color, str(s.linestyle), s.marker) for s in styles.values()]
+    assert len(set(looks)) == len(labels) == 40
+    networks = [s for la, s in styles.items() if la != PHYSICS]
+    assert len({s.color for s in networks[:9]}) == 9  # the first nine networks differ in colour
+    assert all(s.linestyle not in ("-", "solid") and s.marker for s in networks)  # solid: truth
+    assert styles[PHYSICS].color not in {s.color for s in networks} and not styles[PHYSICS].marker
+    # The same label keeps its look whatever the other labels are.
+    assert label_styles(labels[:3])["no-slack"] == styles["no-slack"]
+
+
+def test_mae_figures_bands_and_training_horizon(report, figures, tmp_path):
+    from slungload.evaluation.report import write_figures
+
+    written = write_figures(report, tmp_path)
+    captions = [caption for caption, _ in written]
+    assert [c for c in captions if c.startswith("MAE")] == [
+        f"MAE per horizon step, {what} (N = {n})"
+        for n in sorted(report.horizons)  # neither is the paper's 50: ascending
+        for what in ("proposed vs physics", "proposed vs no-physics", "all models")
+    ]
+    by_name = {path.name: fig for (_, path), fig in zip(written, figures, strict=True)}
+    for name, bands in ((f"mae_proposed_vs_physics_N{2 * N}.png", 2), (f"mae_all_N{2 * N}.png", 1)):
+        fig = by_name[name]
+        legend = [t.get_text() for t in fig.legends[0].get_texts()]
+        for ax in fig.axes[:4]:
+            fills = ax.collections
+            assert len(fills) == bands  # all models: the reference's band only
+            assert fills[0].get_facecolor()[0][3] < 0.25  # light
+            if bands == 2:  # the second band is hatched, not a second fill: no mixed colour
+                face = fills[1].get_facecolor()
+                assert fills[1].get_hatch() and (len(face) == 0 or face[0][3] == 0)
+            curves = [ln for ln in ax.lines if len(ln.get_xdata()) == 2 * N]
+            assert len({line_look(ln) for ln in curves}) == len(curves) == len(legend) - bands - 1
+            # Later curves are drawn above and narrower, so no curve hides an earlier one.
+            widths = [ln.get_linewidth() for ln in sorted(curves, key=lambda ln: ln.zorder)]
+            assert widths == sorted(widths, reverse=True)
+        assert sum("Q1-Q3" in t for t in legend) == bands
+        assert f"training horizon N = {N}" in legend
+
+
+def test_prediction_figure_training_horizon_looks_like_no_predictor(report, figures, tmp_path):
+    from slungload.evaluation import plots
+
+    plots.plot_prediction(report.example, tmp_path / "p.png", dt=report.dt,
+                          training_horizon=report.training_horizon)  # fmt: skip
+    handles = figures[-1].legends[0].legend_handles
+    names = [h.get_label() for h in handles]
+    horizon = handles[names.index(f"training horizon N = {N}")]
+    predictors = [h for h in handles if h.get_label() in report.example.predictions]
+    assert len(predictors) == len(report.example.predictions) == 3
+    for h in [handles[names.index("truth")], *predictors]:
+        look = (h.get_linestyle(), h.get_marker())
+        assert look != (horizon.get_linestyle(), horizon.get_marker()), h.get_label()
+    assert len({(h.get_linestyle(), h.get_marker()) for h in predictors}) == len(predictors)
+
+
+def test_paths_3d_zooms_on_the_predicted_window(report, figures, tmp_path):
+    from slungload.evaluation import plots
+    from slungload.state import LOAD_POS, POS
+
+    ex = report.example
+    plots.plot_paths_3d(ex, tmp_path / "p.png")
+    overview, vehicle, load = figures[-1].axes[:3]
+    for ax, sl in ((vehicle, POS), (load, LOAD_POS)):
+        # Every predictor's path is drawn in the zoom, with markers, and the zoom frames the
+        # predicted window far more tightly than the whole flight.
+        marked = [ln for ln in ax.lines if ln.get_marker() not in ("None", None, "", ".")]
+        assert len(marked) == len(ex.predictions) - 1 + (PHYSICS not in ex.predictions)
+        span = np.ptp(ex.flight_states[:, sl], axis=0).max()
+        assert (ax.get_xlim()[1] - ax.get_xlim()[0]) < span
+    labels = [t.get_text() for t in figures[-1].legends[0].get_texts()]
+    assert all(any(t.startswith(la) for t in labels) for la in ex.predictions)
+
+
+def test_quick_runs_get_a_smoke_banner_at_the_top(report, tmp_path):
+    from slungload.evaluation.report import render_markdown
+
+    def markdown(models) -> str:
+        return render_markdown(dataclasses.replace(report, models=tuple(models)), figures=[],
+                               csvs=[], out=tmp_path)  # fmt: skip
+
+    assert "Smoke run" not in markdown(report.models)
+    quick = [{**m, "configs": {"preset": "quick"}} for m in report.models]
+    text = markdown(quick)
+    assert text.index("**Smoke run: these numbers are not results.**") < text.index("## Dataset")
+    assert "Every run trained with the `quick` preset" in text
+    mixed = [quick[0], *({**m, "configs": {"preset": "default"}} for m in report.models[1:])]
+    text = markdown(mixed)
+    assert f"The runs `{quick[0]['run']}` trained with the `quick` preset" in text

@@ -12,7 +12,7 @@ import pytest
 
 from slungload.cli import main
 from slungload.evaluation.report import _budget_warnings, _epochs
-from slungload.experiment import _training_jobs, stopped_by_time_cap
+from slungload.experiment import RunSpec, _training_jobs, stopped_by_time_cap
 from slungload.sim.dataset import flight_plan
 from slungload.sim.maneuvers import MANEUVER_DESCRIPTIONS, MANEUVERS
 from slungload.training.presets import PRESETS
@@ -107,7 +107,7 @@ def test_reproduce_resumes_runs_the_time_cap_stopped(tmp_path):
         tmp_path,
         tmp_path / "data",
         seeds=(0,),
-        variants=("proposed", "no-slack", "no-physics"),
+        specs=[RunSpec(v) for v in ("proposed", "no-slack", "no-physics")],
         preset="default",
         device="cpu",
     )
@@ -129,3 +129,20 @@ def test_the_default_budget_is_epochs_with_the_clock_only_a_safety_net():
     config = PRESETS["default"].config
     # 45 epochs take ~5-8 min on this machine; the cap is far beyond a loaded machine's time.
     assert config.max_epochs == 45 and config.max_time >= 6 * 600
+
+
+def test_a_missing_vehicle_json_is_one_readable_line(write_dataset, tmp_path):
+    # In its own process: pytest records warnings instead of printing them.
+    folder = write_dataset(tmp_path / "d", vehicle=False)
+    command = [sys.executable, "-m", "slungload.cli", "inspect", str(folder)]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0 and "flights" in done.stdout
+    notes = [line for line in done.stderr.splitlines() if "vehicle.json" in line]
+    assert notes and all(line.startswith("slungload: note: ") for line in notes)
+    assert "warnings.warn" not in done.stderr and "DataWarning" not in done.stderr
+
+
+def test_run_folders_name_the_architecture_and_the_fit():
+    assert RunSpec("proposed").folder(0) == "proposed-s0"  # the paper's network, as before
+    spec = RunSpec("no-physics", architecture="physics-step", fit_constants=True)
+    assert spec.folder(2) == "physics-step-no-physics-fitted-s2"

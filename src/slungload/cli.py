@@ -812,7 +812,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     func: Callable[[argparse.Namespace], int] = args.func
     if args.debug:
         return func(args)
-    warnings.showwarning = _one_line_warning
+    formatwarning, warnings.formatwarning = warnings.formatwarning, _one_line_warning
     try:
         return func(args)
     except USER_ERRORS as exc:
@@ -823,11 +823,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         detail = f": {exc}" if str(exc) else ""
         print(f"slungload {args.command}: interrupted{detail}", file=sys.stderr)
         return 128 + getattr(exc, "signum", 2)
+    finally:
+        warnings.formatwarning = formatwarning
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+def _one_line_warning(message, category, filename, lineno, line=None) -> str:  # noqa: ANN001
     """Warnings as one line a user can read (no source line); ``--debug`` shows Python's."""
-    print(f"slungload: note: {message}", file=sys.stderr if file is None else file)
+    return f"slungload: note: {message}\n"
 
 
 if __name__ == "__main__":

@@ -273,8 +273,7 @@ def vehicle_from_dict(data: Any) -> VehicleParams:
         given[name], kwargs[name] = key, float(value)
     if unknown:
         raise ValueError(
-            f"unknown keys {sorted(map(str, unknown))}; accepted keys: "
-            f"{accepted_vehicle_keys()}"
+            f"unknown keys {sorted(map(str, unknown))}; accepted keys: {accepted_vehicle_keys()}"
         )
     return VehicleParams(**kwargs)
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
+from .config import DEFAULT_ARCHITECTURE, ModelConfig
 from .deploy.timing import time_models
 from .evaluation.evaluator import evaluate
 from .evaluation.results import Report
@@ -29,6 +30,26 @@ from .sim import simulate_dataset
 from .training.trainer import Run, train
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One trained model of an experiment: loss variant, architecture, fitted constants."""
+
+    variant: str
+    architecture: str = DEFAULT_ARCHITECTURE
+    fit_constants: bool = False
+
+    def folder(self, seed: int) -> str:
+        """Its run folder's name: the variant alone for the paper's network."""
+        parts = [] if self.architecture == DEFAULT_ARCHITECTURE else [self.architecture]
+        parts += [self.variant] + (["fitted"] if self.fit_constants else [])
+        return "-".join(parts) + f"-s{seed}"
+
+
+# Beside the paper's three variants, ``reproduce`` trains the best configuration beyond the
+# paper (chosen on the validation split: docs/BENCHMARKS.md).
+BEYOND_PAPER: tuple[RunSpec, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -84,6 +105,7 @@ def reproduce(
     preset: str = "default",
     seeds: Sequence[int] = (0,),
     variants: Sequence[str] = PAPER_VARIANTS,
+    beyond: Sequence[RunSpec] = BEYOND_PAPER,
     workers: int = 2,
     sim_seed: int = 0,
     flights: int = 48,
@@ -93,10 +115,12 @@ def reproduce(
     progress: bool = True,
 ) -> Reproduction:
     """Simulate the default dataset (unless ``data`` is given; ``flights`` and ``sim_seed`` set
-    its size and seed), train every variant for every seed, evaluate them with the physics-only
-    predictor at N = 25 and 50, write the report.
+    its size and seed), train every variant of the paper's network and every ``beyond`` model
+    for every seed, evaluate them with the physics-only predictor at N = 25 and 50, write the
+    report.
 
-    Layout of ``out``: ``data/`` (if simulated), ``runs/<variant>-s<seed>/``, ``report/``.
+    Layout of ``out``: ``data/`` (if simulated), ``runs/<RunSpec.folder>/`` (the paper's
+    network: ``<variant>-s<seed>``), ``report/``.
     Existing finished runs (with a ``run.json``) are kept, so an interrupted call can be re-run.
     """
     out = Path(out)
@@ -118,9 +142,10 @@ def reproduce(
     seconds["simulate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    jobs = _training_jobs(out, data, seeds=seeds, variants=variants, preset=preset, device=device)
+    specs = [RunSpec(v) for v in variants] + list(beyond)
+    jobs = _training_jobs(out, data, seeds=seeds, specs=specs, preset=preset, device=device)
     run_training_jobs(jobs, workers=workers, progress=progress)
-    run_dirs = tuple(out / "runs" / f"{v}-s{s}" for s in seeds for v in variants)
+    run_dirs = tuple(out / "runs" / spec.folder(s) for s in seeds for spec in specs)
     seconds["train"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -142,7 +167,7 @@ def _training_jobs(
     data: Path,
     *,
     seeds: Sequence[int],
-    variants: Sequence[str],
+    specs: Sequence[RunSpec],
     preset: str,
     device: str,
 ) -> list[dict]:
@@ -150,8 +175,8 @@ def _training_jobs(
     stopped by the time cap before its epoch budget. A run with a ``last.ckpt`` resumes."""
     jobs = []
     for seed in seeds:
-        for variant in variants:
-            run_dir = out / "runs" / f"{variant}-s{seed}"
+        for spec in specs:
+            run_dir = out / "runs" / spec.folder(seed)
             capped = stopped_by_time_cap(run_dir)
             if (run_dir / "run.json").is_file() and not capped:
                 continue  # finished earlier
@@ -159,7 +184,9 @@ def _training_jobs(
                 dict(
                     data=data,
                     out=run_dir,
-                    variant=variant,
+                    variant=spec.variant,
+                    model_config=ModelConfig(architecture=spec.architecture),
+                    fit_constants=spec.fit_constants,
                     preset=preset,
                     seed=seed,
                     device=device,

@@ -432,7 +432,8 @@ def _pieces(
 def _resample(
     streams: dict[str, Stream], a: float, b: float, dt: float, options: ImportOptions
 ) -> dict[str, np.ndarray]:
-    n = int(np.floor((b - a) / dt + 1e-9)) + 1
+    # float stamps are rounded: a last step short of dt by under STAMP_EPS still counts
+    n = int(np.floor((b - a + STAMP_EPS) / dt)) + 1
     grid = a + dt * np.arange(n)
 
     def linear(s: Stream) -> np.ndarray:

@@ -9,7 +9,8 @@ The ONNX file is self-contained: it takes and returns the **file layout** of
 quaternion reordering and sign continuity, and the final unit-norm projection
 (``predictor.FileLayoutNet`` is what gets exported). Inputs and outputs, float32::
 
-    history        (batch, M, 17)  rows x_k, u_k for k = 0 ... M-1 (any M >= 1)
+    history        (batch, M, 17)  rows x_k, u_k for k = 0 ... M-1 (the graph takes any M >= 1;
+                                   ``OnnxPredictor`` the trained M unless ``any_history``)
     future_inputs  (batch, N, 4)   u_M ... u_{M+N-1}; N is fixed per file
     states         (batch, N, 13)  x_M ... x_{M+N-1}
 
@@ -141,7 +142,7 @@ class ExportResult:
     model: Path  # the .onnx file
     sidecar: Path  # its JSON description
     horizon: int  # N, fixed in the file
-    history: int  # M the network was trained with (the file accepts any M >= 1)
+    history: int  # M the network was trained with (the graph accepts any M >= 1)
     opset: int
     max_abs_diff: float  # max |ONNX Runtime - eager torch| on the export-time check inputs
     seconds: float  # wall-clock time of the export and check

@@ -292,9 +292,11 @@ def evaluate(
 
 def run_label(lm: LoadedModel) -> str:
     """A run's label in the tables: its loss variant, prefixed by its architecture unless that
-    is the paper's network ("proposed", "physics-step/proposed"); seeds share a label."""
+    is the paper's network, suffixed "+fit" when it fitted the physical constants
+    ("proposed", "physics-step/proposed+fit"); seeds share a label."""
     architecture = lm.model_config.architecture
-    return lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
+    label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
+    return label + ("+fit" if "constants" in lm.meta else "")
 
 
 def _params_source(loaded: Sequence[LoadedModel], dataset: Any) -> str:

@@ -143,6 +143,8 @@ def plot_mae(
     labels = list(curves)
     styles = dict(styles or label_styles(labels))
     bands = [b for b in (labels[:1] if bands is None else bands) if b in curves]
+    # Wide lines first: a later, narrower one lies on top and never hides an earlier one.
+    order = sorted(labels, key=lambda label: -styles[label].linewidth)
     fig = Figure(figsize=(11, 8), layout="constrained")
     axes = fig.subplots(2, 2)
     steps = max(len(by_group[g].mean) for by_group in curves.values() for g in GROUPS)
@@ -163,7 +165,7 @@ def plot_mae(
             c = curves[label][group]
             k = np.arange(1, len(c.mean) + 1)
             every = _markevery(len(k), i, len(labels))
-            ax.plot(k, c.mean, zorder=3 + i, **styles[label].line(markevery=every))
+            ax.plot(k, c.mean, zorder=3 + order.index(label), **styles[label].line(markevery=every))
         ax.set_title(GROUP_TITLES[group])
         ax.set_xlabel("horizon step k")
         unit = GROUP_UNITS[group]

@@ -1,0 +1,190 @@
+"""Closed-loop flights in the simulator, guarded, logged and scored.
+
+``fly(maneuver, seed, controller)`` flies one maneuver through ``sim.simulate_flight`` with the
+controller wrapped in a ``Guard``. Before each step the guard checks the measurement: a vehicle
+outside the ``Arena`` box, or a non-finite measurement (an unstable simulation), ends the run
+with that reason (``RunStopped``, raised from the controller call at the top of the
+simulator's loop, before anything reaches MuJoCo); so does a non-finite command or one of the
+wrong shape. ``fly`` never raises for a run that goes wrong: it returns a ``FlightLog`` whose
+``stopped`` names the reason. The log holds what the controller saw and did at every step
+(measured states, the reference, the commands, the compute time of each call);
+``flight_metrics`` scores the recorded part (t >= 0) of it:
+
+- vehicle tracking RMSE, m: ||p - p_ref|| over the recorded steps;
+- load tracking RMSE, m: ||pL - (p_ref - l e3)||, l the effective cable length;
+- swing angle RMS and max, deg: the angle between the cable pL - p and -e3;
+- time at a limit, %: steps whose command sits at a thrust or body-rate bound;
+- compute per control step, ms: median and p99 of the controller call (warm-up included).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..sim.config import SimConfig
+from ..sim.controller import Controller, Measurement
+from ..sim.flight import simulate_flight
+from ..sim.maneuvers import Reference
+from .mpc import InputLimits
+
+
+@dataclass(frozen=True)
+class Arena:
+    """Box the vehicle must stay in, m (world frame). The references stay within |x|, |y| <= 2
+    and 1 <= z <= 2.2; below z = 0.75 the hanging load would be at the floor."""
+
+    lo: tuple[float, float, float] = (-3.0, -3.0, 0.75)
+    hi: tuple[float, float, float] = (3.0, 3.0, 3.5)
+
+    def outside(self, p: np.ndarray) -> str | None:
+        """Why position p (3,) is not inside, or None."""
+        for axis, name in enumerate("xyz"):
+            if not self.lo[axis] <= p[axis] <= self.hi[axis]:
+                return (
+                    f"vehicle left the arena: {name} = {p[axis]:.2f} m outside "
+                    f"[{self.lo[axis]}, {self.hi[axis]}]"
+                )
+        return None
+
+
+class RunStopped(Exception):
+    """Raised by the guard to end a flight; the message is the reason."""
+
+
+class Guard:
+    """Wraps a controller: checks every measurement and command, logs, times each call."""
+
+    def __init__(self, controller: Controller, arena: Arena, warmup_steps: int) -> None:
+        self.controller = controller
+        self.arena = arena
+        self.warm = warmup_steps
+        self.rows: list[dict[str, Any]] = []
+        self.planned: int | None = None  # recorded steps of the flight (from the reference)
+
+    def __call__(self, measurement: Measurement, reference: Reference, k: int):
+        self.planned = len(reference.yaw) - self.warm
+        x = np.concatenate([measurement.p, measurement.v, measurement.q_wxyz, measurement.p_load])
+        if not np.isfinite(x).all():
+            raise RunStopped(f"non-finite measurement at step {k} (unstable simulation)")
+        reason = self.arena.outside(measurement.p)
+        if reason:
+            raise RunStopped(f"{reason} at t = {measurement.t:.2f} s")
+        start = time.perf_counter()
+        thrust, rates = self.controller(measurement, reference, k)
+        elapsed = time.perf_counter() - start
+        rates = np.asarray(rates, dtype=float)
+        if rates.shape != (3,) or not (math.isfinite(float(thrust)) and np.isfinite(rates).all()):
+            raise RunStopped(f"controller returned an invalid command at step {k}")
+        self.rows.append(
+            dict(t=measurement.t, x=x, p_ref=reference.position[k].copy(),
+                 u=np.array([float(thrust), *rates]), compute=elapsed)
+        )  # fmt: skip
+        return float(thrust), rates
+
+
+@dataclass
+class FlightLog:
+    """One guarded flight: what the controller saw and did, and how it ended."""
+
+    maneuver: str
+    seed: int
+    controller: str
+    planned_steps: int  # recorded steps the maneuver asks for
+    t: np.ndarray  # (S,) s, warm-up steps negative
+    states: np.ndarray  # (S, 13) measured x, q w-x-y-z
+    p_ref: np.ndarray  # (S, 3) m
+    inputs: np.ndarray  # (S, 4) commands (T N, omega rad/s)
+    compute: np.ndarray  # (S,) s per controller call
+    stopped: str | None = None  # why the run ended early, None when it flew to the end
+    stats: dict[str, Any] = field(default_factory=dict)  # the controller's counters
+
+
+def fly(
+    maneuver: str,
+    seed: int,
+    controller: Controller,
+    *,
+    label: str,
+    config: SimConfig | None = None,
+    arena: Arena | None = None,
+    steps: int | None = None,
+) -> FlightLog:
+    """Fly ``maneuver`` with sim seed ``seed`` and a fresh ``controller``; never raises for a
+    run that goes wrong (see the module)."""
+    cfg = config or SimConfig()
+    warm = round(cfg.warmup / cfg.control_dt)
+    guard = Guard(controller, arena or Arena(), warm)
+    stopped = None
+    try:
+        simulate_flight(maneuver, seed=seed, config=cfg, steps=steps, controller=guard)
+    except RunStopped as exc:
+        stopped = str(exc)
+    rows = guard.rows
+    stats = getattr(controller, "stats", None)
+    return FlightLog(
+        maneuver,
+        seed,
+        label,
+        int(guard.planned or 0),
+        np.array([r["t"] for r in rows]),
+        np.array([r["x"] for r in rows]).reshape(-1, 13),
+        np.array([r["p_ref"] for r in rows]).reshape(-1, 3),
+        np.array([r["u"] for r in rows]).reshape(-1, 4),
+        np.array([r["compute"] for r in rows]),
+        stopped,
+        _stats_dict(stats),
+    )
+
+
+def _stats_dict(stats: Any) -> dict[str, Any]:
+    if stats is None:
+        return {}
+    return {
+        "fallback_steps": stats.fallback_steps,
+        "fallbacks": dict(stats.fallbacks),
+        "nonfinite_steps": stats.nonfinite_steps,
+        "hover_steps": stats.hover_steps,
+    }
+
+
+def swing_angle(states: np.ndarray) -> np.ndarray:
+    """Angle, rad, between the cable pL - p and the downward vertical, (S, 13) -> (S,)."""
+    r = states[:, 10:13] - states[:, 0:3]
+    cos = -r[:, 2] / np.maximum(np.linalg.norm(r, axis=1), 1e-9)
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+def flight_metrics(log: FlightLog, limits: InputLimits, cable_length: float) -> dict[str, Any]:
+    """Scores of the recorded part (t >= 0) of a flight (see the module)."""
+    rec = log.t >= -1e-9
+    x, p_ref, u = log.states[rec], log.p_ref[rec], log.inputs[rec]
+    load_ref = p_ref - np.array([0.0, 0.0, cable_length])
+    swing = np.degrees(swing_angle(x)) if len(x) else np.zeros(0)
+    compute = log.compute * 1e3
+
+    def rms(a: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(a))) if a.size else math.nan
+
+    at_limit = [limits.at_limit(row) for row in u]
+    return {
+        "maneuver": log.maneuver,
+        "seed": log.seed,
+        "controller": log.controller,
+        "completed": log.stopped is None,
+        "stopped": log.stopped,
+        "steps": int(rec.sum()),
+        "planned_steps": log.planned_steps,
+        "vehicle_rmse": rms(np.sum((x[:, 0:3] - p_ref) ** 2, axis=1)),
+        "load_rmse": rms(np.sum((x[:, 10:13] - load_ref) ** 2, axis=1)),
+        "swing_rms": rms(swing**2),
+        "swing_max": float(swing.max()) if swing.size else math.nan,
+        "at_limit": 100.0 * float(np.mean(at_limit)) if at_limit else math.nan,
+        "compute_median": float(np.median(compute)) if compute.size else math.nan,
+        "compute_p99": float(np.percentile(compute, 99)) if compute.size else math.nan,
+        **{k: v for k, v in log.stats.items()},
+    }
