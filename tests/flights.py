@@ -77,6 +77,19 @@ def physics_flight(name: str, seed: int = 0, steps: int = 40) -> Flight:
     return Flight(name, states, u, aux)
 
 
+def conical_swing(t: np.ndarray, theta: float = 0.3, rate: float = 3.0) -> np.ndarray:
+    """Unit cable directions (T, 3) of a load circling at ``theta`` rad from the vertical,
+    ``rate`` rad/s, below the vehicle."""
+    return np.stack(
+        [
+            np.sin(theta) * np.cos(rate * t),
+            np.sin(theta) * np.sin(rate * t),
+            -np.cos(theta) + 0 * t,
+        ],
+        axis=1,
+    )
+
+
 def flight_arrays(steps: int = 60, *, dt: float = 0.03, t0: float = 0.0, seed: int = 0) -> dict:
     """An analytic flight in the published schema; ``seed`` shifts the phases."""
     t = t0 + dt * np.arange(steps)
@@ -85,15 +98,7 @@ def flight_arrays(steps: int = 60, *, dt: float = 0.03, t0: float = 0.0, seed: i
     v = np.stack([0.5 * np.cos(0.5 * t + phase), -0.15 * np.sin(0.3 * t), 0.1 + 0 * t], axis=1)
     yaw = 0.2 * t + phase
     attitude = np.stack([0 * t, 0 * t, np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)  # x-y-z-w
-    theta, rate = 0.3, 3.0
-    xi = np.stack(
-        [
-            np.sin(theta) * np.cos(rate * t),
-            np.sin(theta) * np.sin(rate * t),
-            -np.cos(theta) + 0 * t,
-        ],
-        axis=1,
-    )
+    xi = conical_swing(t)
     return {
         "time": t,
         "p": p,

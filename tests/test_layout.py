@@ -1,8 +1,8 @@
 """The package's layout: every import points down the data flow, and no import circle.
 
 config/state/fileio -> physics -> sim -> data -> models, loss -> training -> evaluation ->
-deploy -> experiment -> cli (docs/design.md). Read from the source's import statements, so a
-function-level import counts as much as a top-level one.
+deploy -> control -> experiment -> cli (docs/design.md). Read from the source's import
+statements, so a function-level import counts as much as a top-level one.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ ORDER = {  # wing -> floor; a module may import its own floor and those below
     "training": 5,
     "evaluation": 6,
     "deploy": 7,
-    "experiment": 8, "study": 8,
-    "cli": 9,
+    "control": 8,
+    "experiment": 9, "study": 9,
+    "cli": 10,
 }  # fmt: skip
 
 

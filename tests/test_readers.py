@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from flights import conical_swing
 from rosbags.typesys import get_types_from_msg
 
 from slungload.cli import main
@@ -47,15 +48,7 @@ def truth(t: np.ndarray) -> dict[str, np.ndarray]:
     q_yaw = np.stack([np.cos(yaw / 2), 0 * t, 0 * t, np.sin(yaw / 2)], axis=1)
     q_roll = np.stack([np.cos(roll / 2), np.sin(roll / 2), 0 * t, 0 * t], axis=1)
     q = frames.quat_multiply(q_yaw, q_roll)  # w-x-y-z
-    theta, rate = 0.3, 3.0
-    xi = np.stack(
-        [
-            np.sin(theta) * np.cos(rate * t),
-            np.sin(theta) * np.sin(rate * t),
-            -np.cos(theta) + 0 * t,
-        ],
-        axis=1,
-    )
+    xi = conical_swing(t)
     return {
         "time": t,
         "p": p,

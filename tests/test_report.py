@@ -176,8 +176,8 @@ def test_evaluate_end_to_end(tmp_path, monkeypatch, tiny_run):
     monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
     assert tiny_run.dataset.window.history == M
     out = tmp_path / "eval"
-    report = evaluate_runs([tiny_run.out], out=out, horizons=(4, 8), timing_repeats=3,
-                           progress=False)  # fmt: skip
+    report = evaluate_runs([tiny_run.out], out=out, horizons=(4, 8), timing=True,
+                           timing_repeats=3, progress=False)  # fmt: skip
     assert report.labels == (PHYSICS, "proposed") and report.training_horizon == 4
     assert report.test_flights == ("test_3", "test_4")
     windows = {(r.label, r.metrics.horizon): r.metrics.windows for r in report.results}

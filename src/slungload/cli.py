@@ -299,14 +299,39 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
+    from .config import ModelConfig
     from .deploy.benchmarks import benchmark
     from .fileio import write_text
 
-    result = benchmark(args.run, quick=args.quick, threads=args.threads, train=not args.no_train)
+    config = None if args.model is None else ModelConfig(architecture=args.model)
+    if config is not None and args.run is not None:
+        raise ValueError("--model builds a random network; a RUN_DIR brings its own")
+    result = benchmark(
+        args.run, quick=args.quick, threads=args.threads, train=not args.no_train,
+        model_config=config,
+    )  # fmt: skip
     table = result.markdown()
     if args.out:
         write_text(args.out, table)
     print(table)
+    return 0
+
+
+def cmd_control(args: argparse.Namespace) -> int:
+    from .control.report import compare
+
+    result = compare(
+        args.model,
+        args.maneuvers,
+        _seed_range(args.seeds),
+        args.samples,
+        args.out,
+        horizon=args.horizon,
+        steps=args.steps,
+        threads=args.threads,
+        progress=None if args.quiet else print,
+    )
+    print(result.out / "report.md")
     return 0
 
 
@@ -365,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_import(sub)
     _add_identify(sub)
     _add_study(sub)
+    _add_control(sub)
     return parser
 
 
@@ -608,6 +634,12 @@ def _add_benchmark(sub: Any) -> None:
         metavar="RUN_DIR",
         help="a trained run (default: a paper-size network with random weights)",
     )
+    p.add_argument(
+        "--model",
+        choices=_choices("models"),
+        help="without RUN_DIR: a random paper-size network of this architecture (default "
+        "lstm-attention)",
+    )
     p.add_argument("--quick", action="store_true", help="fewer repeats (about a minute)")
     p.add_argument("--threads", type=int, default=1, help="inference threads (default 1)")
     p.add_argument("--no-train", action="store_true", help="skip the training throughput")
@@ -791,6 +823,50 @@ def _add_study(sub: Any) -> None:
     d.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_study)
+
+
+def _add_control(sub: Any) -> None:
+    p = _command(
+        sub,
+        "control",
+        "fly the PID and a sampling MPC with the physics model and with trained networks",
+        "Closed loop in the simulator with every unmodelled effect on: the simulator's PID, "
+        "an MPPI controller predicting with the physics model, and the same MPC with each "
+        "--model; vehicle and load tracking, swing, time at a limit, failures, fallbacks, "
+        "compute per step; report.md and figures in --out (docs/control.md).",
+    )
+    p.add_argument(
+        "--model",
+        action="append",
+        type=Path,
+        default=[],
+        metavar="RUN_DIR",
+        help="a trained run folder or .ckpt (any architecture); repeat for more",
+    )
+    p.add_argument(
+        "--maneuvers",
+        type=lambda text: [m for m in text.split(",") if m],
+        default=["baf_very_fast", "roll_35", "fast_8_lap_xyz"],
+        metavar="NAME,NAME",
+        help="maneuvers (default baf_very_fast,roll_35,fast_8_lap_xyz)",
+    )
+    p.add_argument(
+        "--seeds", default="100..102", metavar="SEEDS", help="sim seeds: N, A..B or A,B (default "
+        "100..102; the default dataset is simulated from seed 0)"
+    )  # fmt: skip
+    p.add_argument(
+        "--samples",
+        type=lambda text: [int(k) for k in text.split(",") if k],
+        default=[32],
+        metavar="K,K",
+        help="MPC samples per step; each model flies once per K (default 32)",
+    )
+    p.add_argument("--horizon", type=int, help="MPC horizon N, steps of 0.03 s (default 15)")
+    p.add_argument("--steps", type=int, help="cut every flight to this many steps (smoke runs)")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--quiet", action="store_true", help="no line per flight")
+    p.set_defaults(func=cmd_control)
 
 
 def _share_or_names(text: str) -> float | list[str]:

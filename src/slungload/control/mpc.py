@@ -83,10 +83,10 @@ class MPCConfig:
     """The sampler, the cost weights (per step, SI units squared) and the safety settings."""
 
     samples: int = 32  # K
-    horizon: int = 25  # N, steps of h (0.75 s)
+    horizon: int = 15  # N, steps of h (0.45 s)
     knots: int = 5  # noise control points per channel over the horizon
-    thrust_std: float = 2.0  # N, sampling noise
-    rate_std: tuple[float, float, float] = (1.5, 1.5, 0.5)  # rad/s, sampling noise x y z
+    thrust_std: float = 1.0  # N, sampling noise
+    rate_std: tuple[float, float, float] = (0.5, 0.5, 0.2)  # rad/s, sampling noise x y z
     temperature: float = 0.3  # lambda / (mean(c) - min(c))
     w_position: float = 20.0  # 1/m^2, vehicle position error
     w_velocity: float = 1.0  # s^2/m^2, vehicle velocity error

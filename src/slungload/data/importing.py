@@ -42,6 +42,7 @@ import numpy as np
 
 from ..config import VEHICLE_FILE, VehicleParams, to_dict
 from ..fileio import SPLITS, write_json, write_npz, write_splits
+from ..sim.splits import split_flights
 from .flight import FlightFormatError
 from .readers import DATA_SUBFOLDER, frames
 from .readers.logs import ROLES, LogError, RawLog, Stream
@@ -483,22 +484,11 @@ def backward_velocity(p: np.ndarray, dt: float) -> np.ndarray:
 def split_by_flight(
     names: list[str], steps: list[int], options: ImportOptions
 ) -> dict[str, list[str]]:
-    """Whole flights per split: all in train, or a seeded draw in which each flight (longest
-    first, ties in random order) goes to the split furthest below its share of the steps
-    (58/17/25 %), every split getting one when there are three or more."""
+    """Whole flights per split: all in train, or the simulator's seeded draw
+    (``sim.splits.split_flights``: each flight, longest first, goes to the split furthest
+    below its share of the windows, 58/17/25 %; every split gets one when there are three or
+    more)."""
     if options.split == "train" or len(names) < 3:
         return {"train": sorted(names), "val": [], "test": []}
-    rng = np.random.default_rng(options.seed)
-    order = sorted(rng.permutation(len(names)), key=lambda i: -steps[i])
-    total = sum(steps)
-    got = {s: 0 for s in SPLITS}
-    out: dict[str, list[str]] = {s: [] for s in SPLITS}
-    for rank, i in enumerate(order):
-        empty = [s for s in SPLITS if not out[s]]
-        if empty and len(order) - rank <= len(empty):
-            split = empty[0]
-        else:
-            split = max(SPLITS, key=lambda s: SPLIT_FRACTIONS[s] * total - got[s])
-        out[split].append(names[i])
-        got[split] += steps[i]
-    return {s: sorted(v) for s, v in out.items()}
+    splits = split_flights(names, steps, np.random.default_rng(options.seed))
+    return {s: list(v) for s, v in splits.items()}

@@ -31,9 +31,8 @@ import statistics
 import tempfile
 import time
 import warnings
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -43,19 +42,33 @@ import torch
 from torch import Tensor
 
 from .._version import __version__
-from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig
+from ..config import (
+    DEFAULT_ARCHITECTURE,
+    LossWeights,
+    ModelConfig,
+    TrainConfig,
+    VehicleParams,
+    WindowConfig,
+)
 from ..data.flight import estimate_load_state
 from ..data.windows import Windows, make_windows
 from ..evaluation.machine import cpu_model
 from ..evaluation.results import PAPER_TIMING
 from ..loss import compute_loss, model_config_for
 from ..models.base import count_parameters
-from ..models.lstm_attention import SlungLoadNet
+from ..models.registry import build
 from ..physics import hover_thrust, rollout
 from ..state import join_state, quat_from_rotvec
 from .compiled import CompiledPredictor, unsupported
 from .onnx import OnnxPredictor, export
-from .predictor import FileLayoutNet, Predictor, check_inputs, states_to_file, unbatch
+from .predictor import (
+    FileLayoutNet,
+    Predictor,
+    check_inputs,
+    states_to_file,
+    torch_threads,
+    unbatch,
+)
 from .timing import time_calls
 
 EAGER, SCRIPT, ONNX, COMPILED = "torch eager", "torch script", "onnxruntime", "numba compiled"
@@ -228,17 +241,6 @@ def script_predict(predictor: Predictor, history: np.ndarray, future: np.ndarray
 # --- timing ------------------------------------------------------------------------------
 
 
-@contextmanager
-def torch_threads(n: int) -> Iterator[None]:
-    """Run torch on ``n`` intra-op threads inside the block."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def measure_latency(
     backend: str, fn: PredictFn, history: np.ndarray, future: np.ndarray, *, threads: int,
     repeats: int, warmup: int,
@@ -295,7 +297,7 @@ def measure_training(
     params = VehicleParams()
     pool = physics_windows(min(batch, 256), window, params=params, seed=seed)
     torch.manual_seed(seed)
-    net = SlungLoadNet(model_config_for(variant, model_config or ModelConfig()))
+    net = build(model_config_for(variant, model_config or ModelConfig()), VehicleParams())
     net.fit_normalization(pool.states, pool.inputs, origin_step=window.history - 1)
     net.train()
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -441,11 +443,12 @@ def _predictor(
     if run is not None:
         return Predictor.from_checkpoint(run, threads=None, any_history=True), str(run)
     torch.manual_seed(seed)
-    model = SlungLoadNet(config or ModelConfig())
+    model = build(config or ModelConfig(), VehicleParams())
     window = WindowConfig(history=history, horizon=horizon)
     fit = physics_windows(64, window, seed=seed)
     model.fit_normalization(fit.states, fit.inputs, origin_step=history - 1)
-    size = "paper-size" if config is None else "custom-size"
+    paper = config is None or replace(config, architecture=DEFAULT_ARCHITECTURE) == ModelConfig()
+    size = f"{'paper-size' if paper else 'custom-size'} {model.architecture}"
     predictor = Predictor(model.eval(), window, VehicleParams(), "proposed", threads=None)
     return predictor, f"random {size} network"
 

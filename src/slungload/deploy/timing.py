@@ -43,9 +43,27 @@ def time_calls(
     return wall, cpu
 
 
-def _mean_std_ms(seconds: list[float]) -> tuple[float, float]:
+def _timing(
+    windows: Windows,
+    seconds: list[float],
+    *,
+    threads: int,
+    device: torch.device,
+    backend: str = "torch eager",
+) -> Timing:
+    """The record of one timed backend: mean and std (ms) of ``seconds``, where and how."""
     ms = [1e3 * s for s in seconds]
-    return statistics.fmean(ms), statistics.stdev(ms)
+    return Timing(
+        history=windows.window.history,
+        horizon=windows.window.horizon,
+        mean_ms=statistics.fmean(ms),
+        std_ms=statistics.stdev(ms),
+        repeats=len(ms),
+        threads=threads,
+        device=device_name(device),
+        backend=backend,
+        load_average=_load_average(),
+    )
 
 
 def time_inference(
@@ -66,17 +84,7 @@ def time_inference(
     model.to(dev)
     with torch.inference_mode():
         wall, _ = time_calls(lambda i: model(*args), repeats, warmup, sync)
-    mean_ms, std_ms = _mean_std_ms(wall)
-    return Timing(
-        history=m,
-        horizon=windows.window.horizon,
-        mean_ms=mean_ms,
-        std_ms=std_ms,
-        repeats=repeats,
-        threads=torch.get_num_threads(),
-        device=device_name(dev),
-        load_average=_load_average(),
-    )
+    return _timing(windows, wall, threads=torch.get_num_threads(), device=dev)
 
 
 def time_compiled(
@@ -88,18 +96,7 @@ def time_compiled(
     history = torch.cat([states_to_file(w.states[:, :m]), w.inputs[:, :m]], -1)[0].numpy()
     future = w.inputs[0, m:].numpy()
     wall, _ = time_calls(lambda i: compiled.predict(history, future), repeats, warmup)
-    mean_ms, std_ms = _mean_std_ms(wall)
-    return Timing(
-        history=m,
-        horizon=windows.window.horizon,
-        mean_ms=mean_ms,
-        std_ms=std_ms,
-        repeats=repeats,
-        threads=1,
-        device=device_name(torch.device("cpu")),
-        backend="numba compiled",
-        load_average=_load_average(),
-    )
+    return _timing(windows, wall, threads=1, device=torch.device("cpu"), backend="numba compiled")
 
 
 def _load_average() -> float | None:

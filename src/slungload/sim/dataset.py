@@ -21,13 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from ..config import VEHICLE_FILE, VehicleParams, to_dict
-from ..fileio import SPLITS, write_json, write_npz, write_splits
+from ..fileio import write_json, write_npz, write_splits
 from .config import SimConfig
 from .flight import simulate_flight
 from .maneuvers import MANEUVERS
-
-SPLIT_FRACTIONS = {"train": 0.58, "val": 0.17, "test": 0.25}  # of windows, the paper's split
-WINDOW_STEPS = 75  # M + N = 50 + 25: a flight of T steps gives T - 74 windows (stride 1)
+from .splits import SPLIT_FRACTIONS, WINDOW_STEPS, split_flights, windows_of  # noqa: F401 (re-exported)
 
 
 @dataclass(frozen=True)
@@ -58,53 +56,6 @@ def flight_plan(n: int, maneuvers: Sequence[str] | None = None) -> list[tuple[st
         family = families[i % len(families)]
         plan.append((family, f"{family}_{i // len(families):02d}"))
     return plan
-
-
-def windows_of(steps: int, window: int = WINDOW_STEPS) -> int:
-    """Sliding windows (stride 1) of ``window`` steps in a flight of ``steps`` steps."""
-    return max(steps - window + 1, 0)
-
-
-def split_flights(
-    names: list[str],
-    steps: list[int],
-    rng: np.random.Generator,
-    families: list[str] | None = None,
-) -> dict[str, tuple[str, ...]]:
-    """Assign whole flights to train/val/test so each split gets about its share of windows.
-
-    With ``families`` (the maneuver family of each flight), one flight of every family, drawn at
-    random, goes to training first: as in the authors' split, where every family has
-    repetitions in training, the test measures prediction on kinds of maneuver the network has
-    seen rather than extrapolation to new ones. The other flights, in random order and longest
-    first within the draw, each go to the split furthest below its target; every split gets
-    at least one flight when there are three or more.
-    """
-    order = list(rng.permutation(len(names)))
-    got = {s: 0 for s in SPLITS}
-    out: dict[str, list[str]] = {s: [] for s in SPLITS}
-    if families is not None:
-        if len(families) != len(names):
-            raise ValueError(f"{len(families)} families for {len(names)} flights")
-        first: dict[str, int] = {}  # family -> its flight drawn first
-        for i in order:
-            if families[i] not in first and len(names) - len(first) > 2:
-                first[families[i]] = i
-                out["train"].append(names[i])
-                got["train"] += windows_of(steps[i])
-        seeded = set(first.values())
-        order = [i for i in order if i not in seeded]
-    total = sum(windows_of(s) for s in steps) or 1
-    order = sorted(order, key=lambda i: -windows_of(steps[i]))
-    for rank, i in enumerate(order):
-        empty = [s for s in SPLITS if not out[s]]
-        if empty and len(order) - rank <= len(empty):
-            split = empty[0]
-        else:
-            split = max(SPLITS, key=lambda s: SPLIT_FRACTIONS[s] * total - got[s])
-        out[split].append(names[i])
-        got[split] += windows_of(steps[i])
-    return {s: tuple(sorted(v)) for s, v in out.items()}
 
 
 def _fly(job: tuple[str, str, np.random.SeedSequence, SimConfig, Path]) -> tuple[str, int]:

@@ -1,0 +1,242 @@
+"""Model-predictive control: prediction models behind one interface, the sampling MPC, its
+safety (limits, fallbacks, the arena) and the closed-loop command (docs/control.md)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+from flights import TINY
+
+from slungload import physics
+from slungload.config import VehicleParams
+from slungload.control.closed_loop import Arena, flight_metrics, fly
+from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC, state_from_measurement
+from slungload.control.prediction import History, NetworkModel, PhysicsModel, load_prediction_model
+from slungload.data.flight import estimate_load_state
+from slungload.models import MODELS, build
+from slungload.sim.config import SimConfig
+from slungload.sim.controller import Measurement
+from slungload.sim.maneuvers import Reference
+from slungload.state import QUAT, quat_to_rotmat
+
+PARAMS = VehicleParams()
+HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity
+LIMITS = InputLimits(0.3 * HOVER_T, 30.0, 4.0)
+FAST = MPCConfig(samples=24, horizon=10, knots=4)
+
+
+def hover_state(p=(0.0, 0.0, 1.5)) -> np.ndarray:
+    p = np.asarray(p, dtype=float)
+    return np.concatenate([p, np.zeros(3), [1.0, 0, 0, 0], p - [0, 0, PARAMS.cable_length]])
+
+
+def measurement(x: np.ndarray, t: float = 0.0) -> Measurement:
+    q = torch.from_numpy(x[QUAT])
+    rot = quat_to_rotmat(q).numpy()
+    return Measurement(t, x[0:3].copy(), x[3:6].copy(), x[6:10].copy(), rot, x[10:13].copy())
+
+
+def hold_reference(point, steps: int) -> Reference:
+    pos = np.tile(np.asarray(point, dtype=float), (steps, 1))
+    return Reference(pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros(steps))
+
+
+def random_history(m: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    x = torch.from_numpy(np.tile(hover_state(), (m, 1)))
+    x = x + 0.01 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
+    x[:, QUAT] = x[:, QUAT] / x[:, QUAT].norm(dim=-1, keepdim=True)
+    u = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64).repeat(m - 1, 1)
+    return x, u + 0.1 * torch.randn(u.shape, generator=gen, dtype=torch.float64)
+
+
+# --- the prediction interface ----------------------------------------------------------
+
+
+def test_physics_model_is_the_rollout_from_the_causal_load_estimate():
+    gen = torch.Generator().manual_seed(0)
+    x_hist, u_past = random_history(5, gen)
+    plans = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64) + 0.5 * torch.randn(
+        7, 12, 4, generator=gen, dtype=torch.float64
+    )
+    got = load_prediction_model("physics").predict(x_hist, u_past, plans)
+    aux = estimate_load_state(x_hist, PARAMS)[-1]
+    want, _ = physics.rollout(x_hist[-1].expand(7, 13), aux.expand(7, 6), plans, PARAMS)
+    assert got.shape == (7, 12, 13)
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("architecture", sorted(MODELS))
+def test_network_model_is_forward_with_the_candidate_as_the_last_history_input(architecture):
+    # Every registered architecture plugs in through forward: the candidate u_k pairs with x_k
+    # (the history's last input row) and the predictions are x_{k+1} ... x_{k+N}.
+    torch.manual_seed(0)
+    net = build(replace(TINY, architecture=architecture), PARAMS).double().eval()
+    gen = torch.Generator().manual_seed(1)
+    x_hist, u_past = random_history(6, gen)
+    plans = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64) + torch.randn(
+        5, 4, 4, generator=gen, dtype=torch.float64
+    )
+    got = NetworkModel(net, 6).predict(x_hist, u_past, plans)
+    for i in range(5):
+        u_hist = torch.cat([u_past, plans[i, :1]])[None]
+        u_future = torch.cat([plans[i, 1:], torch.zeros(1, 4, dtype=torch.float64)])[None]
+        want = net(x_hist[None], u_hist, u_future).states[0]  # its last input is unused
+        want[:, QUAT] = want[:, QUAT] / want[:, QUAT].norm(dim=-1, keepdim=True)
+        torch.testing.assert_close(got[i], want, rtol=1e-10, atol=1e-10)
+
+
+def test_history_pads_with_the_first_row_and_keeps_the_last_m():
+    h = History(4)
+    h.push_state(np.full(13, 1.0))
+    x, u = h.window(np.full(4, 7.0))
+    assert x.shape == (4, 13) and u.shape == (3, 4)
+    assert (x == 1.0).all() and (u == 7.0).all()
+    for k in range(2, 8):
+        h.push_input(np.full(4, float(k - 1)))
+        h.push_state(np.full(13, float(k)))
+    x, u = h.window(np.zeros(4))
+    assert x[:, 0].tolist() == [4.0, 5.0, 6.0, 7.0]
+    assert u[:, 0].tolist() == [4.0, 5.0, 6.0]  # u_j was applied at x_j
+
+
+# --- the MPC on the discrete model itself ---------------------------------------------
+
+
+def fly_discrete(mpc: SamplingMPC, x0: np.ndarray, point, steps: int) -> tuple[np.ndarray, list]:
+    """Close the loop on physics.step (the MPC's own model) holding ``point``."""
+    x = torch.from_numpy(x0)
+    aux = torch.zeros(6, dtype=torch.float64)
+    ref = hold_reference(point, steps + mpc.cfg.horizon + 1)
+    path, commands = [], []
+    for k in range(steps):
+        thrust, rates = mpc(measurement(x.numpy(), k * PARAMS.dt), ref, k)
+        commands.append(np.array([thrust, *rates]))
+        u = torch.tensor([thrust, *rates], dtype=torch.float64)
+        x, aux = physics.step(x, u, aux, PARAMS)
+        path.append(x.numpy().copy())
+    return np.array(path), commands
+
+
+def test_mpc_with_the_physics_model_holds_a_point_on_the_discrete_model():
+    mpc = SamplingMPC(PhysicsModel(PARAMS), LIMITS, FAST, PARAMS)
+    target = np.array([0.0, 0.0, 1.5])
+    x0 = hover_state(target + [0.3, -0.2, 0.1])  # start 0.37 m away, hanging still
+    path, commands = fly_discrete(mpc, x0, target, 70)
+    err = np.linalg.norm(path[:, 0:3] - target, axis=1)
+    assert err[-10:].max() < 0.1, err[::10]
+    swing = np.linalg.norm(path[:, 10:12] - path[:, 0:2], axis=1)  # m, horizontal offset
+    assert swing.max() < 0.2  # about 16 degrees: the move does not throw the load around
+    assert all(LIMITS.contains(c) for c in commands)
+    assert mpc.stats.fallback_steps == 0 and mpc.stats.steps == 70
+
+
+# --- safety ----------------------------------------------------------------------------
+
+
+class BrokenModel:
+    """A prediction model that returns NaN for the samples in ``bad`` (all by default)."""
+
+    name, history = "broken", 2
+
+    def __init__(self, bad=None, raises: bool = False) -> None:
+        self.bad, self.raises = bad, raises
+        self.inner = PhysicsModel(PARAMS)
+
+    def predict(self, x_hist, u_past, plans):
+        if self.raises:
+            raise RuntimeError("boom")
+        out = self.inner.predict(x_hist, u_past, plans)
+        out[slice(None) if self.bad is None else self.bad] = math.nan
+        return out
+
+
+def test_nan_predictions_never_reach_the_vehicle_fall_back_and_are_counted():
+    mpc = SamplingMPC(BrokenModel(), LIMITS, replace(FAST, max_fallback_steps=3), PARAMS)
+    safe = mpc.plan.clone()
+    x = hover_state()
+    ref = hold_reference(x[:3], 40)
+    commands = [mpc(measurement(x), ref, k) for k in range(5)]
+    for thrust, rates in commands:
+        assert math.isfinite(thrust) and np.isfinite(rates).all()
+        assert LIMITS.contains(np.array([thrust, *rates]))
+    assert commands[0][0] == pytest.approx(float(safe[0, 0]))  # the last safe plan first
+    assert mpc.stats.fallbacks == {"non-finite prediction": 5}
+    assert mpc.stats.hover_steps == 2  # after 3 fallbacks in a row: the hover command
+    assert commands[-1][0] == pytest.approx(HOVER_T)
+
+
+def test_some_nan_samples_are_dropped_without_a_fallback():
+    mpc = SamplingMPC(BrokenModel(bad=slice(1, 8)), LIMITS, FAST, PARAMS)
+    x = hover_state()
+    thrust, rates = mpc(measurement(x), hold_reference(x[:3], 40), 0)
+    assert math.isfinite(thrust) and np.isfinite(rates).all()
+    assert mpc.stats.nonfinite_steps == 1 and mpc.stats.fallback_steps == 0
+
+
+def test_a_model_that_raises_falls_back():
+    mpc = SamplingMPC(BrokenModel(raises=True), LIMITS, FAST, PARAMS)
+    x = hover_state()
+    thrust, _ = mpc(measurement(x), hold_reference(x[:3], 40), 0)
+    assert math.isfinite(thrust)
+    assert mpc.stats.fallbacks == {"prediction error (RuntimeError)": 1}
+
+
+def test_input_limits():
+    assert LIMITS.contains(np.array([HOVER_T, 4.0, -4.0, 0.0]))
+    assert not LIMITS.contains(np.array([HOVER_T, 4.1, 0.0, 0.0]))
+    assert not LIMITS.contains(np.array([31.0, 0.0, 0.0, 0.0]))
+    assert not LIMITS.contains(np.array([math.nan, 0.0, 0.0, 0.0]))
+    assert LIMITS.at_limit(np.array([30.0, 0.0, 0.0, 0.0]))
+    assert not LIMITS.at_limit(np.array([HOVER_T, 1.0, 0.0, 0.0]))
+
+
+# --- closed loop in the simulator ----------------------------------------------------
+
+
+def test_every_applied_command_is_within_tight_limits_in_the_simulator():
+    cfg = SimConfig()
+    tight = InputLimits(0.5 * HOVER_T, 1.2 * HOVER_T, 0.5)
+    mpc = SamplingMPC(PhysicsModel(PARAMS), tight, replace(FAST, samples=8), PARAMS)
+    log = fly("roll_35", 100, mpc, label="mpc", config=cfg, steps=20)
+    assert log.stopped is None and len(log.inputs) == 20 + round(cfg.warmup / cfg.control_dt)
+    assert all(tight.contains(u) for u in log.inputs)
+    row = flight_metrics(log, tight, cfg.cable_length)
+    assert row["completed"] and row["steps"] == 20 and math.isfinite(row["load_rmse"])
+    assert row["fallback_steps"] == 0
+
+
+def test_a_vehicle_leaving_the_arena_ends_the_run_with_a_reason():
+    def climb(m, reference, k):
+        return 25.0, np.zeros(3)
+
+    log = fly("roll_35", 100, climb, label="climb", arena=Arena(hi=(3.0, 3.0, 1.7)), steps=50)
+    assert log.stopped is not None and "left the arena: z" in log.stopped
+    assert len(log.t) < 50  # stopped before the end, never an exception
+    row = flight_metrics(log, LIMITS, 0.7)
+    assert not row["completed"] and row["stopped"] == log.stopped
+
+
+def test_state_from_measurement_is_the_package_layout():
+    x = hover_state((0.1, 0.2, 1.3))
+    np.testing.assert_array_equal(state_from_measurement(measurement(x)), x)
+
+
+def test_control_command_writes_the_report(run_cli, tmp_path):
+    out = tmp_path / "ctl"
+    code, stdout, err = run_cli(
+        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "4",
+        "--horizon", "5", "--steps", "8", "--out", out, "--quiet",
+    )  # fmt: skip
+    assert code == 0, err
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert [r["controller"] for r in rows] == ["pid", "mpc-physics K=4"]
+    assert all(r["completed"] for r in rows)
+    report = (out / "report.md").read_text()
+    assert "| mpc-physics K=4 |" in report
+    for name in ("paths_3d.png", "swing.png", "table.png"):
+        assert (out / name).stat().st_size > 0
