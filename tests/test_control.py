@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -240,3 +242,19 @@ def test_control_command_writes_the_report(run_cli, tmp_path):
     assert "| mpc-physics K=4 |" in report
     for name in ("paths_3d.png", "swing.png", "table.png"):
         assert (out / name).stat().st_size > 0
+
+
+def test_control_help_is_light_and_bad_maneuvers_are_a_user_error(run_cli, tmp_path):
+    code = (
+        "import sys\n"
+        "from slungload.cli import build_parser\n"
+        "try:\n"
+        "    build_parser().parse_args(['control', '--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "assert 'torch' not in sys.modules and 'mujoco' not in sys.modules\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    code, _, err = run_cli("control", "--maneuvers", "loop_the_loop", "--out", tmp_path / "x")
+    assert code == 2 and "unknown maneuvers ['loop_the_loop']" in err

@@ -30,6 +30,7 @@ from ..evaluation.machine import cpu_model
 from ..fileio import atomic_path, write_json, write_npz, write_text
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
+from ..sim.maneuvers import MANEUVERS
 from .closed_loop import Arena, FlightLog, flight_metrics, fly, swing_angle
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 from .prediction import PHYSICS, PredictionModel, load_prediction_model
@@ -74,6 +75,9 @@ def compare(
     ``MPCConfig.horizon``). steps: cut every flight to this many recorded steps (smoke runs).
     threads: torch threads while flying (restored after).
     """
+    unknown = [m for m in maneuvers if m not in MANEUVERS]
+    if unknown:
+        raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
     cfg = config or SimConfig()
     params = VehicleParams(
         mass_quad=cfg.mass_quad, mass_load=cfg.load_mass, cable_length=cfg.cable_length,
