@@ -687,6 +687,15 @@ def _add_import(sub: Any) -> None:
         "the split lists and vehicle.json, all or nothing (docs/data.md, 'Bring your own "
         "flights').",
     )
+    _add_import_sources(p)
+    _add_import_resampling(p)
+    _add_import_output(p)
+    _add_vehicle_options(p)
+    p.set_defaults(func=cmd_import)
+
+
+def _add_import_sources(p: argparse.ArgumentParser) -> None:
+    """The logs to read, the folder to create and how the logs map to the streams."""
     p.add_argument(
         "logs",
         nargs="+",
@@ -708,6 +717,11 @@ def _add_import(sub: Any) -> None:
         choices=("mavros", "px4"),
         help="default topics of a bag: MAVROS (default) or PX4 over ROS 2",
     )
+
+
+def _add_import_resampling(p: argparse.ArgumentParser) -> None:
+    """How the thrust becomes newtons, where flights split at gaps and how the streams are
+    resampled."""
     p.add_argument(
         "--hover-throttle",
         type=float,
@@ -741,6 +755,11 @@ def _add_import(sub: Any) -> None:
         default="hold",
         help="resample set-points by holding the last one (default) or linearly",
     )
+
+
+def _add_import_output(p: argparse.ArgumentParser) -> None:
+    """How the flights are split into train/val/test, the vehicle constants and the run's
+    output."""
     p.add_argument(
         "--split",
         choices=("seeded", "train"),
@@ -756,8 +775,6 @@ def _add_import(sub: Any) -> None:
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_vehicle_options(p)
-    p.set_defaults(func=cmd_import)
 
 
 def _add_identify(sub: Any) -> None:

@@ -90,37 +90,89 @@ def compare(
     out_dir = Path(out) if out is not None else None
     if out_dir is not None:
         (out_dir / "flights").mkdir(parents=True, exist_ok=True)
-    plans: list[tuple[str, int | None, Callable[[int], Any]]] = [
-        (PID, None, lambda seed: PIDController(cfg))
-    ]
+    plans = _plans(cfg, predictors, samples, base, limits, params)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
+    finally:
+        torch.set_num_threads(previous)
+    settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
+    result = ControlComparison(rows, settings, out_dir)
+    if out_dir is not None:
+        write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
+        plot_paths(logs, out_dir / "paths_3d.png")
+        plot_swing(logs, out_dir / "swing.png")
+        plot_table(rows, out_dir / "table.png")
+        write_text(out_dir / "report.md", report_markdown(result))
+    return result
+
+
+_Plan = tuple[str, int | None, Callable[[int], Any]]  # (label, K or None, seed -> controller)
+
+
+def _plans(
+    cfg: SimConfig,
+    predictors: list[PredictionModel],
+    samples: Sequence[int],
+    base: MPCConfig,
+    limits: InputLimits,
+    params: VehicleParams,
+) -> list[_Plan]:
+    """The controllers to fly: the PID, then one MPC per K and prediction model."""
+    plans: list[_Plan] = [(PID, None, lambda seed: PIDController(cfg))]
     for k in samples:
         for model in predictors:
             mpc_cfg = replace(base, samples=int(k))
             plans.append(
                 (f"mpc-{model.name}", int(k), _mpc_factory(model, limits, mpc_cfg, params))
             )
+    return plans
+
+
+def _fly_all(
+    maneuvers: Sequence[str],
+    seeds: Sequence[int],
+    plans: list[_Plan],
+    cfg: SimConfig,
+    limits: InputLimits,
+    steps: int | None,
+    out_dir: Path | None,
+    progress: Callable[[str], None] | None,
+) -> tuple[list[dict[str, Any]], list[FlightLog]]:
+    """Every plan on every maneuver and seed: the metric rows (with "K" and the wall time in
+    s) and the flight logs, each log saved under ``out_dir/flights`` as it lands."""
     rows, logs = [], []
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        for maneuver in maneuvers:
-            for seed in seeds:
-                for label, k, make in plans:
-                    name = label if k is None else f"{label} K={k}"
-                    start = time.perf_counter()
-                    log = fly(maneuver, seed, make(seed), label=name, config=cfg, steps=steps)
-                    row = flight_metrics(log, limits, cfg.cable_length)
-                    row["K"] = k
-                    row["wall_s"] = time.perf_counter() - start
-                    rows.append(row)
-                    logs.append(log)
-                    if out_dir is not None:
-                        _save_log(out_dir / "flights", log)
-                    if progress:
-                        progress(_progress_line(row))
-    finally:
-        torch.set_num_threads(previous)
-    settings = {
+    for maneuver in maneuvers:
+        for seed in seeds:
+            for label, k, make in plans:
+                name = label if k is None else f"{label} K={k}"
+                start = time.perf_counter()
+                log = fly(maneuver, seed, make(seed), label=name, config=cfg, steps=steps)
+                row = flight_metrics(log, limits, cfg.cable_length)
+                row["K"] = k
+                row["wall_s"] = time.perf_counter() - start
+                rows.append(row)
+                logs.append(log)
+                if out_dir is not None:
+                    _save_log(out_dir / "flights", log)
+                if progress:
+                    progress(_progress_line(row))
+    return rows, logs
+
+
+def _settings(
+    models: Sequence[str | Path],
+    maneuvers: Sequence[str],
+    seeds: Sequence[int],
+    samples: Sequence[int],
+    base: MPCConfig,
+    limits: InputLimits,
+    steps: int | None,
+    threads: int,
+) -> dict[str, Any]:
+    """What was flown and where, for ``results.json`` and the report."""
+    return {
         "models": [str(m) for m in models],
         "maneuvers": list(maneuvers),
         "seeds": list(seeds),
@@ -130,21 +182,19 @@ def compare(
         "arena": vars(Arena()),
         "steps": steps,
         "threads": threads,
-        "machine": {
-            "cpu": cpu_model() or platform.processor(),
-            "cores": os.cpu_count(),
-            "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
-        },
+        "machine": _machine(),
         "date": date.today().isoformat(),
     }
-    result = ControlComparison(rows, settings, out_dir)
-    if out_dir is not None:
-        write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
-        plot_paths(logs, out_dir / "paths_3d.png")
-        plot_swing(logs, out_dir / "swing.png")
-        plot_table(rows, out_dir / "table.png")
-        write_text(out_dir / "report.md", report_markdown(result))
-    return result
+
+
+def _machine() -> dict[str, Any]:
+    """The CPU, its cores and the load average while the report is written (timings depend
+    on them)."""
+    return {
+        "cpu": cpu_model() or platform.processor(),
+        "cores": os.cpu_count(),
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+    }
 
 
 def _mpc_factory(model, limits, mpc_cfg, params):

@@ -206,8 +206,6 @@ def import_logs(
     Refuses a non-empty ``out`` unless ``overwrite``. Nothing is written unless every log
     imports.
     """
-    from tqdm.auto import tqdm
-
     out = Path(out).expanduser()
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
         raise FileExistsError(f"{out}: exists and is not empty (--overwrite replaces it)")
@@ -219,6 +217,38 @@ def import_logs(
             f"no vehicle constants given: the paper's are used and written to vehicle.json "
             f"({params})"
         )
+    flights, settings = _import_flights(logs, params, mapping, preset, options, progress, notes)
+    _check_flights(flights, params)
+
+    names = [f.name for f in flights]
+    splits = split_by_flight(names, [f.steps for f in flights], options)
+    if options.split == "seeded" and len(flights) < 3:
+        notes.append(f"{len(flights)} flight(s): all in train.txt (a split needs 3 or more)")
+    _write(out, flights, splits, _metadata(params, options, settings, flights))
+    return ImportResult(
+        out,
+        {f.name: f.steps for f in flights},
+        {f.name: f.log for f in flights},
+        splits,
+        params,
+        tuple(notes),
+    )
+
+
+def _import_flights(
+    logs: list[tuple[Path, str]],
+    params: VehicleParams,
+    mapping: dict[str, Any] | None,
+    preset: str | None,
+    options: ImportOptions,
+    progress: bool,
+    notes: list[str],
+) -> tuple[list[ImportedFlight], dict[str, Any]]:
+    """Every log read and resampled into flights (named after the log, with ``_00``, ``_01``
+    ... when it splits into pieces), and each log's import settings by path; the logs' notes
+    are appended to ``notes``."""
+    from tqdm.auto import tqdm
+
     flights: list[ImportedFlight] = []
     settings: dict[str, Any] = {}
     bar = tqdm(logs, desc="importing logs", unit="log", disable=not progress or len(logs) < 2)
@@ -233,6 +263,12 @@ def import_logs(
         for k, (start, arrays) in enumerate(pieces):
             name = stem if len(pieces) == 1 else f"{stem}_{k:02d}"
             flights.append(ImportedFlight(name, path, start, arrays))
+    return flights, settings
+
+
+def _check_flights(flights: list[ImportedFlight], params: VehicleParams) -> None:
+    """Refuse two flights of one name (one file would overwrite the other) and anything the
+    ``.npz`` reader would refuse later."""
     names = [f.name for f in flights]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -243,10 +279,15 @@ def import_logs(
         except FlightFormatError as exc:
             raise LogError(f"{exc} (flight {f.name} after resampling)") from None
 
-    splits = split_by_flight(names, [f.steps for f in flights], options)
-    if options.split == "seeded" and len(flights) < 3:
-        notes.append(f"{len(flights)} flight(s): all in train.txt (a split needs 3 or more)")
-    meta = {
+
+def _metadata(
+    params: VehicleParams,
+    options: ImportOptions,
+    settings: dict[str, Any],
+    flights: list[ImportedFlight],
+) -> dict[str, Any]:
+    """The contents of ``vehicle.json``: the constants and how the import was made."""
+    return {
         "vehicle": to_dict(params),
         "import": {
             "version": _version(),
@@ -268,15 +309,6 @@ def import_logs(
             },
         },
     }
-    _write(out, flights, splits, meta)
-    return ImportResult(
-        out,
-        {f.name: f.steps for f in flights},
-        {f.name: f.log for f in flights},
-        splits,
-        params,
-        tuple(notes),
-    )
 
 
 def _write(out: Path, flights: list[ImportedFlight], splits: dict, meta: dict) -> None:

@@ -488,11 +488,27 @@ def _ratio(value: float, reference: float | None) -> str:
 
 
 def _markdown(r: BenchmarkResult) -> str:
+    """The report: where and with what it was measured, the latency, throughput and training
+    tables, the parity and the notes."""
     lines = [
         f"Measured on {r.device}; {r.source}; "
         + ", ".join(f"{k} {v}" for k, v in r.versions.items())
         + (" (quick run)" if r.quick else ""),
         "",
+        *_latency_table(r),
+        *_throughput_table(r),
+        *_training_table(r),
+        "",
+        "Parity (max |backend - eager| on the benchmark windows): "
+        + ", ".join(f"N = {n}: {d:.1e}" for n, d in r.parity.items()),
+    ]
+    lines += ["", *(f"Note: {n}" for n in r.notes)]
+    return "\n".join(lines) + "\n"
+
+
+def _latency_table(r: BenchmarkResult) -> list[str]:
+    """Batch-1 latency in ms per backend and N, beside the targets and the paper's times."""
+    lines = [
         f"Batch-1 latency (M = {r.latency[0].history if r.latency else '-'} history rows; wall "
         "clock, and the calling thread's CPU time; speed-up: eager / backend in this run, on "
         "wall-clock medians; the paper's figures are GPU / Jetson times of its own code):",
@@ -513,7 +529,12 @@ def _markdown(r: BenchmarkResult) -> str:
             + " | ".join("-" if p is None else f"{p:g}" for p in paper)
             + " |"
         )
-    lines += [
+    return lines
+
+
+def _throughput_table(r: BenchmarkResult) -> list[str]:
+    """Windows predicted per second per backend, N and batch (after a blank line)."""
+    lines = [
         "",
         "Throughput (windows predicted per second; speed-up: backend / eager, same run):",
         "",
@@ -527,15 +548,22 @@ def _markdown(r: BenchmarkResult) -> str:
             f"| {x.backend} | {x.horizon} | {x.batch} | {x.threads} | {1e3 * x.median_s:.1f} | "
             f"{x.windows_per_s:,.0f} | {ratio} |"
         )
-    if r.training:
-        lines += [
-            "",
-            "Training throughput (forward + loss + backward + clipping + Adam; plain loop):",
-            "",
-            "| parameters | variant | M | N | batch | threads | windows/s | "
-            "s per epoch | epoch windows | how | target s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|",
-        ]
+    return lines
+
+
+def _training_table(r: BenchmarkResult) -> list[str]:
+    """Training windows per second and seconds per epoch (after a blank line); no lines when
+    training was not measured."""
+    if not r.training:
+        return []
+    lines = [
+        "",
+        "Training throughput (forward + loss + backward + clipping + Adam; plain loop):",
+        "",
+        "| parameters | variant | M | N | batch | threads | windows/s | "
+        "s per epoch | epoch windows | how | target s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for t in r.training:
         how = f"{t.windows_measured:,} measured, extrapolated" if t.extrapolated else "measured"
         lines.append(
@@ -543,10 +571,4 @@ def _markdown(r: BenchmarkResult) -> str:
             f"{t.threads} | {t.windows_per_s:,.0f} | {t.epoch_s:.1f} | {t.target_windows:,} | "
             f"{how} | {TARGET_TRAIN_S:g} |"
         )
-    lines += [
-        "",
-        "Parity (max |backend - eager| on the benchmark windows): "
-        + ", ".join(f"N = {n}: {d:.1e}" for n, d in r.parity.items()),
-    ]
-    lines += ["", *(f"Note: {n}" for n in r.notes)]
-    return "\n".join(lines) + "\n"
+    return lines

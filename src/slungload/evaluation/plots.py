@@ -143,29 +143,15 @@ def plot_mae(
     labels = list(curves)
     styles = dict(styles or label_styles(labels))
     bands = [b for b in (labels[:1] if bands is None else bands) if b in curves]
-    # Wide lines first: a later, narrower one lies on top and never hides an earlier one.
-    order = sorted(labels, key=lambda label: -styles[label].linewidth)
     fig = Figure(figsize=(11, 8), layout="constrained")
     axes = fig.subplots(2, 2)
     steps = max(len(by_group[g].mean) for by_group in curves.values() for g in GROUPS)
     for ax, group in zip(axes.flat, GROUPS, strict=True):
         if training_horizon is not None and training_horizon < steps:
             _vertical(ax, training_horizon, "training horizon", **HORIZON_LINE)
-        for j, label in enumerate(bands):
-            c = curves[label][group]
-            k = np.arange(1, len(c.mean) + 1)
-            color = styles[label].color
-            if j == 0:
-                ax.fill_between(k, c.q1, c.q3, color=color, alpha=REFERENCE_BAND_ALPHA,
-                                linewidth=0, zorder=1)  # fmt: skip
-            else:
-                ax.fill_between(k, c.q1, c.q3, facecolor="none", edgecolor=color, hatch="////",
-                                alpha=0.45, linewidth=0, zorder=1.5)  # fmt: skip
-        for i, label in enumerate(labels):
-            c = curves[label][group]
-            k = np.arange(1, len(c.mean) + 1)
-            every = _markevery(len(k), i, len(labels))
-            ax.plot(k, c.mean, zorder=3 + order.index(label), **styles[label].line(markevery=every))
+        by_label = {label: curves[label][group] for label in labels}
+        _mae_bands(ax, by_label, bands, styles)
+        _mae_lines(ax, by_label, styles)
         ax.set_title(GROUP_TITLES[group])
         ax.set_xlabel("horizon step k")
         unit = GROUP_UNITS[group]
@@ -175,6 +161,49 @@ def plot_mae(
         ax.grid(alpha=0.3)
         top = ax.secondary_xaxis("top", functions=(lambda k: k * dt, lambda t: t / dt))
         top.set_xlabel("time ahead (s)")
+    handles = _mae_handles(labels, bands, styles)
+    if training_horizon is not None and training_horizon < steps:
+        handles.append(_vertical_handle(f"training horizon N = {training_horizon}", **HORIZON_LINE))
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
+               fontsize="small")  # fmt: skip
+    named = f": {' vs '.join(labels)}" if len(labels) <= 3 else f", {len(labels)} models"
+    fig.suptitle(title or f"Test-set MAE per horizon step, N = {steps}{named}")
+    return _save(fig, path)
+
+
+def _mae_bands(
+    ax, curves: Mapping[str, Curve], bands: Sequence[str], styles: Mapping[str, LabelStyle]
+) -> None:
+    """The Q1-Q3 band of each label in ``bands`` in one panel: the first filled lightly, the
+    others hatched, so that overlapping bands stay readable."""
+    for j, label in enumerate(bands):
+        c = curves[label]
+        k = np.arange(1, len(c.mean) + 1)
+        color = styles[label].color
+        if j == 0:
+            ax.fill_between(k, c.q1, c.q3, color=color, alpha=REFERENCE_BAND_ALPHA,
+                            linewidth=0, zorder=1)  # fmt: skip
+        else:
+            ax.fill_between(k, c.q1, c.q3, facecolor="none", edgecolor=color, hatch="////",
+                            alpha=0.45, linewidth=0, zorder=1.5)  # fmt: skip
+
+
+def _mae_lines(ax, curves: Mapping[str, Curve], styles: Mapping[str, LabelStyle]) -> None:
+    """Each label's MAE_k line in one panel (``curves``: label -> that panel's curve)."""
+    labels = list(curves)
+    # Wide lines first: a later, narrower one lies on top and never hides an earlier one.
+    order = sorted(labels, key=lambda label: -styles[label].linewidth)
+    for i, label in enumerate(labels):
+        c = curves[label]
+        k = np.arange(1, len(c.mean) + 1)
+        every = _markevery(len(k), i, len(labels))
+        ax.plot(k, c.mean, zorder=3 + order.index(label), **styles[label].line(markevery=every))
+
+
+def _mae_handles(
+    labels: Sequence[str], bands: Sequence[str], styles: Mapping[str, LabelStyle]
+) -> list:
+    """Legend entries of ``plot_mae``: one line per label, then one patch per band."""
     handles: list = [Line2D([], [], label=f"{la} (MAE)", **styles[la].line()) for la in labels]
     for j, label in enumerate(bands):
         color = styles[label].color
@@ -184,13 +213,7 @@ def plot_mae(
             patch = Patch(facecolor="none", edgecolor=color, hatch="////", alpha=0.6)
         patch.set_label(f"{label}: Q1-Q3 over the windows")
         handles.append(patch)
-    if training_horizon is not None and training_horizon < steps:
-        handles.append(_vertical_handle(f"training horizon N = {training_horizon}", **HORIZON_LINE))
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3),
-               fontsize="small")  # fmt: skip
-    named = f": {' vs '.join(labels)}" if len(labels) <= 3 else f", {len(labels)} models"
-    fig.suptitle(title or f"Test-set MAE per horizon step, N = {steps}{named}")
-    return _save(fig, path)
+    return handles
 
 
 def plot_prediction(
@@ -212,7 +235,6 @@ def plot_prediction(
     m = example.history
     truth = example.window_states
     t = np.arange(len(truth)) * dt  # s from the window's first step
-    t_pred = np.arange(m - 1, len(truth)) * dt
     labels = list(example.predictions)
     styles = dict(styles or label_styles(labels))
     trained = training_horizon is not None and m - 1 + training_horizon < len(truth) - 1
@@ -222,15 +244,7 @@ def plot_prediction(
         if trained:  # named in the top panel only: the names would cover data below
             _vertical(ax, (m - 1 + training_horizon) * dt, "training horizon" if row == 0 else None,
                       **HORIZON_LINE)  # fmt: skip
-        for i in range(len(COMPONENTS[group])):
-            color = f"C{i}"
-            ax.plot(t, truth[:, sl][:, i], color=color, linewidth=1.5, zorder=2)
-            for j, label in enumerate(labels):
-                pred = np.concatenate([truth[m - 1 : m, sl], example.predictions[label][:, sl]])
-                every = _markevery(len(pred), j, len(labels))
-                ax.plot(t_pred, pred[:, i], zorder=3 + j, **styles[label].line(
-                    color=color, linewidth=1.4, markersize=4, markeredgecolor=color,
-                    markevery=every))  # fmt: skip
+        _prediction_lines(ax, example, group, sl, dt, styles)
         _vertical(ax, (m - 1) * dt, "end of history" if row == 0 else None,
                   color=HISTORY_LINE_COLOR, linewidth=2.0)  # fmt: skip
         ax.set_xlim(t[0], t[-1] + dt)
@@ -242,17 +256,7 @@ def plot_prediction(
         ]
         ax.legend(handles=comp_handles, loc="best", fontsize="small", ncols=4)
     axes[-1].set_xlabel("time from window start (s)")
-    source_handles: list = [Line2D([], [], color=TRUTH_COLOR, linewidth=1.5, label="truth")]
-    source_handles += [
-        Line2D([], [], label=la, **styles[la].line(color=TRUTH_COLOR, linewidth=1.4))
-        for la in labels
-    ]
-    source_handles.append(_vertical_handle("end of history", color=HISTORY_LINE_COLOR,
-                                           linewidth=2.0))  # fmt: skip
-    if trained:
-        source_handles.append(
-            _vertical_handle(f"training horizon N = {training_horizon}", **HORIZON_LINE)
-        )
+    source_handles = _prediction_handles(labels, styles, training_horizon if trained else None)
     fig.legend(handles=source_handles, loc="outside lower center",
                ncols=min(len(source_handles), 4), fontsize="small")  # fmt: skip
     fig.suptitle(
@@ -261,6 +265,46 @@ def plot_prediction(
         f"M = {m} history steps, N = {len(truth) - m} predicted"
     )
     return _save(fig, path)
+
+
+def _prediction_lines(
+    ax, example: Example, group: str, sl: slice, dt: float, styles: Mapping[str, LabelStyle]
+) -> None:
+    """One group's panel: per component (its colour), the truth solid over the window and each
+    label's prediction from the last measured state on."""
+    m = example.history
+    truth = example.window_states
+    t = np.arange(len(truth)) * dt  # s from the window's first step
+    t_pred = np.arange(m - 1, len(truth)) * dt
+    labels = list(example.predictions)
+    for i in range(len(COMPONENTS[group])):
+        color = f"C{i}"
+        ax.plot(t, truth[:, sl][:, i], color=color, linewidth=1.5, zorder=2)
+        for j, label in enumerate(labels):
+            pred = np.concatenate([truth[m - 1 : m, sl], example.predictions[label][:, sl]])
+            every = _markevery(len(pred), j, len(labels))
+            ax.plot(t_pred, pred[:, i], zorder=3 + j, **styles[label].line(
+                color=color, linewidth=1.4, markersize=4, markeredgecolor=color,
+                markevery=every))  # fmt: skip
+
+
+def _prediction_handles(
+    labels: Sequence[str], styles: Mapping[str, LabelStyle], training_horizon: int | None
+) -> list:
+    """Legend entries of ``plot_prediction``: the truth, each label (in black: colour is the
+    component there), the end of the history and the training horizon (None: not drawn)."""
+    source_handles: list = [Line2D([], [], color=TRUTH_COLOR, linewidth=1.5, label="truth")]
+    source_handles += [
+        Line2D([], [], label=la, **styles[la].line(color=TRUTH_COLOR, linewidth=1.4))
+        for la in labels
+    ]
+    source_handles.append(_vertical_handle("end of history", color=HISTORY_LINE_COLOR,
+                                           linewidth=2.0))  # fmt: skip
+    if training_horizon is not None:
+        source_handles.append(
+            _vertical_handle(f"training horizon N = {training_horizon}", **HORIZON_LINE)
+        )
+    return source_handles
 
 
 def plot_paths_3d(
@@ -280,7 +324,6 @@ def plot_paths_3d(
     """
     labels = list(example.predictions)
     styles = dict(styles or label_styles(labels))
-    flight = example.flight_states
     m = example.history
     window = example.window_states
     future = window[m - 1 :]  # from the last measured state
@@ -290,33 +333,8 @@ def plot_paths_3d(
     }
     fig = Figure(figsize=(16, 6), layout="constrained")
     axes = [fig.add_subplot(1, 3, i + 1, projection="3d") for i in range(3)]
-
     clipped: set[str] = set()
-
-    def predicted(ax, sl: slice, lo: np.ndarray, hi: np.ndarray, *, zoom: bool, **line: object):
-        # 3D axes do not clip: a path leaving the frame is cut at its edge (NaN outside).
-        for i, (label, xyz) in enumerate(paths.items()):
-            inside = np.all((xyz[:, sl] >= lo) & (xyz[:, sl] <= hi), axis=1)
-            if zoom and not inside.all():
-                clipped.add(label)
-            if inside.sum() >= 2:
-                cut = np.where(inside[:, None], xyz[:, sl], np.nan)
-                every = _markevery(len(cut), i, len(paths))
-                ax.plot(*cut.T, **styles[label].line(markevery=every, **line))
-
-    ax = axes[0]
-    networks = [
-        xyz[:, sl] for label, xyz in paths.items() if label != PHYSICS for sl in (POS, LOAD_POS)
-    ]
-    lo, hi = _frame(ax, np.concatenate([flight[:, POS], flight[:, LOAD_POS], *networks]))
-    ax.plot(*flight[:, POS].T, color=TRUTH_COLOR, linewidth=0.7, alpha=0.45)
-    ax.plot(*flight[:, LOAD_POS].T, color=LOAD_TRUTH_COLOR, linewidth=0.7, alpha=0.6)
-    for sl, color in ((POS, TRUTH_COLOR), (LOAD_POS, LOAD_TRUTH_COLOR)):
-        ax.plot(*future[:, sl].T, color=color, linewidth=2.5)
-        ax.scatter(*future[0, sl], color="k", s=18, depthshade=False)
-        predicted(ax, sl, lo, hi, zoom=False, marker=None, linewidth=1.6)
-    ax.set_title("whole flight, the window thick", fontsize="medium")
-
+    _whole_flight_panel(axes[0], example.flight_states, future, paths, styles, clipped)
     for ax, sl, name, color in (
         (axes[1], POS, "vehicle", TRUTH_COLOR),
         (axes[2], LOAD_POS, "load", LOAD_TRUTH_COLOR),
@@ -326,9 +344,67 @@ def plot_paths_3d(
         ax.plot(*recent[:, sl].T, color=color, linewidth=1.0, alpha=0.7)
         ax.plot(*future[:, sl].T, color=color, linewidth=2.5, marker=".", markersize=4)
         ax.scatter(*future[0, sl], color="k", s=30, depthshade=False, zorder=10)
-        predicted(ax, sl, lo, hi, zoom=True, linewidth=2.0)
+        _predicted_paths(ax, paths, styles, sl, lo, hi, clipped, linewidth=2.0)
         ax.set_title(f"{name}, zoomed: the {len(future) - 1} predicted steps", fontsize="medium")
+    handles = _paths_handles(labels, styles, clipped)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4),
+               fontsize="small")  # fmt: skip
+    fig.suptitle(title or f"Flight {example.flight}: vehicle and load paths, window from step "
+                 f"{example.start}")  # fmt: skip
+    return _save(fig, path)
 
+
+def _whole_flight_panel(
+    ax,
+    flight: np.ndarray,
+    future: np.ndarray,
+    paths: Mapping[str, np.ndarray],
+    styles: Mapping[str, LabelStyle],
+    clipped: set[str],
+) -> None:
+    """The left panel: the flight's vehicle and load paths (flight: (T, state)), the predicted
+    window thick, and every label's predicted paths (paths: label -> (N + 1, state))."""
+    networks = [
+        xyz[:, sl] for label, xyz in paths.items() if label != PHYSICS for sl in (POS, LOAD_POS)
+    ]
+    lo, hi = _frame(ax, np.concatenate([flight[:, POS], flight[:, LOAD_POS], *networks]))
+    ax.plot(*flight[:, POS].T, color=TRUTH_COLOR, linewidth=0.7, alpha=0.45)
+    ax.plot(*flight[:, LOAD_POS].T, color=LOAD_TRUTH_COLOR, linewidth=0.7, alpha=0.6)
+    for sl, color in ((POS, TRUTH_COLOR), (LOAD_POS, LOAD_TRUTH_COLOR)):
+        ax.plot(*future[:, sl].T, color=color, linewidth=2.5)
+        ax.scatter(*future[0, sl], color="k", s=18, depthshade=False)
+        # the whole flight is no zoom: a path cut here is not noted in the legend
+        _predicted_paths(ax, paths, styles, sl, lo, hi, None, marker=None, linewidth=1.6)
+    ax.set_title("whole flight, the window thick", fontsize="medium")
+
+
+def _predicted_paths(
+    ax,
+    paths: Mapping[str, np.ndarray],
+    styles: Mapping[str, LabelStyle],
+    sl: slice,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    clipped: set[str] | None,
+    **line: object,
+) -> None:
+    """Each label's predicted path (columns ``sl`` of (N + 1, state)) inside the frame
+    [lo, hi] (m); the labels whose path is cut are added to ``clipped`` (None: not noted)."""
+    # 3D axes do not clip: a path leaving the frame is cut at its edge (NaN outside).
+    for i, (label, xyz) in enumerate(paths.items()):
+        inside = np.all((xyz[:, sl] >= lo) & (xyz[:, sl] <= hi), axis=1)
+        if clipped is not None and not inside.all():
+            clipped.add(label)
+        if inside.sum() >= 2:
+            cut = np.where(inside[:, None], xyz[:, sl], np.nan)
+            every = _markevery(len(cut), i, len(paths))
+            ax.plot(*cut.T, **styles[label].line(markevery=every, **line))
+
+
+def _paths_handles(
+    labels: Sequence[str], styles: Mapping[str, LabelStyle], clipped: set[str]
+) -> list:
+    """Legend entries of ``plot_paths_3d``; a label cut at a zoom's edge says so."""
     handles: list = [
         Line2D([], [], color=TRUTH_COLOR, linewidth=2.5, label="vehicle, measured"),
         Line2D([], [], color=LOAD_TRUTH_COLOR, linewidth=2.5, label="load, measured"),
@@ -338,11 +414,7 @@ def plot_paths_3d(
     for label in labels:
         note = " (cut at the zoom's edge)" if label in clipped else ""
         handles.append(Line2D([], [], label=f"{label}{note}", **styles[label].line(linewidth=2)))
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4),
-               fontsize="small")  # fmt: skip
-    fig.suptitle(title or f"Flight {example.flight}: vehicle and load paths, window from step "
-                 f"{example.start}")  # fmt: skip
-    return _save(fig, path)
+    return handles
 
 
 def _vertical(ax, x: float, text: str | None, **line: object) -> None:

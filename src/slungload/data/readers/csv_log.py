@@ -65,53 +65,20 @@ def read_csv(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
     rates_frame = choice(settings, "rates", frames.BODY_FRAMES, what)
     unit = choice(settings, "time_unit", tuple(TIME_UNITS), what)
     thrust_unit = choice(settings, "thrust", ("n", "normalized"), what)
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            rows = list(csv.reader(f))
-    except (OSError, UnicodeDecodeError) as exc:
-        raise LogError(f"{path}: cannot be read as CSV text ({exc})") from None
-    if not rows:
-        raise LogError(f"{path}: empty file, expected a header row of column names")
-    header = [h.strip() for h in rows[0]]
-    body_rows = rows[1:]
+    header, body_rows = _read_rows(path)
     notes: list[str] = []
 
-    def columns(key: str) -> list[str] | None:
-        value = settings[key]
-        if value in ("", None, []):
-            return None
-        names = [value] if isinstance(value, str) else list(value)
-        size = _SIZES.get(key, 1)
-        if len(names) != size:
-            raise LogError(f"{path}: mapping key {key!r} names {len(names)} columns, needs {size}")
-        return names
-
     def numbers(name: str, key: str) -> np.ndarray:
-        if name not in header:
-            raise LogError(
-                f"{path}: no column {name!r} (mapping key {key!r}); columns: {', '.join(header)}"
-            )
-        j = header.index(name)
-        out = np.full(len(body_rows), np.nan)
-        for i, row in enumerate(body_rows):
-            cell = row[j].strip() if j < len(row) else ""
-            if cell:
-                try:
-                    out[i] = float(cell)
-                except ValueError:
-                    raise LogError(
-                        f"{path}: row {i + 2}, column {name!r}: {cell!r} is not a number"
-                    ) from None
-        return out
+        return _numbers(path, header, body_rows, name, key)
 
-    time_col = columns("time")
+    time_col = _columns(settings, "time", path)
     if time_col is None:
         raise LogError(f"{path}: mapping key 'time' must name the time column")
     time = numbers(time_col[0], "time") * TIME_UNITS[unit]
     stamped = np.isfinite(time)
     streams: dict[str, Stream] = {}
     for key, role in _ROLE.items():
-        names = columns(key)
+        names = _columns(settings, key, path)
         if key == "v":  # optional: absent default columns, or "", mean finite differences
             explicit = bool((mapping or {}).get("v"))
             if names is None or (not explicit and not all(n in header for n in names)):
@@ -121,12 +88,64 @@ def read_csv(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
             raise LogError(f"{path}: mapping key {key!r} must name its columns")
         values = np.stack([numbers(n, key) for n in names], axis=1)
         rows_of = stamped & np.isfinite(values).all(axis=1)
-        t, v = time[rows_of], values[rows_of]
-        if key in ("p", "v", "p_load"):
-            v = frames.world_vectors(v, world)
-        elif key == "attitude":
-            v = frames.attitudes(v[:, [3, 0, 1, 2]], world, body)  # x-y-z-w -> w-x-y-z
-        elif key == "w_ref":
-            v = frames.body_vectors(v, rates_frame)
-        streams[role] = Stream(f"column{'s' if len(names) > 1 else ''} {', '.join(names)}", t, v)
+        v = _to_frames(key, values[rows_of], world, body, rates_frame)
+        source = f"column{'s' if len(names) > 1 else ''} {', '.join(names)}"
+        streams[role] = Stream(source, time[rows_of], v)
     return RawLog(path, "csv", streams, thrust_unit == "normalized", settings, notes)
+
+
+def _read_rows(path: Path) -> tuple[list[str], list[list[str]]]:
+    """The header's column names (stripped) and the rows below it, as text cells."""
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            rows = list(csv.reader(f))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise LogError(f"{path}: cannot be read as CSV text ({exc})") from None
+    if not rows:
+        raise LogError(f"{path}: empty file, expected a header row of column names")
+    return [h.strip() for h in rows[0]], rows[1:]
+
+
+def _columns(settings: dict[str, Any], key: str, path: Path) -> list[str] | None:
+    """The column names the mapping gives ``key`` (None: not mapped), as many as it needs."""
+    value = settings[key]
+    if value in ("", None, []):
+        return None
+    names = [value] if isinstance(value, str) else list(value)
+    size = _SIZES.get(key, 1)
+    if len(names) != size:
+        raise LogError(f"{path}: mapping key {key!r} names {len(names)} columns, needs {size}")
+    return names
+
+
+def _numbers(
+    path: Path, header: list[str], rows: list[list[str]], name: str, key: str
+) -> np.ndarray:
+    """Column ``name`` as (rows,) floats, NaN where a cell is blank (not sampled in that row)."""
+    if name not in header:
+        raise LogError(
+            f"{path}: no column {name!r} (mapping key {key!r}); columns: {', '.join(header)}"
+        )
+    j = header.index(name)
+    out = np.full(len(rows), np.nan)
+    for i, row in enumerate(rows):
+        cell = row[j].strip() if j < len(row) else ""
+        if cell:
+            try:
+                out[i] = float(cell)
+            except ValueError:
+                raise LogError(
+                    f"{path}: row {i + 2}, column {name!r}: {cell!r} is not a number"
+                ) from None
+    return out
+
+
+def _to_frames(key: str, v: np.ndarray, world: str, body: str, rates: str) -> np.ndarray:
+    """One quantity's (n, size) values converted into the package's frames."""
+    if key in ("p", "v", "p_load"):
+        return frames.world_vectors(v, world)
+    if key == "attitude":
+        return frames.attitudes(v[:, [3, 0, 1, 2]], world, body)  # x-y-z-w -> w-x-y-z
+    if key == "w_ref":
+        return frames.body_vectors(v, rates)
+    return v

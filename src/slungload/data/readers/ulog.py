@@ -84,60 +84,92 @@ def ulog_streams(
             f"mapping key 'load' (name or name:instance); topics with a position: "
             f"{', '.join(carriers) or 'none'}"
         )
+    log = _Topics(topics, settings, path)
+    streams = _motion_streams(log, notes)
+    name, t, q, _ = log.series("attitude", _QUAT_FIELDS, "quaternion")
+    streams["attitude"] = Stream(f"topic {name}", t, frames.attitudes(q, "ned", "frd"))
+    name, t, rates, rates_data = log.series("rates", _RATE_FIELDS, "body rate")
+    streams["rates"] = Stream(f"topic {name}", t, frames.body_vectors(rates, "frd"))
+    name, t, thrust = _thrust(log, rates_data, notes)
+    streams["thrust"] = Stream(f"topic {name}", t, -thrust)  # body z is down in FRD
+    name, t, load, _ = log.series("load", _POSITION_FIELDS, "position")
+    streams["load"] = Stream(f"topic {name}", t, frames.world_vectors(load, "ned"))
+    return RawLog(path, "ulog", streams, True, settings, notes, hover_throttle=hover_throttle)
 
-    def topic(key: str) -> tuple[str, dict[str, np.ndarray]]:
-        spec = str(settings[key])
+
+class _Topics:
+    """A log's topics looked up by mapping key, with errors that name what the log has."""
+
+    def __init__(
+        self, topics: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], path: Path
+    ) -> None:
+        self.topics, self.settings, self.path = topics, settings, path
+
+    def topic(self, key: str) -> tuple[str, dict[str, np.ndarray]]:
+        """The ``"name:instance"`` and fields of the topic that ``key`` maps to."""
+        spec = str(self.settings[key])
         name = spec if ":" in spec else f"{spec}:0"
-        if name not in topics:
-            have = ", ".join(sorted(topics)) or "none"
-            raise LogError(f"{path}: no topic {spec!r} (mapping key {key!r}); the log has: {have}")
-        return name, topics[name]
+        if name not in self.topics:
+            have = ", ".join(sorted(self.topics)) or "none"
+            raise LogError(
+                f"{self.path}: no topic {spec!r} (mapping key {key!r}); the log has: {have}"
+            )
+        return name, self.topics[name]
 
-    def series(key: str, options: tuple[tuple[str, ...], ...], what: str):
-        name, data = topic(key)
+    def series(self, key: str, options: tuple[tuple[str, ...], ...], what: str):
+        """(topic name, (n,) times in s, (n, fields) values, all fields) of the first field
+        group in ``options`` that the topic of ``key`` holds."""
+        name, data = self.topic(key)
         cols = _fields(data, options)
         if cols is None:
             raise LogError(
-                f"{path}: topic {name} ({key}) has no {what} fields "
+                f"{self.path}: topic {name} ({key}) has no {what} fields "
                 f"({' or '.join(' '.join(o) for o in options)}); it has: {', '.join(sorted(data))}"
             )
         t = np.asarray(data["timestamp"], np.float64) * 1e-6
         return name, t, np.stack([np.asarray(data[c], np.float64) for c in cols], axis=1), data
 
+
+def _motion_streams(log: _Topics, notes: list[str]) -> dict[str, Stream]:
+    """The vehicle's position and (when mapped) velocity streams, z up, without the samples
+    the EKF flags invalid."""
+    path = log.path
     streams: dict[str, Stream] = {}
-    name, t, pos, data = series("position", _POSITION_FIELDS, "position")
+    name, t, pos, data = log.series("position", _POSITION_FIELDS, "position")
     keep = _valid(data, ("xy_valid", "z_valid"))
     if not keep.all():
         notes.append(f"{path}: topic {name}: {int((~keep).sum())} samples flagged invalid dropped")
     streams["position"] = Stream(f"topic {name}", t[keep], frames.world_vectors(pos[keep], "ned"))
-    if settings["velocity"]:
-        name, t, vel, data = series("velocity", _VELOCITY_FIELDS, "velocity")
+    if log.settings["velocity"]:
+        name, t, vel, data = log.series("velocity", _VELOCITY_FIELDS, "velocity")
         keep = _valid(data, ("v_xy_valid", "v_z_valid"))
         streams["velocity"] = Stream(
             f"topic {name}", t[keep], frames.world_vectors(vel[keep], "ned")
         )
     else:
         notes.append(f"{path}: no velocity topic: the velocity is a finite difference of p")
-    name, t, q, _ = series("attitude", _QUAT_FIELDS, "quaternion")
-    streams["attitude"] = Stream(f"topic {name}", t, frames.attitudes(q, "ned", "frd"))
-    name, t, rates, rates_data = series("rates", _RATE_FIELDS, "body rate")
-    streams["rates"] = Stream(f"topic {name}", t, frames.body_vectors(rates, "frd"))
-    thrust_spec = str(settings["thrust"])
+    return streams
+
+
+def _thrust(
+    log: _Topics, rates_data: dict[str, np.ndarray], notes: list[str]
+) -> tuple[str, np.ndarray, np.ndarray]:
+    """(topic name, (n,) times in s, (n, 1) normalised thrust, FRD: negative up) from the
+    thrust set-point topic, or from the rates set-point's ``thrust_body[2]`` (older PX4)."""
+    path = log.path
+    thrust_spec = str(log.settings["thrust"])
     thrust_name = thrust_spec if ":" in thrust_spec else f"{thrust_spec}:0"
-    if thrust_spec and thrust_name in topics:
-        name, t, thrust, _ = series("thrust", _THRUST_FIELDS, "thrust")
+    if thrust_spec and thrust_name in log.topics:
+        name, t, thrust, _ = log.series("thrust", _THRUST_FIELDS, "thrust")
     elif _fields(rates_data, _THRUST_FIELDS) is not None:
-        name, t, thrust, _ = series("rates", _THRUST_FIELDS, "thrust")
+        name, t, thrust, _ = log.series("rates", _THRUST_FIELDS, "thrust")
         notes.append(f"{path}: thrust from thrust_body[2] of topic {name}")
     elif thrust_spec:
-        topic("thrust")  # raises: names the missing topic
+        log.topic("thrust")  # raises: names the missing topic
         raise AssertionError  # pragma: no cover
     else:
         raise LogError(f"{path}: no thrust: set the mapping key 'thrust' to a set-point topic")
-    streams["thrust"] = Stream(f"topic {name}", t, -thrust)  # body z is down in FRD
-    name, t, load, _ = series("load", _POSITION_FIELDS, "position")
-    streams["load"] = Stream(f"topic {name}", t, frames.world_vectors(load, "ned"))
-    return RawLog(path, "ulog", streams, True, settings, notes, hover_throttle=hover_throttle)
+    return name, t, thrust
 
 
 def _fields(data: dict[str, np.ndarray], options: tuple[tuple[str, ...], ...]):
