@@ -504,15 +504,16 @@ def test_one_bad_log_among_good_ones_leaves_the_old_folder_untouched(tmp_path):
     ]
 
 
-def test_normalised_thrust_needs_a_hover_throttle(tmp_path):
+def plain_ros2_bag(path):
+    """A 2 s ROS 2 bag of the default MAVROS topics, every one at 100 Hz."""
     t = np.arange(0, 2, 0.01)
     store = typestore(False)
-    bag = write_bag(
-        tmp_path / "b",
-        mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t)),
-        store,
-        ros1=False,
-    )
+    topics = mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t))
+    return write_bag(path, topics, store, ros1=False)
+
+
+def test_normalised_thrust_needs_a_hover_throttle(tmp_path):
+    bag = plain_ros2_bag(tmp_path / "b")
     with pytest.raises(LogError, match=f"{CMD} is a normalised throttle.*--hover-throttle"):
         import_logs([bag], tmp_path / "ds", params=PARAMS, progress=False)
     assert not (tmp_path / "ds").exists()
@@ -528,14 +529,7 @@ def test_existing_folder_is_refused_unless_overwrite(tmp_path):
 
 
 def test_unknown_mapping_key_lists_the_known_ones(tmp_path):
-    t = np.arange(0, 2, 0.01)
-    store = typestore(False)
-    bag = write_bag(
-        tmp_path / "b",
-        mavros_topics(Msgs(store, False), {}, dict.fromkeys((POSE, LOAD, VEL, CMD), t)),
-        store,
-        ros1=False,
-    )
+    bag = plain_ros2_bag(tmp_path / "b")
     with pytest.raises(LogError, match=r"unknown mapping keys \['lod_pose'\].*load_pose"):
         import_logs([bag], tmp_path / "ds", mapping={"lod_pose": "/x"}, progress=False)
 
