@@ -814,13 +814,19 @@ def _write_csv(path: Path, columns: dict[str, np.ndarray]) -> Path:
     return path
 
 
-def test_csv_round_trip_with_the_default_columns(tmp_path):
-    a = truth(PARAMS.dt * np.arange(80))
+def default_columns(a: dict) -> dict[str, np.ndarray]:
+    """The schema's arrays as the CSV reader's default columns (time, p_x ..., T_ref)."""
     columns = {"time": a["time"]}
     for key in ("p", "v", "attitude", "p_load", "w_ref"):
         axes = "xyzw" if key == "attitude" else "xyz"
         columns.update({f"{key}_{ax}": a[key][:, i] for i, ax in enumerate(axes)})
     columns["T_ref"] = a["T_ref"][:, 0]
+    return columns
+
+
+def test_csv_round_trip_with_the_default_columns(tmp_path):
+    a = truth(PARAMS.dt * np.arange(80))
+    columns = default_columns(a)
     log = _write_csv(tmp_path / "flight.csv", columns)
     import_logs([log], tmp_path / "ds", params=PARAMS, progress=False)
     got = imported(tmp_path / "ds")["flight"]
@@ -941,11 +947,7 @@ def test_vehicle_keys_aliases_and_unknown_keys(tmp_path):
 def test_imported_flight_reads_like_any_npz(tmp_path):
     """What import writes is a published-schema flight: read_flight takes it unchanged."""
     a = truth(PARAMS.dt * np.arange(50))
-    columns = {"time": a["time"]}
-    for key in ("p", "v", "attitude", "p_load", "w_ref"):
-        axes = "xyzw" if key == "attitude" else "xyz"
-        columns.update({f"{key}_{ax}": a[key][:, i] for i, ax in enumerate(axes)})
-    columns["T_ref"] = a["T_ref"][:, 0]
+    columns = default_columns(a)
     import_logs(
         [_write_csv(tmp_path / "f.csv", columns)], tmp_path / "ds", params=PARAMS, progress=False
     )

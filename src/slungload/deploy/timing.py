@@ -130,20 +130,20 @@ def time_models(
     CPU thread) beside it, ``repeats`` timed calls each. An architecture the compiled predictor
     does not support is timed eager only (``compiled.unsupported`` says why)."""
     horizons = sorted(windows)
-    jobs = [(label, seed, model, n) for label, seed, model in models for n in horizons]
-    bar = tqdm(total=len(jobs), desc=f"timing ({repeats} calls each)", disable=not progress)
+    bar = tqdm(total=len(models) * len(horizons), desc=f"timing ({repeats} calls each)",
+               disable=not progress)  # fmt: skip
     out = []
-    compiled: dict[int, CompiledPredictor | None] = {}
-    for label, seed, model, n in jobs:
-        out.append(TimingResult(label, seed, time_inference(model, windows[n], repeats=repeats,
-                                                            device=device)))  # fmt: skip
-        if id(model) not in compiled:
+    for label, seed, model in models:
+        compiled = None
+        if unsupported(model) is None:  # compiles once per network, not per horizon
             window = windows[horizons[0]].window
-            facade = Predictor(model, window, params, label)
-            compiled[id(model)] = None if unsupported(model) else CompiledPredictor(facade)
-        if compiled[id(model)] is not None:
-            timing = time_compiled(compiled[id(model)], windows[n], repeats=repeats)
+            compiled = CompiledPredictor(Predictor(model, window, params, label))
+        for n in horizons:
+            timing = time_inference(model, windows[n], repeats=repeats, device=device)
             out.append(TimingResult(label, seed, timing))
-        bar.update()
+            if compiled is not None:
+                timing = time_compiled(compiled, windows[n], repeats=repeats)
+                out.append(TimingResult(label, seed, timing))
+            bar.update()
     bar.close()
     return tuple(out)

@@ -95,7 +95,7 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
         )
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise ValueError(
-            f"{path}: {_written_by(meta)} does not fit this slungload {_version()} "
+            f"{path}: {_written_by(meta)} does not fit this slungload {__version__} "
             f"({type(exc).__name__}: {_first_line(exc)})"
         ) from exc
     return loaded
@@ -128,7 +128,7 @@ def _read_checkpoint(path: Path, map_location: Any = "cpu") -> tuple[dict, dict[
     if meta.get("format") != CKPT_FORMAT:
         raise ValueError(
             f"{path}: {_written_by(meta)} uses checkpoint format {meta.get('format')!r}; "
-            f"this slungload {_version()} reads format {CKPT_FORMAT}"
+            f"this slungload {__version__} reads format {CKPT_FORMAT}"
         )
     return ckpt, _upgrade(meta)
 
@@ -141,10 +141,6 @@ def _upgrade(meta: dict[str, Any]) -> dict[str, Any]:
         meta = {k: v for k, v in meta.items() if k != "extras"}
         meta["train"] = {**meta["train"], **extras}
     return meta
-
-
-def _version() -> str:
-    return __version__
 
 
 def _written_by(meta: dict[str, Any]) -> str:
