@@ -43,6 +43,15 @@ def test_simulate_refuses_to_overwrite(run_cli, tmp_path):
     assert (tmp_path / "keep.txt").read_text() == "precious"
 
 
+@pytest.mark.parametrize("text", ["1,0.5", "1,a,0,0", "1,0.5,0.5,-0.2"])
+def test_bad_excitation_is_a_user_error(capsys, tmp_path, text):
+    with pytest.raises(SystemExit) as info:  # argparse's own error: usage, one line, exit 2
+        main(["simulate", "--out", str(tmp_path / "d"), "--excite", text, "--quiet"])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "--excite" in err and "T,WX,WY,WZ" in err
+    assert not (tmp_path / "d").exists()
+
+
 def test_bad_seed_range_is_a_user_error(run_cli, tmp_path):
     code, _, err = run_cli("reproduce", "--out", str(tmp_path), "--seeds", "a..b")
     assert code == 2 and "--seeds" in err
@@ -55,10 +64,25 @@ def test_seed_range(text, seeds):
 
 def test_simulate_then_inspect(run_cli, tmp_path):
     data = tmp_path / "data"
-    code, out, _ = run_cli("simulate", "--out", str(data), "--flights", "3", "--quiet", "--no-wind")
+    code, out, _ = run_cli(
+        "simulate",
+        "--out",
+        data,
+        "--flights",
+        "3",
+        "--quiet",
+        "--no-wind",
+        "--excite",
+        "1,0.5,0.5,0.2",
+    )
     assert code == 0 and "wrote 3 flights" in out
     meta = json.loads((data / "vehicle.json").read_text())
     assert meta["sim"]["effects"]["wind"] is False and meta["sim"]["effects"]["drag"] is True
+    assert meta["sim"]["excitation"] == {
+        "thrust_std": 1.0,
+        "rate_std": [0.5, 0.5, 0.2],
+        "tau": 0.15,
+    }
     code, out, _ = run_cli("inspect", str(data))
     assert code == 0 and "(vehicle.json)" in out
 

@@ -74,8 +74,9 @@ def test_physics_model_is_the_rollout_from_the_causal_load_estimate():
 
 @pytest.mark.parametrize("architecture", sorted(MODELS))
 def test_network_model_is_forward_with_the_candidate_as_the_last_history_input(architecture):
-    # Every registered architecture plugs in through forward: the candidate u_k pairs with x_k
-    # (the history's last input row) and the predictions are x_{k+1} ... x_{k+N}.
+    # Every registered architecture plugs in through forward_candidates, which runs the encoder
+    # once over the shared rows: it must equal forward per candidate, where the candidate u_k
+    # pairs with x_k (the history's last input row) and the predictions are x_{k+1} ... x_{k+N}.
     torch.manual_seed(0)
     net = build(replace(TINY, architecture=architecture), PARAMS).double().eval()
     gen = torch.Generator().manual_seed(1)

@@ -6,17 +6,19 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from slungload.config import load_vehicle
+from slungload.config import load_vehicle, to_dict
 from slungload.fileio import FLIGHT_KEYS, read_npz
 from slungload.sim import (
     MANEUVERS,
     Controller,
     Effects,
+    Excitation,
     Maneuver,
     Measurement,
     PIDController,
@@ -27,6 +29,7 @@ from slungload.sim import (
     simulate_flight,
 )
 from slungload.sim.aero import Aero, ou_wind
+from slungload.sim.controller import excitation_signal
 from slungload.sim.dataset import SPLIT_FRACTIONS, flight_plan, split_flights, windows_of
 from slungload.sim.plant import Plant, PlantParams
 from slungload.sim.sensors import Mocap
@@ -156,6 +159,44 @@ def test_wind_is_modest_and_switches_off():
     assert wind[:, 0].std() == pytest.approx(SimConfig().wind_std, rel=0.3)
     assert np.abs(wind).max() < 1.5
     assert not ou_wind(IDEAL, 100, np.random.default_rng(0)).any()
+
+
+def test_excitation_is_an_ou_process_with_its_std_and_correlation_time():
+    exc = Excitation(thrust_std=1.0, rate_std=(0.5, 0.4, 0.2), tau=0.15)
+    d = excitation_signal(exc, 0.03, 40000, np.random.default_rng(0))
+    np.testing.assert_allclose(d.std(0), [1.0, 0.5, 0.4, 0.2], rtol=0.06)
+    np.testing.assert_allclose(d.mean(0), 0.0, atol=0.05)
+    lag1 = [np.corrcoef(d[:-1, i], d[1:, i])[0, 1] for i in range(4)]
+    np.testing.assert_allclose(lag1, math.exp(-0.03 / 0.15), atol=0.02)  # AR(1) of an OU
+    rng = np.random.default_rng(0)
+    assert not excitation_signal(Excitation(), 0.03, 10, rng).any()
+    assert rng.standard_normal() == np.random.default_rng(0).standard_normal()  # untouched
+    with pytest.raises(ValueError, match="tau"):
+        Excitation(thrust_std=1.0, tau=0.0)
+    with pytest.raises(ValueError, match="rate_std"):
+        Excitation(rate_std=(0.1, -0.1, 0.0))
+
+
+def test_excitation_perturbs_the_recorded_commands_and_nothing_else_of_the_draws():
+    steps = 200
+    excited = replace(IDEAL, excitation=Excitation(1.0, (0.3, 0.3, 0.1), 0.15))
+    ctrl = HoverRecorder(excited)  # a constant command: what is recorded beyond it was added
+    man = "fast_8_lap_plane"
+    flight = simulate_flight(man, seed=3, config=excited, steps=steps, controller=ctrl)
+    sent = flight.arrays["T_ref"][:, 0] - ctrl.thrust
+    assert sent.std() == pytest.approx(1.0, rel=0.35)
+    assert flight.arrays["w_ref"].std(0) == pytest.approx([0.3, 0.3, 0.1], rel=0.35)
+    # the vehicle answers: with the same seed and no excitation it hovers still
+    calm = simulate_flight(man, seed=3, config=IDEAL, steps=steps, controller=HoverRecorder(IDEAL))
+    assert np.ptp(flight.arrays["p"][:, 2]) > 5 * np.ptp(calm.arrays["p"][:, 2])
+    # the excitation has its own random stream: wind, noise and plant draws are unchanged
+    noisy = replace(SimConfig(), excitation=excited.excitation)
+    a = simulate_flight(man, seed=3, config=SimConfig(), steps=5)
+    b = simulate_flight(man, seed=3, config=noisy, steps=5)
+    np.testing.assert_array_equal(a.truth["wind"], b.truth["wind"])
+    assert a.params == b.params
+    # and it travels with the config (vehicle.json's "sim")
+    assert SimConfig.from_dict(to_dict(noisy)) == noisy
 
 
 def test_mocap_noise_and_velocity_estimate():

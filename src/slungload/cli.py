@@ -103,14 +103,18 @@ def _resolve_params(folder: Path, args: argparse.Namespace):
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .data.summary import summarize
-    from .sim import Effects, SimConfig, simulate_dataset
+    from .sim import Effects, Excitation, SimConfig, simulate_dataset
 
     off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
+    excitation = Excitation()
+    if args.excite is not None:
+        thrust, *rates = args.excite
+        excitation = Excitation(thrust, tuple(rates), args.excite_tau)
     result = simulate_dataset(
         args.out,
         flights=args.flights,
         seed=args.seed,
-        config=SimConfig(effects=Effects().without(*off)),
+        config=SimConfig(effects=Effects().without(*off), excitation=excitation),
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.quiet,
@@ -414,6 +418,21 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
+    p.add_argument(
+        "--excite",
+        type=_excitation,
+        metavar="T,WX,WY,WZ",
+        help="add smooth random perturbations to the commands, standard deviations in N and "
+        "rad/s, e.g. 1,0.5,0.5,0.2 (the MPC's sampling noise): training data for a model "
+        "that a controller will use (docs/control.md; default: none)",
+    )
+    p.add_argument(
+        "--excite-tau",
+        type=float,
+        default=0.15,
+        metavar="S",
+        help="correlation time of the perturbations, s (default 0.15)",
+    )
     effects = p.add_argument_group("unmodelled effects (all on by default; docs/simulator.md)")
     for name in _effect_names():
         effects.add_argument(
@@ -424,6 +443,19 @@ def _add_simulate(sub: Any) -> None:
         )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
+
+
+def _excitation(text: str) -> tuple[float, float, float, float]:
+    """``--excite T,WX,WY,WZ``: four non-negative numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or min(values) < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected four non-negative numbers T,WX,WY,WZ (N, rad/s), got {text!r}"
+        )
+    return values  # type: ignore[return-value]
 
 
 def _add_maneuvers(sub: Any) -> None:

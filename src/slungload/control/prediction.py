@@ -13,13 +13,10 @@ the M it needs; ``model.name`` labels it in reports.
 - ``PhysicsModel``: ``physics.rollout`` from x_k with the causal load-state estimate from the
   last two measured states (``data.flight.estimate_load_state``, as the physics baseline).
 - ``NetworkModel``: any registered architecture (``models.MODELS``) through its
-  ``forward(x_hist, u_hist, u_future)``. The network's window pairs x_j with u_j, so its
-  history's last input row is the candidate u_k: the encoder sees a different last row for
-  each candidate. ``forward`` cannot be split into "encoder once, decoder over K" without a
-  hook in ``models/``, so the history is ``expand``-ed to K (no copy of the states) and the
-  encoder runs K times: about half of the network's cost at M = 50, N = 25
-  (docs/control.md). An exact split later: the encoder over rows 0 .. M-2 once, its last step
-  and the decoder batched over K.
+  ``forward_candidates(x_hist, u_past, plans)``: the network's window pairs x_j with u_j, so
+  its history's last input row is the candidate u_k; the encoder runs once over the M - 1
+  rows every candidate shares and only its last step and the decoder run at batch K (equal
+  to ``forward`` per candidate, a test holds it).
 
 ``History`` is the buffer the controller keeps: measured states and applied inputs, padded
 with the first row until M steps have been seen.
@@ -87,15 +84,10 @@ class NetworkModel:
 
     def predict(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         _check(x_hist, u_past, plans)
-        k, n, _ = plans.shape
-        m = x_hist.shape[0]
-        plans_n = plans.to(self.dtype)
-        x = x_hist.to(self.dtype).expand(k, m, STATE_DIM)  # a view: one copy of the history
-        u_hist = torch.cat([u_past.to(self.dtype).expand(k, m - 1, INPUT_DIM), plans_n[:, :1]], 1)
-        # forward takes u_M ... u_{M+N-1} and uses all but the last: pad with the last input.
-        u_future = torch.cat([plans_n[:, 1:], plans_n[:, -1:]], dim=1)
         with torch.inference_mode():
-            states = self.net(x, u_hist, u_future).states
+            states = self.net.forward_candidates(
+                x_hist.to(self.dtype), u_past.to(self.dtype), plans.to(self.dtype)
+            ).states
         return with_unit_quaternion(states).to(plans.dtype)
 
 

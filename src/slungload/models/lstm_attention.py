@@ -258,16 +258,62 @@ class SlungLoadNet(nn.Module):
         The recursion uses u_{M-1} ... u_{M+N-2}; u_{M+N-1} does not affect the result.
         """
         _check_shapes(x_hist, u_hist, u_future)
-        cfg = self.config
         origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
         x_rel = x_hist - origin  # (B, M, 13) positions relative to the origin
         z_hist = self.normalize_state(x_rel)  # (B, M, 13)
-        v_hist = self.normalize_input(u_hist)  # (B, M, 4)
-        v_future = self.normalize_input(u_future)  # (B, N, 4)
+        enc, state = self.encoder(self.embed(torch.cat([z_hist, self.normalize_input(u_hist)], -1)))
+        return self._decode(enc, state, x_rel, u_hist, u_future, origin)
 
-        # Encoder over the history.
-        enc, (h, c) = self.encoder(self.embed(torch.cat([z_hist, v_hist], dim=-1)))
-        # enc (B, M, H); h, c (layers, B, H)
+    def forward_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Prediction:
+        """K candidate futures from one history, as a model-predictive controller asks for.
+
+        x_hist (M, 13) states x_0 ... x_{M-1}; u_past (M-1, 4) inputs u_0 ... u_{M-2};
+        plans (K, N, 4) candidate inputs u_{M-1} ... u_{M+N-2}. Returns the K predictions of
+        x_M ... x_{M+N-1}: the same as ``forward`` with the history repeated K times, the
+        candidate's first row as the history's last input and its other rows (the last one
+        repeated) as u_future, but the encoder runs once over the M-1 rows all candidates
+        share and only its last step runs at batch K.
+        """
+        m, k = x_hist.shape[0], plans.shape[0]
+        if m < 2 or u_past.shape[0] != m - 1:
+            raise ValueError(
+                f"forward_candidates: expected x_hist (M >= 2, 13) and u_past (M-1, 4); got "
+                f"{tuple(x_hist.shape)} and {tuple(u_past.shape)}"
+            )
+        u_hist = torch.cat([u_past.expand(k, m - 1, INPUT_DIM), plans[:, :1]], dim=1)
+        u_future = torch.cat([plans[:, 1:], plans[:, -1:]], dim=1)
+        x_hist = x_hist.expand(k, m, STATE_DIM)  # views: one copy of the history
+        _check_shapes(x_hist, u_hist, u_future)
+        origin = self.origin(x_hist[:1, -1]).unsqueeze(1)  # (1, 1, 13), shared
+        x_rel = x_hist - origin  # (K, M, 13)
+        z_hist = self.normalize_state(x_rel[:1])  # (1, M, 13)
+        shared = torch.cat([z_hist[:, :-1], self.normalize_input(u_past).unsqueeze(0)], -1)
+        enc_shared, (h, c) = self.encoder(self.embed(shared))  # (1, M-1, H); (layers, 1, H)
+        last = torch.cat(
+            [z_hist[:, -1].expand(k, STATE_DIM), self.normalize_input(plans[:, 0])], -1
+        )
+        state = (h.expand(-1, k, -1).contiguous(), c.expand(-1, k, -1).contiguous())
+        enc_last, state = self.encoder(self.embed(last).unsqueeze(1), state)  # (K, 1, H)
+        enc = torch.cat([enc_shared.expand(k, -1, -1), enc_last], dim=1)  # (K, M, H)
+        return self._decode(enc, state, x_rel, u_hist, u_future, origin)
+
+    def _decode(
+        self,
+        enc: Tensor,
+        state: tuple[Tensor, Tensor],
+        x_rel: Tensor,
+        u_hist: Tensor,
+        u_future: Tensor,
+        origin: Tensor,
+    ) -> Prediction:
+        """The attention decoder's N steps from the encoder's outputs enc (B, M, H) and final
+        state (h, c) (layers, B, H); x_rel (B, M, 13) the history relative to ``origin``
+        (B or 1, 1, 13), inputs as ``forward`` takes them (physical units)."""
+        cfg = self.config
+        h, c = state
+        z_hist = self.normalize_state(x_rel[:, -1:])  # (B, 1, 13) the last measured state
+        v_hist = self.normalize_input(u_hist[:, -1:])  # (B, 1, 4) its input
+        v_future = self.normalize_input(u_future)  # (B, N, 4)
         keys = self.attention.keys(enc)  # (B, M, H)
 
         # Decoder inputs u_{M-1} ... u_{M+N-2}: their share of the first embedding layer is

@@ -11,7 +11,7 @@ import importlib
 from typing import Any
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
-    "config": ("Effects", "SimConfig"),
+    "config": ("Effects", "Excitation", "SimConfig"),
     "controller": ("Controller", "Measurement", "PIDController"),
     "dataset": ("SimulatedDataset", "simulate_dataset", "vehicle_params"),
     "flight": ("Flight", "simulate_flight"),

@@ -55,6 +55,45 @@ class Effects:
 
 
 @dataclass(frozen=True)
+class Excitation:
+    """Random perturbations added to the controller's commands (off by default).
+
+    A model trained on closed-loop flights only sees the inputs its controller chose, which are
+    a function of the state; it can then predict well from the history alone and ignore the
+    inputs, which is useless to a model-predictive controller that has to compare inputs
+    (docs/control.md). A smooth random signal added to the commands, independent of the state,
+    shows the model how the vehicle answers inputs the controller would not have chosen.
+
+    Each channel is an Ornstein-Uhlenbeck process with stationary standard deviation
+    ``thrust_std`` (N) or ``rate_std`` (rad/s, body x, y, z) and correlation time ``tau`` (s).
+    The recorded commands ``T_ref``/``w_ref`` include it (they are what the vehicle was told).
+    """
+
+    thrust_std: float = 0.0  # N
+    rate_std: tuple[float, float, float] = (0.0, 0.0, 0.0)  # rad/s, body x, y, z
+    tau: float = 0.15  # s, correlation time
+
+    def __post_init__(self) -> None:
+        if self.thrust_std < 0 or min(self.rate_std) < 0 or len(self.rate_std) != 3:
+            raise ValueError(
+                f"Excitation: need thrust_std >= 0 and three rate_std >= 0, got "
+                f"{self.thrust_std} and {self.rate_std}"
+            )
+        if not self.tau > 0:
+            raise ValueError(f"Excitation.tau must be > 0, got {self.tau}")
+
+    @property
+    def active(self) -> bool:
+        return self.thrust_std > 0 or max(self.rate_std) > 0
+
+    @classmethod
+    def for_control(cls) -> Excitation:
+        """The magnitudes of the MPC's own sampling noise (``control.mpc.MPCConfig``): 1 N of
+        thrust and (0.5, 0.5, 0.2) rad/s, correlated over 0.15 s."""
+        return cls(thrust_std=1.0, rate_std=(0.5, 0.5, 0.2), tau=0.15)
+
+
+@dataclass(frozen=True)
 class SimConfig:
     """Constants of the simulated quadrotor, cable, load, air, actuators, sensors and controller.
 
@@ -62,6 +101,7 @@ class SimConfig:
     """
 
     effects: Effects = field(default_factory=Effects)
+    excitation: Excitation = field(default_factory=Excitation)  # of the commands; off
     # --- timing
     control_dt: float = 0.03  # s, h: control and recording period (the paper's sampling time)
     substeps: int = 15  # MuJoCo steps per control period (timestep 2 ms)
@@ -145,12 +185,16 @@ class SimConfig:
         """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
         data = dict(data)
         effects = Effects(**data.pop("effects", {}))
+        exc = dict(data.pop("excitation", {}))
+        if "rate_std" in exc:
+            exc["rate_std"] = tuple(exc["rate_std"])
+        excitation = Excitation(**exc)
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
         data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-        return cls(effects=effects, **data)
+        return cls(effects=effects, excitation=excitation, **data)
 
     def with_effects(self, effects: Effects) -> SimConfig:
         """A copy with other effect switches."""

@@ -20,7 +20,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .config import SimConfig
+from .config import Excitation, SimConfig
 from .maneuvers import Reference
 
 
@@ -67,6 +67,25 @@ class Controller(Protocol):
     def __call__(
         self, measurement: Measurement, reference: Reference, k: int
     ) -> tuple[float, np.ndarray]: ...
+
+
+def excitation_signal(
+    excitation: Excitation, dt: float, steps: int, rng: np.random.Generator
+) -> np.ndarray:
+    """The perturbations (steps, 4) added to the commands (thrust N, body rates rad/s) at each
+    control step of period ``dt`` s: ``Excitation``'s Ornstein-Uhlenbeck processes, started
+    stationary. All zero (and ``rng`` untouched) when the excitation is off."""
+    if not excitation.active:
+        return np.zeros((steps, 4))
+    std = np.array([excitation.thrust_std, *excitation.rate_std])
+    a = math.exp(-dt / excitation.tau)
+    noise = rng.standard_normal((steps, 4)) * std * math.sqrt(1.0 - a * a)
+    out = np.empty((steps, 4))
+    d = rng.standard_normal(4) * std
+    for k in range(steps):
+        d = a * d + noise[k]
+        out[k] = d
+    return out
 
 
 def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:

@@ -9,7 +9,7 @@ import numpy as np
 
 from .aero import ou_wind
 from .config import SimConfig
-from .controller import Controller, Measurement, PIDController
+from .controller import Controller, Measurement, PIDController, excitation_signal
 from .maneuvers import Maneuver, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
 from .sensors import Mocap
@@ -51,15 +51,17 @@ def simulate_flight(
     maneuver's length (recorded control steps). controller: what flies it, called once per
     control step as the ``Controller`` contract states (warm-up included); None flies a fresh
     ``PIDController`` of the config (the default flights). A stateful controller should be a
-    fresh one per flight. Returns a ``Flight`` with float64 arrays; ``arrays["T_ref"]`` and
-    ``arrays["w_ref"]`` are the controller's commands.
+    fresh one per flight. With ``config.excitation`` active, its random signal is added to
+    every command (``controller.excitation_signal``; thrust kept >= 0). Returns a ``Flight``
+    with float64 arrays; ``arrays["T_ref"]`` and ``arrays["w_ref"]`` are the commands sent.
 
     Raises ``ValueError`` when the controller returns a non-finite thrust or rates, or rates
     not of shape (3,), naming the step, before the command reaches the plant.
     """
     cfg = config or SimConfig()
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    s_man, s_plant, s_wind, s_sens = (np.random.default_rng(s) for s in ss.spawn(4))
+    # A fifth stream for the excitation: the first four are the same with or without it.
+    s_man, s_plant, s_wind, s_sens, s_exc = (np.random.default_rng(s) for s in ss.spawn(5))
     man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
     n = int(steps if steps is not None else man.steps)
     if n < 1:
@@ -77,6 +79,7 @@ def simulate_flight(
     wind = ou_wind(cfg, total, s_wind)
     mocap = Mocap(cfg, s_sens)
     ctrl = PIDController(cfg) if controller is None else controller
+    dither = excitation_signal(cfg.excitation, h, total, s_exc)  # (total, 4), zero when off
 
     rec = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3))}
     rec.update(w_ref=np.empty((n, 3)), T_ref=np.empty((n, 1)))
@@ -90,6 +93,8 @@ def simulate_flight(
         # Read-only views: the same arrays are recorded below (and the mocap keeps some).
         meas = Measurement(float(times[k]), *map(_read_only, (p_m, v_m, q_m, rot_m, pl_m)))
         thrust, rates = _checked(ctrl(meas, ref, k), k, warm)
+        if cfg.excitation.active:
+            thrust, rates = max(thrust + dither[k, 0], 0.0), rates + dither[k, 1:]
         i = k - warm
         if i >= 0:
             rec["p"][i], rec["v"][i], rec["q"][i], rec["p_load"][i] = p_m, v_m, q_m, pl_m
