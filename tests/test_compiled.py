@@ -1,8 +1,10 @@
-"""The Numba batch-1 predictor: its element-wise kernels against exact references, and its
-predictions against the eager network for every model mode."""
+"""The Numba batch-1 predictor: its element-wise kernels against exact references, its
+compiled copy of the discrete model against ``physics.py``, and its predictions against the
+eager network for every model mode and both compiled architectures."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,22 +13,37 @@ import torch
 import torch.nn.functional as F
 from flights import predict_args
 
-from slungload.config import ModelConfig, WindowConfig
+from slungload import physics
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.data.flight import estimate_load_state
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import (
+    COMPILED_ARCHITECTURES,
     PARITY_TOLERANCE,
     CompiledPredictor,
+    VehicleConstants,
+    _estimate_load_state,
     _exp,
     _gelu,
     _lstm_update,
+    _physics_step,
     fold,
+    unsupported,
 )
+from slungload.deploy.predictor import Predictor
+from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.lstm_attention import SlungLoadNet
 from slungload.state import QUAT, STATE_DIM
 
 torch.set_num_threads(1)
 
 M = 50
+PHYSICS_STEP = PhysicsStepNet.architecture
+# Constants other than the defaults, each of those f reads changed.
+OTHER_PARAMS = VehicleParams(
+    mass_quad=1.5, mass_load=0.15, cable_length=0.85, load_damping=0.05, dt=0.025,
+    gravity=9.8, thrust_gain=1.12,
+)  # fmt: skip
 
 
 def test_exp_matches_numpy_to_float32_precision():
@@ -143,3 +160,186 @@ def test_unbatched_call_and_checks(untrained_predictor):
 def test_fold_refuses_other_layer_counts():
     with pytest.raises(ValueError, match="three embedding"):
         fold(SlungLoadNet(ModelConfig(embed_sizes=(64, 64))))
+
+
+# --- the discrete model's compiled copy against physics.py ----------------------------------
+
+
+def random_steps(count: int, dtype, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` random batch-1 arguments of ``physics.step``: rows (count, 17) = (x, u) in the
+    package layout with quaternions of norm 0.5 ... 1.5 (a corrected decoder state need not be
+    unit), thrust around hover, and load states aux (count, 6)."""
+    rng = np.random.default_rng(seed)
+    xu = rng.normal(size=(count, 17))
+    xu[:, 10:13] = xu[:, 0:3] + 0.7 * rng.normal(size=(count, 3)) / np.sqrt(3)
+    xu[:, 6:10] *= rng.uniform(0.5, 1.5, (count, 1)) / np.linalg.norm(xu[:, 6:10], axis=1)[:, None]
+    xu[:, 13] = 14.5 + 3.0 * rng.normal(size=count)
+    xu[:, 14:17] *= 3.0  # rad/s
+    xu[:3, 14:17] = [[0.0, 0.0, 0.0], [1e-5, 0.0, -2e-5], [0.0, 3e-3, 0.0]]  # sinc near zero
+    return xu.astype(dtype), rng.normal(size=(count, 6)).astype(dtype)
+
+
+@pytest.mark.parametrize("params", [VehicleParams(), OTHER_PARAMS], ids=["default", "other"])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_compiled_physics_step_is_physics_step(params: VehicleParams, dtype):
+    """``_physics_step`` (Numba, one state) equals ``physics.step`` (torch, batched), the one
+    written definition of the model: to round-off in float64, to float32 precision in float32."""
+    xu, aux = random_steps(300, dtype)
+    want_x, want_aux = physics.step(
+        torch.from_numpy(xu[:, :13]), torch.from_numpy(xu[:, 13:]), torch.from_numpy(aux), params
+    )
+    constants = VehicleConstants.of(params)
+    got_x, got_aux = np.empty((len(xu), 13), dtype), np.empty((len(xu), 6), dtype)
+    for i in range(len(xu)):
+        _physics_step(xu[i], aux[i], constants, got_x[i], got_aux[i])
+    rtol, atol = (1e-12, 1e-12) if dtype == np.float64 else (1e-5, 1e-5)
+    np.testing.assert_allclose(got_x, want_x.numpy(), rtol=rtol, atol=atol)
+    np.testing.assert_allclose(got_aux, want_aux.numpy(), rtol=rtol, atol=atol)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_compiled_load_state_estimate_is_estimate_load_state(dtype):
+    xu, _ = random_steps(200, dtype, seed=1)
+    pairs = xu[:, :13].reshape(100, 2, 13)  # (prev, last)
+    want = estimate_load_state(torch.from_numpy(pairs), OTHER_PARAMS)[:, -1].numpy()
+    constants = VehicleConstants.of(OTHER_PARAMS)
+    got = np.empty((len(pairs), 6), dtype)
+    for i, (prev, last) in enumerate(pairs):
+        _estimate_load_state(prev, last, constants, got[i])
+    rtol, atol = (1e-12, 1e-12) if dtype == np.float64 else (1e-5, 1e-5)
+    np.testing.assert_allclose(got, want, rtol=rtol, atol=atol)
+
+
+def test_vehicle_constants_are_the_ones_physics_step_reads():
+    assert VehicleConstants.of(OTHER_PARAMS)._asdict() == {
+        name: getattr(OTHER_PARAMS, name) for name in VehicleConstants._fields
+    }
+    # Every field of VehicleParams is one f may read: a new one must reach the compiled copy.
+    assert set(VehicleConstants._fields) == {f.name for f in dataclasses.fields(VehicleParams)}
+
+
+# --- the physics-step network compiled --------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def physics_step_predictor(physics_flight):
+    """Factory ``(config, params, zero_head=False) -> Predictor`` of a physics-step network of
+    ``config`` (random weights, normalisation fitted on physics windows) with constants
+    ``params``; M = 50, N = 25. ``zero_head`` zeroes the head's last layer (f alone).
+
+    Without normalisation the head's output is the correction in physical units, and random
+    weights give O(0.3) m and m/s per step: 70 m/s after 50 steps, where float32 round-off
+    alone exceeds ``PARITY_TOLERANCE``. There the last layer is scaled to corrections of a
+    step's size (~0.03), what a trained network outputs."""
+    paper = WindowConfig(history=M, horizon=25)
+    fitting = make_windows([physics_flight(f"f{i}", i, 150) for i in range(3)], paper)
+
+    def make(config: ModelConfig, params: VehicleParams, zero_head: bool = False) -> Predictor:
+        torch.manual_seed(0)
+        model = build(config, params)
+        if config.normalize:
+            model.fit_normalization(fitting.states, fitting.inputs, origin_step=M - 1)
+        last = model.head.layers[-1]
+        with torch.no_grad():
+            if zero_head:
+                last.weight.zero_()
+                last.bias.zero_()
+            elif not config.normalize:
+                last.weight.mul_(0.1)
+                last.bias.mul_(0.1)
+        return Predictor(model.eval(), paper, params, "proposed")
+
+    return make
+
+
+@pytest.mark.parametrize(
+    "change",
+    [{}, {"normalize": False}, {"relative_positions": False, "slack": False}],
+    ids=["default", "raw-units", "absolute-no-slack"],
+)
+@pytest.mark.parametrize("params", [VehicleParams(), OTHER_PARAMS], ids=["default", "other"])
+@pytest.mark.parametrize("horizon", [25, 50])
+def test_physics_step_predictions_match_the_eager_network(
+    physics_step_predictor, physics_flight, change, params: VehicleParams, horizon: int
+):
+    config = ModelConfig(architecture=PHYSICS_STEP, **change)
+    predictor = physics_step_predictor(config, params)
+    compiled = CompiledPredictor(predictor)
+    assert compiled.weights.physics_step and compiled.weights.architecture == PHYSICS_STEP
+    assert compiled.weights.vehicle == VehicleConstants.of(params)
+    flights = [physics_flight(f"t{i}", 100 + i, M + horizon + 15) for i in range(2)]
+    windows = make_windows(flights, WindowConfig(history=M, horizon=horizon, stride=5))
+    history, future = predict_args(windows)
+    got, want = compiled.predict(history, future), predictor.predict(history, future)
+    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
+    np.testing.assert_allclose(np.linalg.norm(got[..., QUAT], axis=-1), 1.0, atol=1e-6)
+    # The head's correction matters (a zero head predicts far from this), and the inputs
+    # reach the prediction through f and the network.
+    zero = CompiledPredictor(physics_step_predictor(config, params, zero_head=True))
+    assert np.abs(zero.predict(history, future) - got).max() > 100 * np.abs(got - want).max()
+    bumped = future.copy()
+    bumped[:, : horizon // 2, 0] += 2.0  # thrust, N
+    moved = compiled.predict(history, bumped)
+    np.testing.assert_allclose(moved, predictor.predict(history, bumped), atol=PARITY_TOLERANCE)
+    assert np.abs(moved - got).max() > 100 * np.abs(got - want).max()
+
+
+@pytest.mark.parametrize("params", [VehicleParams(), OTHER_PARAMS], ids=["default", "other"])
+def test_zero_head_physics_step_compiled_is_the_physics_rollout(
+    physics_step_predictor, physics_flight, params: VehicleParams
+):
+    """With the head's last layer zero, the compiled network is ``physics.rollout`` from x_{M-1}
+    and the load state estimated from x_{M-2}, x_{M-1} (the physics-only row), in its own
+    constants."""
+    config = ModelConfig(architecture=PHYSICS_STEP)
+    compiled = CompiledPredictor(physics_step_predictor(config, params, zero_head=True))
+    windows = make_windows(
+        [physics_flight(f"z{i}", 30 + i, M + 40) for i in range(2)], WindowConfig(M, 25, 7)
+    )
+    history, future = predict_args(windows)
+    states = windows.states.double()  # package layout, w-x-y-z
+    inputs = windows.inputs.double()
+    aux = estimate_load_state(states[:, M - 2 : M], params)[:, -1]
+    rolled, _ = physics.rollout(states[:, M - 1], aux, inputs[:, M - 1 : -1], params)
+    want = rolled.numpy()
+    want[..., QUAT] /= np.linalg.norm(want[..., QUAT], axis=-1, keepdims=True)
+    want[..., QUAT] = want[..., QUAT][..., [1, 2, 3, 0]]  # file layout x-y-z-w
+    got = compiled.predict(history, future)
+    # float32 history and arithmetic against a float64 rollout over 25 steps.
+    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
+    assert np.abs(want[:, -1] - history[:, -1, :13]).max() > 1e-2  # not a trivial rollout
+
+
+def test_physics_step_needs_two_history_rows(physics_step_predictor):
+    predictor = physics_step_predictor(ModelConfig(architecture=PHYSICS_STEP), VehicleParams())
+    predictor.any_history = True
+    compiled = CompiledPredictor(predictor, warm_up=False)
+    history = np.zeros((1, 17))
+    history[:, 9] = 1.0
+    with pytest.raises(ValueError, match=r"M >= 2"):
+        compiled.predict(history, np.zeros((3, 4)))
+
+
+def test_compiled_architectures_are_registered_and_others_refused():
+    assert set(COMPILED_ARCHITECTURES) <= set(MODELS)
+    assert COMPILED_ARCHITECTURES == (SlungLoadNet.architecture, PHYSICS_STEP)
+    for name in COMPILED_ARCHITECTURES:
+        assert unsupported(build(ModelConfig(architecture=name))) is None
+
+    class Renamed(PhysicsStepNet):  # the decoder of physics-step under another name
+        architecture = "renamed"
+
+    renamed = Renamed.__new__(Renamed)
+    torch.nn.Module.__init__(renamed)
+    renamed.config = ModelConfig(architecture=PHYSICS_STEP)
+    assert "does not support the 'renamed' architecture" in unsupported(renamed)
+    with pytest.raises(ValueError, match="'renamed' architecture"):
+        fold(renamed)
+
+    class Impostor(SlungLoadNet):  # claims physics-step without being one
+        architecture = PHYSICS_STEP
+
+    impostor = Impostor.__new__(Impostor)
+    torch.nn.Module.__init__(impostor)
+    impostor.config = ModelConfig()
+    assert "'physics-step'" in unsupported(impostor)

@@ -245,8 +245,19 @@ def test_onnx_export_of_the_paper_size_network_on_physics_windows(physics_flight
     np.testing.assert_allclose(np.linalg.norm(got[..., QUAT], axis=-1), 1.0, atol=1e-5)
 
 
-def test_the_compiled_predictor_refuses_it_by_name(run_dir: Path):
-    predictor = Predictor.from_checkpoint(run_dir)
-    assert "'physics-step'" in unsupported(predictor.model)
-    with pytest.raises(ValueError, match="does not support the 'physics-step' architecture"):
-        CompiledPredictor(predictor)
+def test_the_compiled_predictor_runs_it_with_its_constants(run_dir: Path, windows, val_args):
+    """The compiled path (``deploy.compiled``) compiles the architecture with f's constants of
+    the network (not the defaults) and agrees with the eager network; tests/test_compiled.py
+    checks it further. The tiny checkpoint's layer structure is refused, not its architecture."""
+    reason = unsupported(Predictor.from_checkpoint(run_dir).model)
+    assert "three embedding" in reason and "architecture" not in reason
+    states, inputs = (w.float() for w in windows)
+    torch.manual_seed(0)
+    net = build(SMALL_NET, OTHER_PARAMS)
+    net.fit_normalization(states, inputs, origin_step=M - 1)
+    predictor = Predictor(net.eval(), SMALL, OTHER_PARAMS, "proposed")
+    compiled = CompiledPredictor(predictor)
+    assert compiled.weights.vehicle.cable_length == OTHER_PARAMS.cable_length
+    history, future = val_args
+    got = compiled.predict(history, future)
+    np.testing.assert_allclose(got, predictor.predict(history, future), atol=PARITY_TOLERANCE)

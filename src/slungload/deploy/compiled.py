@@ -23,8 +23,24 @@ The arithmetic is the network's (``model.SlungLoadNet``), rearranged exactly:
   absolute error below 1.5e-7), where the compiler would otherwise call the C library once
   per element.
 
-Float32 throughout. Predictions agree with ``Predictor.predict`` to ~1e-6 (tested against
-``PARITY_TOLERANCE``); they are not bit-identical (different summation order).
+The physics-step network (``models.physics_step.PhysicsStepNet``) compiles too: the same
+loop, whose decoder step is x_{k+1} = f(x_k, u_k, a_k) + delta_std * out_k (the residual gain
+folded into the head as above) instead of x_k + delta_std * out_k, with the load state a =
+(vL, Omega_L) started by ``_estimate_load_state`` from the last two history rows and carried by
+f. ``_physics_step`` and ``_estimate_load_state`` are a **compiled copy** of
+``physics.step`` and ``data.flight.estimate_load_state``: the model is written once, in
+batched torch (``physics.py``), where the loss, training, the eager predictor and the ONNX
+export use it; compiled code cannot call torch, and a batch-1 step is a few dozen scalar
+operations, which a compiled loop does in well under a microsecond. The copy uses the same
+formulas in the same form (roma's rotation matrix and quaternion product, the same sinc,
+normalisation floors and cross products), computed in float64 and rounded once to the state's
+float32; ``tests/test_compiled.py`` holds it equal to the torch functions (float64: to
+round-off; float32: ~1e-6 relative), so the two cannot drift apart unnoticed. A change to the
+model in ``physics.py`` must be made here too (the test then says where they differ).
+
+Float32 throughout (except inside the physics step). Predictions agree with
+``Predictor.predict`` to ~1e-6 (tested against ``PARITY_TOLERANCE``); they are not
+bit-identical (different summation order).
 """
 
 from __future__ import annotations
@@ -38,11 +54,17 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..config import VehicleParams
 from ..models.lstm_attention import SlungLoadNet
+from ..models.physics_step import PhysicsStepNet
 from ..state import INPUT_DIM, STATE_DIM
 from .predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
 
-COMPILED_ARCHITECTURES = (SlungLoadNet.architecture,)  # what ``fold`` knows how to compile
+# What ``fold`` knows how to compile: architecture name -> the class a model must be.
+_COMPILED_CLASSES: dict[str, type[SlungLoadNet]] = {
+    cls.architecture: cls for cls in (SlungLoadNet, PhysicsStepNet)
+}
+COMPILED_ARCHITECTURES = tuple(_COMPILED_CLASSES)
 
 # FMA contraction only: no reassociation, so results do not depend on vector width choices.
 _FLAGS = {"contract"}
@@ -58,6 +80,23 @@ _SQRT1_2 = 0.7071067811865476
 # Abramowitz & Stegun 7.1.26: erf(x) = 1 - t (a1 + t (a2 + ...)) exp(-x^2), t = 1 / (1 + p x).
 _ERF_P = 0.3275911
 _ERF_A = (0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429)
+
+
+class VehicleConstants(NamedTuple):
+    """The constants ``physics.step`` reads (``config.VehicleParams``), as plain floats, SI."""
+
+    mass_quad: float  # kg, m_Q
+    mass_load: float  # kg, m_L
+    cable_length: float  # m, l
+    load_damping: float  # -, d per step
+    dt: float  # s, h
+    gravity: float  # m/s^2, g
+    thrust_gain: float  # -, achieved / commanded thrust
+
+    @classmethod
+    def of(cls, params: VehicleParams) -> VehicleConstants:
+        """The constants of ``params`` (any object with ``VehicleParams``' attributes)."""
+        return cls(*(float(getattr(params, name)) for name in cls._fields))
 
 
 class FoldedWeights(NamedTuple):
@@ -94,13 +133,17 @@ class FoldedWeights(NamedTuple):
     add_mean: np.ndarray  # (13,) non-residual heads: added to the output (else zero)
     residual: bool  # x_{k+1} = x_k + head(...) (else x_{k+1} = head(...) + add_mean)
     origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (model.origin)
+    architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
+    physics_step: bool  # x_{k+1} = f(x_k, u_k, a_k) + head(...) (``PhysicsStepNet``)
+    vehicle: VehicleConstants  # f's constants (the model's; defaults where f is not used)
 
 
 def unsupported(model: nn.Module) -> str | None:
     """Why ``fold`` cannot compile ``model`` (its architecture or its layer structure), or
     None when it can."""
     name = getattr(model, "architecture", type(model).__name__)
-    if name not in COMPILED_ARCHITECTURES or not isinstance(model, SlungLoadNet):
+    cls = _COMPILED_CLASSES.get(name)
+    if cls is None or not isinstance(model, cls):
         return (
             f"the compiled predictor does not support the {name!r} architecture (it supports "
             f"{list(COMPILED_ARCHITECTURES)})"
@@ -202,6 +245,9 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         add_mean=f32(add_mean),
         residual=bool(cfg.residual),
         origin_shift=f32(model.position_shift.double().cpu()),
+        architecture=model.architecture,
+        physics_step=model.architecture == PhysicsStepNet.architecture,
+        vehicle=VehicleConstants.of(getattr(model, "params", None) or VehicleParams()),
     )
 
 
@@ -249,6 +295,11 @@ class CompiledPredictor:
         fut = np.ascontiguousarray(fut, dtype=np.float32)
         w = self.weights
         batch, m = hist.shape[:2]
+        if w.physics_step and m < 2:  # as PhysicsStepNet.start_rollout
+            raise ValueError(
+                f"CompiledPredictor.predict: the {w.architecture!r} network needs M >= 2 "
+                f"history rows to estimate the load state (vL, Omega_L); got M = {m}"
+            )
         xu = np.empty((batch, m, STATE_DIM + INPUT_DIM), dtype=np.float32)
         origin = np.empty((batch, STATE_DIM), dtype=np.float32)
         for b in range(batch):
@@ -420,6 +471,106 @@ def _relative_rows(history, origin_shift, xu, origin):
             xu[k, j] -= origin[j]
 
 
+# --- the discrete model, batch 1: a compiled copy of physics.step (see the module doc) ------
+
+
+@_jit
+def _rotation_step(qw, qx, qy, qz, r0, r1, r2):
+    """q (x) exp(r / 2), normalised: ``physics.step``'s attitude update for q (w-x-y-z, any
+    norm) and the rotation vector r = h omega (rad). roma's ``rotvec_to_unitquat`` (with its
+    sinc) and ``quat_product``, then ``state.quat_normalize``; returns (w, x, y, z)."""
+    half = 0.5 * math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    if half < 1e-4:  # a Taylor expansion near zero, as roma's sinc (sin(x)/x to round-off)
+        sinc = 1.0 - half * half / 6.0 + half**4 / 120.0
+    else:
+        sinc = math.sin(half) / half
+    s = 0.5 * sinc
+    dw, dx, dy, dz = math.cos(half), s * r0, s * r1, s * r2
+    # Hamilton product: w = pw dw - p.d, v = pw d + dw p + p x d.
+    w = qw * dw - (qx * dx + qy * dy + qz * dz)
+    x = qw * dx + dw * qx + (qy * dz - qz * dy)
+    y = qw * dy + dw * qy + (qz * dx - qx * dz)
+    z = qw * dz + dw * qz + (qx * dy - qy * dx)
+    norm = max(math.sqrt(w * w + x * x + y * y + z * z), 1e-12)
+    return w / norm, x / norm, y / norm, z / norm
+
+
+@_jit
+def _physics_step(xu, aux, c, x_next, aux_next):
+    """``physics.step`` for one state: xu (>= 17,) = (x_k (13), u_k (4)) in the package layout
+    (q w-x-y-z), aux (6,) = (vL m/s, Omega_L rad/s), c ``VehicleConstants`` -> x_next (13,),
+    aux_next (6,). Same formulas as ``physics.accelerations`` and ``physics.step``, in float64
+    inside (any float arrays in and out)."""
+    h, g, mq, ml, length = c.dt, c.gravity, c.mass_quad, c.mass_load, c.cable_length
+    # T R e3: the third column of the rotation of the normalised q (roma's formula).
+    qw, qx, qy, qz = float(xu[6]), float(xu[7]), float(xu[8]), float(xu[9])
+    norm = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-12)
+    qw, qx, qy, qz = qw / norm, qx / norm, qy / norm, qz / norm
+    thrust = c.thrust_gain * float(xu[13])
+    tw = (
+        2.0 * (qx * qz + qy * qw) * thrust,
+        2.0 * (qy * qz - qx * qw) * thrust,
+        (-qx * qx - qy * qy + qz * qz + qw * qw) * thrust,
+    )
+    xi = (
+        (float(xu[10]) - float(xu[0])) / length,
+        (float(xu[11]) - float(xu[1])) / length,
+        (float(xu[12]) - float(xu[2])) / length,
+    )
+    rate_sq = float(aux[3]) ** 2 + float(aux[4]) ** 2 + float(aux[5]) ** 2
+    along = xi[0] * tw[0] + xi[1] * tw[1] + xi[2] * tw[2]
+    t_load = -(ml / (mq + ml)) * along + (ml * mq / (mq + ml)) * length * rate_sq  # tension
+    cross = (
+        xi[1] * tw[2] - xi[2] * tw[1],
+        xi[2] * tw[0] - xi[0] * tw[2],
+        xi[0] * tw[1] - xi[1] * tw[0],
+    )
+    for i in range(3):
+        down = g if i == 2 else 0.0
+        acc = tw[i] / mq - down + (t_load / mq) * xi[i]
+        acc_load = -(t_load / ml) * xi[i] - down
+        x_next[i] = xu[i] + h * xu[3 + i] + 0.5 * h * h * acc
+        x_next[3 + i] = xu[3 + i] + h * acc
+        x_next[10 + i] = xu[10 + i] + h * aux[i] + 0.5 * h * h * acc_load
+        aux_next[i] = aux[i] + h * acc_load
+        rate_dot = -cross[i] / (mq * length)
+        aux_next[3 + i] = (1.0 - c.load_damping) * aux[3 + i] + h * rate_dot
+    q = _rotation_step(
+        float(xu[6]), float(xu[7]), float(xu[8]), float(xu[9]),
+        h * xu[14], h * xu[15], h * xu[16],
+    )  # fmt: skip
+    for i in range(4):
+        x_next[6 + i] = q[i]
+
+
+@_jit
+def _estimate_load_state(prev, last, c, aux):
+    """``data.flight.estimate_load_state`` at the later of two consecutive states prev, last
+    (>= 13,) (package layout) -> aux (6,) = (vL m/s, Omega_L rad/s): backward differences of
+    pL and of r = pL - p over h, Omega_L = xi x r_dot / l with xi = r / |r|. float64 inside."""
+    h = c.dt
+    r = (
+        float(last[10]) - float(last[0]),
+        float(last[11]) - float(last[1]),
+        float(last[12]) - float(last[2]),
+    )
+    norm = max(math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]), 1e-9)
+    xi = (r[0] / norm, r[1] / norm, r[2] / norm)
+    r_dot = (
+        (r[0] - (float(prev[10]) - float(prev[0]))) / h,
+        (r[1] - (float(prev[11]) - float(prev[1]))) / h,
+        (r[2] - (float(prev[12]) - float(prev[2]))) / h,
+    )
+    for i in range(3):
+        aux[i] = (float(last[10 + i]) - float(prev[10 + i])) / h
+    aux[3] = (xi[1] * r_dot[2] - xi[2] * r_dot[1]) / c.cable_length
+    aux[4] = (xi[2] * r_dot[0] - xi[0] * r_dot[2]) / c.cable_length
+    aux[5] = (xi[0] * r_dot[1] - xi[1] * r_dot[0]) / c.cable_length
+
+
+# --- the forward pass ------------------------------------------------------------------------
+
+
 @_jit
 def _forward(xu, origin, pre, future, w, out):
     """One window from ``_relative_rows``' xu (M, 17) and origin (13,), the encoder's layer-0
@@ -465,6 +616,12 @@ def _forward(xu, origin, pre, future, w, out):
     y1 = np.empty((1, w.head1_b.shape[0]), np.float32)
     y2 = np.empty((1, w.head2_b.shape[0]), np.float32)
     y3 = np.empty((1, 13), np.float32)
+    # Physics-step network: the load state a_{M-1} and f's outputs (unused otherwise).
+    aux = np.zeros(6, np.float32)
+    aux_next = np.empty(6, np.float32)
+    x_next = np.empty(13, np.float32)
+    if w.physics_step:
+        _estimate_load_state(xu[m - 2], xu[m - 1], w.vehicle, aux)
     for step in range(n):
         for j in range(4):
             row[0, 13 + j] = xu[m - 1, 13 + j] if step == 0 else future[step - 1, j]
@@ -502,8 +659,14 @@ def _forward(xu, origin, pre, future, w, out):
         _affine(y1, w.head2_w, w.head2_b, y2)
         _gelu(y2, tmp, bits)
         _affine(y2, w.head3_w, w.head3_b, y3)
-        for j in range(13):
-            row[0, j] = row[0, j] + y3[0, j] if w.residual else y3[0, j] + w.add_mean[j]
+        if w.physics_step:  # x_{k+1} = f(x_k, u_k, a_k) + delta_std * out_k
+            _physics_step(row[0], aux, w.vehicle, x_next, aux_next)
+            aux[:] = aux_next
+            for j in range(13):
+                row[0, j] = x_next[j] + y3[0, j]
+        else:
+            for j in range(13):
+                row[0, j] = row[0, j] + y3[0, j] if w.residual else y3[0, j] + w.add_mean[j]
 
         # Output: absolute positions, unit quaternion, x-y-z-w order.
         qw, qx, qy, qz = row[0, 6], row[0, 7], row[0, 8], row[0, 9]
@@ -514,4 +677,12 @@ def _forward(xu, origin, pre, future, w, out):
         out[step, 8], out[step, 9] = qz / norm, qw / norm
 
 
-__all__ = ["PARITY_TOLERANCE", "CompiledPredictor", "FoldedWeights", "fold"]
+__all__ = [
+    "COMPILED_ARCHITECTURES",
+    "PARITY_TOLERANCE",
+    "CompiledPredictor",
+    "FoldedWeights",
+    "VehicleConstants",
+    "fold",
+    "unsupported",
+]
