@@ -19,6 +19,7 @@ from slungload.config import VehicleParams
 from slungload.control.closed_loop import Arena, flight_metrics, fly
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC, state_from_measurement
 from slungload.control.prediction import History, NetworkModel, PhysicsModel, load_prediction_model
+from slungload.control.report import target_check
 from slungload.data.flight import estimate_load_state
 from slungload.models import MODELS, build
 from slungload.sim.config import SimConfig
@@ -259,3 +260,24 @@ def test_control_help_is_light_and_bad_maneuvers_are_a_user_error(run_cli, tmp_p
     assert done.returncode == 0, done.stderr[-2000:]
     code, _, err = run_cli("control", "--maneuvers", "loop_the_loop", "--out", tmp_path / "x")
     assert code == 2 and "unknown maneuvers ['loop_the_loop']" in err
+
+
+def _row(controller, seed, load, swing, vehicle, completed=True, k=32):
+    return dict(controller=controller, K=k, maneuver="roll_35", seed=seed, load_rmse=load,
+                swing_rms=swing, vehicle_rmse=vehicle, completed=completed,
+                stopped=None if completed else "vehicle left the arena")  # fmt: skip
+
+
+def test_target_compares_the_flights_both_controllers_flew_to_the_end():
+    ref = "mpc-physics K=32"
+    physics = [_row(ref, 0, 0.20, 20, 0.1), _row(ref, 1, 0.20, 20, 0.1),
+               _row(ref, 2, 9.0, 90, 9.0, completed=False)]  # fmt: skip
+    good = [_row("mpc-net K=32", s, 0.14, 19, 0.1) for s in range(3)]  # 30 % lower load error
+    (line,) = target_check(physics + good)
+    # the physics flight that ended early is left out of the means (not 1 - 0.14 / 3.13)
+    assert "0.140 vs 0.200 m (30 % lower)" in line and "over the 2 flights" in line
+    assert "ended 1 more early" in line and line.endswith("**met**.")
+    swing_only = [_row("mpc-net K=32", s, 0.18, 14, 0.2) for s in range(3)]  # worse tracking
+    assert target_check(physics + swing_only)[0].endswith("**not met**.")
+    crashed = [*good[:2], _row("mpc-net K=32", 2, 0.1, 10, 0.1, completed=False)]
+    assert "not met**: 1 of 3" in target_check(physics + crashed)[0]
