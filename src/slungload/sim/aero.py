@@ -11,6 +11,7 @@ import math
 import numpy as np
 
 from .config import SimConfig
+from .ou import ou_process
 
 
 class Aero:
@@ -82,11 +83,5 @@ def ou_wind(cfg: SimConfig, steps: int, rng: np.random.Generator) -> np.ndarray:
     random draws of the flight do not depend on the switch).
     """
     std = cfg.wind_std * np.array([1.0, 1.0, 1.0 / 3.0])
-    a = math.exp(-cfg.control_dt / cfg.wind_tau)
-    noise = rng.standard_normal((steps, 3)) * std * math.sqrt(1.0 - a * a)
-    wind = np.empty((steps, 3))
-    w = rng.standard_normal(3) * std
-    for k in range(steps):
-        w = a * w + noise[k]
-        wind[k] = w
+    wind = ou_process(std, cfg.wind_tau, cfg.control_dt, steps, rng)
     return wind if cfg.effects.wind else np.zeros_like(wind)

@@ -22,6 +22,7 @@ import numpy as np
 
 from .config import Excitation, SimConfig
 from .maneuvers import Reference
+from .ou import ou_process
 
 
 @dataclass(frozen=True)
@@ -78,14 +79,7 @@ def excitation_signal(
     if not excitation.active:
         return np.zeros((steps, 4))
     std = np.array([excitation.thrust_std, *excitation.rate_std])
-    a = math.exp(-dt / excitation.tau)
-    noise = rng.standard_normal((steps, 4)) * std * math.sqrt(1.0 - a * a)
-    out = np.empty((steps, 4))
-    d = rng.standard_normal(4) * std
-    for k in range(steps):
-        d = a * d + noise[k]
-        out[k] = d
-    return out
+    return ou_process(std, excitation.tau, dt, steps, rng)
 
 
 def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
