@@ -8,7 +8,8 @@ import math
 
 import pytest
 
-from slungload.cli import _seed_range, main
+from slungload.cli import main
+from slungload.cli.common import seed_range
 from slungload.evaluation.results import PAPER_RMSE_N50
 
 
@@ -59,7 +60,7 @@ def test_bad_seed_range_is_a_user_error(run_cli, tmp_path):
 
 @pytest.mark.parametrize(("text", "seeds"), [("3", (3,)), ("1..3", (1, 2, 3)), ("0,4", (0, 4))])
 def test_seed_range(text, seeds):
-    assert _seed_range(text) == seeds
+    assert seed_range(text) == seeds
 
 
 def test_simulate_then_inspect(run_cli, tmp_path):

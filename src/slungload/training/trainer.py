@@ -3,7 +3,7 @@
 Its inverse for the trained file is ``models.checkpoints.load_checkpoint(path) ->
 LoadedModel``; the Lightning module is ``module.py``, the batches come from ``batches.py``, the
 schedules from ``presets.py``, and ``runtime.py`` holds the Lightning workarounds. Its command
-line is ``slungload train`` (cli.py).
+line is ``slungload train`` (cli/train.py).
 
 A run folder holds::
 

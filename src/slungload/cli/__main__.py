@@ -1,0 +1,7 @@
+"""``python -m slungload.cli``: the ``slungload`` command."""
+
+import sys
+
+from . import main
+
+sys.exit(main())

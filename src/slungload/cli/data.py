@@ -1,0 +1,330 @@
+"""Data commands: simulate, maneuvers, inspect, split, import."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from .common import (
+    add_vehicle_options,
+    add_window_options,
+    new_command,
+    resolve_params,
+    vehicle_overrides,
+)
+
+
+def add_simulate(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "simulate",
+        "simulate flights with MuJoCo into a dataset folder",
+        "Fly the maneuver families (or --maneuvers) in the MuJoCo simulator, with every effect "
+        "the paper's model leaves out switched on, and write a dataset folder in the authors' "
+        "format: one .npz per flight, train/val/test split lists, vehicle.json.",
+    )
+    p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
+    p.add_argument("--flights", type=int, default=48, help="number of flights (default 48)")
+    p.add_argument(
+        "--maneuvers",
+        type=lambda text: [m for m in text.split(",") if m],
+        metavar="NAME,NAME",
+        help="fly only these families, in turn (default: all; see `slungload maneuvers`)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
+    p.add_argument(
+        "--excite",
+        type=_excitation,
+        metavar="T,WX,WY,WZ",
+        help="add smooth random perturbations to the commands, standard deviations in N and "
+        "rad/s, e.g. 1,0.5,0.5,0.2 (the MPC's sampling noise): training data for a model "
+        "that a controller will use (docs/control.md; default: none)",
+    )
+    p.add_argument(
+        "--excite-tau",
+        type=float,
+        default=0.15,
+        metavar="S",
+        help="correlation time of the perturbations, s (default 0.15)",
+    )
+    effects = p.add_argument_group("unmodelled effects (all on by default; docs/simulator.md)")
+    for name in _effect_names():
+        effects.add_argument(
+            f"--no-{name.replace('_', '-')}",
+            dest=f"no_{name}",
+            action="store_true",
+            help=f"switch {name.replace('_', ' ')} off",
+        )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+
+def _excitation(text: str) -> tuple[float, float, float, float]:
+    """``--excite T,WX,WY,WZ``: four non-negative numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4 or min(values) < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected four non-negative numbers T,WX,WY,WZ (N, rad/s), got {text!r}"
+        )
+    return values  # type: ignore[return-value]
+
+
+def _effect_names() -> tuple[str, ...]:
+    from ..sim import Effects
+
+    return Effects.names()
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from ..data.summary import summarize
+    from ..sim import Effects, Excitation, SimConfig, simulate_dataset
+
+    off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
+    excitation = Excitation()
+    if args.excite is not None:
+        thrust, *rates = args.excite
+        excitation = Excitation(thrust, tuple(rates), args.excite_tau)
+    result = simulate_dataset(
+        args.out,
+        flights=args.flights,
+        seed=args.seed,
+        config=SimConfig(effects=Effects().without(*off), excitation=excitation),
+        workers=args.workers,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+        maneuvers=args.maneuvers,
+    )
+    print(f"wrote {len(result.flights)} flights to {result.folder} in {result.elapsed:.1f} s")
+    print(summarize(result.folder).to_table())
+    return 0
+
+
+def add_maneuvers(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "maneuvers",
+        "list the simulator's maneuvers and what each flies",
+        "The maneuver families of the simulator (the authors' flight names), one a line with "
+        "what it flies; `simulate --maneuvers` picks some.",
+    )
+    p.set_defaults(func=cmd_maneuvers)
+
+
+def cmd_maneuvers(args: argparse.Namespace) -> int:
+    from ..sim.maneuvers import MANEUVER_DESCRIPTIONS, MANEUVERS
+
+    width = max(map(len, MANEUVERS))
+    for name in sorted(MANEUVERS):
+        print(f"{name:<{width}}  {MANEUVER_DESCRIPTIONS.get(name, '')}".rstrip())
+    return 0
+
+
+def add_inspect(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "inspect",
+        "summarise a dataset folder",
+        "Flights, steps, seconds and windows per split, value ranges (speed, swing, thrust), "
+        "and validation or test maneuvers that training never saw.",
+    )
+    p.add_argument("data", type=Path, help="dataset folder (flights + split lists)")
+    add_window_options(p)
+    add_vehicle_options(p)
+    p.set_defaults(func=cmd_inspect)
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from ..config import WindowConfig
+    from ..data.summary import summarize
+
+    window = WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride)
+    summary = summarize(args.data, window=window, params=resolve_params(Path(args.data), args))
+    print(summary.to_table())
+    return 0
+
+
+def add_split(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "split",
+        "write the split lists of a folder of flights",
+        "Write train.txt, val.txt and test.txt (by flight): name the validation and test "
+        "flights, or give their shares for a seeded random draw; every other flight trains.",
+    )
+    p.add_argument("data", type=Path, help="dataset folder")
+    p.add_argument(
+        "--val",
+        type=_share_or_names,
+        default=0.17,
+        metavar="SHARE|NAME,NAME",
+        help="share of the flights (default 0.17, the paper's) or their names",
+    )
+    p.add_argument(
+        "--test",
+        type=_share_or_names,
+        default=0.25,
+        metavar="SHARE|NAME,NAME",
+        help="share of the flights (default 0.25, the paper's) or their names",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the random draw (default 0)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing split lists")
+    p.set_defaults(func=cmd_split)
+
+
+def _share_or_names(text: str) -> float | list[str]:
+    try:
+        return float(text)
+    except ValueError:
+        return [name.strip().removesuffix(".npz") for name in text.split(",") if name.strip()]
+
+
+def cmd_split(args: argparse.Namespace) -> int:
+    from ..data.split import split_dataset
+
+    splits = split_dataset(
+        args.data, val=args.val, test=args.test, seed=args.seed, overwrite=args.overwrite
+    )
+    print(", ".join(f"{s}: {len(names)} flights" for s, names in splits.items()))
+    return 0
+
+
+def add_import(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "import",
+        "turn flight logs (ROS bags, PX4 ULog, CSV) into a dataset folder",
+        "Read motion-capture poses of vehicle and load, velocity and the offboard commands, "
+        "resample them to the step dt (linear; slerp for the attitude; commands held), convert "
+        "frames to z up / FLU, split at gaps, validate as .npz flights and write OUT/data/*.npz, "
+        "the split lists and vehicle.json, all or nothing (docs/data.md, 'Bring your own "
+        "flights').",
+    )
+    _add_import_sources(p)
+    _add_import_resampling(p)
+    _add_import_output(p)
+    add_vehicle_options(p)
+    p.set_defaults(func=cmd_import)
+
+
+def _add_import_sources(p: argparse.ArgumentParser) -> None:
+    """The logs to read, the folder to create and how the logs map to the streams."""
+    p.add_argument(
+        "logs",
+        nargs="+",
+        type=Path,
+        metavar="LOG",
+        help=".bag (ROS 1), rosbag2 folder / .mcap / .db3 (ROS 2), .ulg (PX4), .csv, or a "
+        "folder of them",
+    )
+    p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
+    p.add_argument(
+        "--map",
+        type=Path,
+        metavar="FILE",
+        help="topics / columns / frames, JSON or TOML (default: MAVROS topics; CSV: the "
+        "published keys as columns)",
+    )
+    p.add_argument(
+        "--preset",
+        choices=("mavros", "px4"),
+        help="default topics of a bag: MAVROS (default) or PX4 over ROS 2",
+    )
+
+
+def _add_import_resampling(p: argparse.ArgumentParser) -> None:
+    """How the thrust becomes newtons, where flights split at gaps and how the streams are
+    resampled."""
+    p.add_argument(
+        "--hover-throttle",
+        type=float,
+        metavar="X",
+        help="normalised throttle that holds vehicle + load in hover (PX4's MPC_THR_HOVER; "
+        "a ULog's own by default): thrust = throttle / X * (mQ + mL) g",
+    )
+    p.add_argument(
+        "--max-gap",
+        type=float,
+        default=0.1,
+        metavar="S",
+        help="longest time a stream may go without a sample (default 0.1 s)",
+    )
+    p.add_argument(
+        "--on-gap",
+        choices=("split", "error"),
+        default="split",
+        help="split the flight at a longer gap (default) or stop with an error",
+    )
+    p.add_argument(
+        "--min-duration",
+        type=float,
+        default=1.0,
+        metavar="S",
+        help="drop pieces shorter than this (default 1 s)",
+    )
+    p.add_argument(
+        "--commands",
+        choices=("hold", "linear"),
+        default="hold",
+        help="resample set-points by holding the last one (default) or linearly",
+    )
+
+
+def _add_import_output(p: argparse.ArgumentParser) -> None:
+    """How the flights are split into train/val/test, the vehicle constants and the run's
+    output."""
+    p.add_argument(
+        "--split",
+        choices=("seeded", "train"),
+        default="seeded",
+        help="a seeded split by flight toward 58/17/25 %% of steps (default), or all in train",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the split (default 0)")
+    p.add_argument(
+        "--vehicle",
+        type=Path,
+        metavar="FILE",
+        help="vehicle constants (JSON; vehicle.json keys or aliases such as mass_quadrotor)",
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ..config import VehicleParams, read_vehicle
+    from ..data.importing import ImportOptions, import_logs
+    from ..data.readers.logs import load_mapping
+
+    overrides = vehicle_overrides(args)
+    params = None
+    if args.vehicle is not None or overrides:
+        base = read_vehicle(args.vehicle) if args.vehicle is not None else VehicleParams()
+        params = dataclasses.replace(base, **overrides)
+    options = ImportOptions(
+        hover_throttle=args.hover_throttle,
+        max_gap=args.max_gap,
+        on_gap=args.on_gap,
+        min_duration=args.min_duration,
+        commands=args.commands,
+        split=args.split,
+        seed=args.seed,
+    )
+    result = import_logs(
+        args.logs,
+        args.out,
+        params=params,
+        mapping=load_mapping(args.map) if args.map is not None else None,
+        preset=args.preset,
+        options=options,
+        overwrite=args.overwrite,
+        progress=not args.quiet,
+    )
+    print(result.summary())
+    return 0

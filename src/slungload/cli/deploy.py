@@ -1,0 +1,92 @@
+"""Deployment commands: export to ONNX, benchmark the backends."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from .common import choices, new_command
+
+
+def add_export(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "export",
+        "export a trained model to ONNX with a JSON sidecar",
+        "Writes the network with its normalisation and quaternion handling (file layout in and "
+        "out) for ONNX Runtime, checked against the eager network before it is kept, and a JSON "
+        "sidecar (same name, .json) with the columns, units and configs. N is fixed per file: "
+        "export one file per horizon.",
+    )
+    p.add_argument("run", type=Path, metavar="RUN_DIR", help="run folder or .ckpt")
+    p.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        metavar="FILE_OR_DIR",
+        help="the model file to write (FILE.onnx, plus FILE.json) in an existing folder; or an "
+        "existing folder, to write <run name>-n<N>.onnx there. A missing folder is an error, "
+        "not created",
+    )
+    p.add_argument("--format", default="onnx", choices=("onnx",), help="(default: onnx)")
+    p.add_argument(
+        "--horizon", type=int, help="predicted steps N fixed in the file (default: the run's)"
+    )
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ..deploy.onnx import export
+
+    result = export(args.run, args.out, format=args.format, horizon=args.horizon)
+    print(result.summary())
+    return 0
+
+
+def add_benchmark(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "benchmark",
+        "latency, throughput and training speed",
+        "Batch-1 latency (median, p90; wall clock and CPU time) of every backend (eager torch, "
+        "TorchScript, ONNX Runtime, the compiled predictor), throughput at larger batches, and "
+        "training speed; warns when the machine is busy.",
+    )
+    p.add_argument(
+        "run",
+        nargs="?",
+        type=Path,
+        metavar="RUN_DIR",
+        help="a trained run (default: a paper-size network with random weights)",
+    )
+    p.add_argument(
+        "--model",
+        choices=choices("models"),
+        help="without RUN_DIR: a random paper-size network of this architecture (default "
+        "lstm-attention)",
+    )
+    p.add_argument("--quick", action="store_true", help="fewer repeats (about a minute)")
+    p.add_argument("--threads", type=int, default=1, help="inference threads (default 1)")
+    p.add_argument("--no-train", action="store_true", help="skip the training throughput")
+    p.add_argument("--out", type=Path, help="also write the markdown table here")
+    p.set_defaults(func=cmd_benchmark)
+
+
+def cmd_benchmark(args: argparse.Namespace) -> int:
+    from ..config import ModelConfig
+    from ..deploy.benchmarks import benchmark
+    from ..fileio import write_text
+
+    config = None if args.model is None else ModelConfig(architecture=args.model)
+    if config is not None and args.run is not None:
+        raise ValueError("--model builds a random network; a RUN_DIR brings its own")
+    result = benchmark(
+        args.run, quick=args.quick, threads=args.threads, train=not args.no_train,
+        model_config=config,
+    )  # fmt: skip
+    table = result.markdown()
+    if args.out:
+        write_text(args.out, table)
+    print(table)
+    return 0

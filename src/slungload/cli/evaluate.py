@@ -1,0 +1,205 @@
+"""Evaluation commands: evaluate runs, reproduce the paper's experiment, the studies."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from .common import choices, new_command, seed_range
+
+
+def add_evaluate(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "evaluate",
+        "evaluate trained runs against the physics model",
+        "The paper's metrics on the test flights, for every run and the physics-only "
+        "predictor: MAE per horizon step with quartiles, the RMSE table beside the paper's, "
+        "figures, CSVs and report.md. Runs of one variant are seeds (mean and spread).",
+    )
+    p.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="run folders or .ckpt")
+    p.add_argument("--data", type=Path, help="dataset folder (default: the runs' own)")
+    p.add_argument("--out", required=True, type=Path, help="report folder")
+    p.add_argument(
+        "--horizons",
+        type=int,
+        nargs="+",
+        default=[25, 50],
+        metavar="N",
+        help="predicted steps to evaluate (default 25 50; h = 0.03 s a step)",
+    )
+    p.add_argument("--no-physics", action="store_true", help="leave out the physics predictor")
+    _add_timing_options(p)
+    p.add_argument(
+        "--device", default="cpu", choices=("cpu", "cuda"), help="where to predict (default cpu)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
+
+
+def _add_timing_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--timing",
+        action="store_true",
+        help="also time batch-1 inference (eager and compiled) for the report's Table II; "
+        "minutes, and only meaningful on an idle machine (`slungload benchmark` is the full "
+        "latency benchmark)",
+    )
+    p.add_argument(
+        "--timing-repeats", type=int, default=100, metavar="K", help="timed calls (default 100)"
+    )
+    p.add_argument("--no-timing", action="store_true", help=argparse.SUPPRESS)  # the old default
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from ..experiment import evaluate_runs
+
+    evaluate_runs(
+        args.runs,
+        data=args.data,
+        out=args.out,
+        horizons=tuple(args.horizons),
+        include_physics=not args.no_physics,
+        timing=args.timing and not args.no_timing,
+        timing_repeats=args.timing_repeats,
+        device=args.device,
+        progress=not args.quiet,
+    )
+    print(args.out / "report.md")
+    return 0
+
+
+def add_reproduce(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "reproduce",
+        "the paper's experiment end to end (the main job)",
+        "Simulate the default dataset (or use --data), train the variants proposed, no-slack "
+        "and no-physics of the paper's network and the physics-step network (no-physics) for "
+        "every seed, two at a time, evaluate them with the physics-only "
+        "predictor at N = 25 and 50, and write OUT/report/report.md. Every variant trains for "
+        "its preset's epochs; a run stopped short by the time cap (a safety net) is reported "
+        "and the command exits with status 1: run it again to resume such runs. Finished runs "
+        "are kept, so an interrupted call can be re-run.",
+    )
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--data", type=Path, help="dataset folder (default: simulate one)")
+    p.add_argument(
+        "--preset",
+        default="default",
+        choices=choices("presets"),
+        help="default (CPU, ~10 min a seed when idle), quick (smoke test) or paper",
+    )
+    p.add_argument(
+        "--seeds",
+        default="0",
+        metavar="SEEDS",
+        help="training seeds (weights, batches): one N, a range A..B (both included) or a "
+        "list A,B,C (default 0)",
+    )
+    p.add_argument(
+        "--flights",
+        type=int,
+        default=48,
+        help="flights to simulate when no --data is given (default 48, the paper's)",
+    )
+    p.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    p.add_argument(
+        "--device",
+        default="cpu",
+        choices=("auto", "cpu", "cuda"),
+        help="where to train (default cpu)",
+    )
+    _add_timing_options(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_reproduce)
+
+
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    from ..experiment import reproduce
+
+    result = reproduce(
+        out=args.out,
+        data=args.data,
+        preset=args.preset,
+        seeds=seed_range(args.seeds),
+        flights=args.flights,
+        workers=args.workers,
+        device=args.device,
+        timing=args.timing and not args.no_timing,
+        timing_repeats=args.timing_repeats,
+        progress=not args.quiet,
+    )
+    stages = ", ".join(f"{k} {v:.0f} s" for k, v in result.seconds.items())
+    print(f"report: {result.report_path}  ({stages})")
+    for run in result.time_capped:
+        print(
+            f"WARNING: {run.name} was stopped by the time cap before its epoch budget; its "
+            "numbers are not comparable. Run the same command again to resume it to its budget.",
+            file=sys.stderr,
+        )
+    return 1 if result.time_capped else 0
+
+
+def add_study(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "study",
+        "studies beyond the paper (data: where physics-informed training helps)",
+        "`study data`: train each loss variant on nested subsets of the training flights "
+        "(validation and test flights fixed) and plot the RMSE at N = 50 against the number "
+        "of training flights.",
+    )
+    kinds = p.add_subparsers(dest="study", metavar="STUDY", required=True)
+    d = kinds.add_parser("data", help="RMSE against the number of training flights")
+    d.add_argument("--out", required=True, type=Path, help="output folder")
+    d.add_argument(
+        "--flights",
+        type=lambda text: [int(k) for k in text.split(",") if k],
+        default=[6, 12, 24, 48],
+        metavar="K,K",
+        help="training-flight counts (default 6,12,24,48); the simulated dataset is sized "
+        "for the largest",
+    )
+    d.add_argument("--data", type=Path, help="dataset folder (default: simulate one)")
+    d.add_argument(
+        "--variants",
+        type=lambda text: [v for v in text.split(",") if v],
+        default=["proposed", "no-slack", "no-physics"],
+        metavar="V,V",
+        help="loss variants (default proposed,no-slack,no-physics)",
+    )
+    d.add_argument(
+        "--models",
+        type=lambda text: [m for m in text.split(",") if m],
+        default=["lstm-attention"],
+        metavar="NAME,NAME",
+        help="architectures (default lstm-attention)",
+    )
+    d.add_argument("--seeds", default="0", metavar="SEEDS", help="as for reproduce (default 0)")
+    d.add_argument(
+        "--preset", default="default", choices=choices("presets"), help="default: default"
+    )
+    d.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    d.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_study)
+
+
+def cmd_study(args: argparse.Namespace) -> int:
+    from ..study import study_data
+
+    study_data(
+        out=args.out,
+        flights=args.flights,
+        data=args.data,
+        variants=args.variants,
+        architectures=args.models,
+        seeds=seed_range(args.seeds),
+        preset=args.preset,
+        workers=args.workers,
+        progress=not args.quiet,
+    )
+    print(args.out / "study.md")
+    return 0

@@ -1,0 +1,126 @@
+"""Training commands: train a network, identify the physics model's constants."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from .common import add_vehicle_options, add_window_options, choices, new_command, resolve_params
+
+
+def add_train(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "train",
+        "train one model variant on a dataset",
+        "Train one network (--model) with one loss variant (--variant) on a dataset's train "
+        "split, validating on its val split. The run folder gets best.ckpt, last.ckpt (every "
+        "epoch), run.json and logs. Ctrl-C stops after the batch and saves last.ckpt; run the "
+        "same command with --resume to continue.",
+    )
+    p.add_argument("--data", required=True, type=Path, help="dataset folder")
+    p.add_argument("--out", required=True, type=Path, help="run folder to create")
+    p.add_argument(
+        "--variant",
+        default="proposed",
+        choices=choices("variants"),
+        help="loss variant (default proposed: fit + physics with slack + projection)",
+    )
+    p.add_argument(
+        "--model",
+        default="lstm-attention",
+        choices=choices("models"),
+        help="network architecture (default lstm-attention, the paper's)",
+    )
+    p.add_argument(
+        "--preset",
+        default="default",
+        choices=choices("presets"),
+        help="training schedule (default: 45 epochs tuned for a 2-core CPU)",
+    )
+    p.add_argument(
+        "--device",
+        default="auto",
+        choices=("auto", "cpu", "cuda"),
+        help="default auto (GPU if any)",
+    )
+    p.add_argument("--devices", type=int, default=1, help="processes for DDP (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="weights and batch order (default 0)")
+    p.add_argument("--epochs", type=int, help="override the preset's maximum epochs")
+    p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.ckpt")
+    p.add_argument(
+        "--fit-constants",
+        action="store_true",
+        help="fit the physics model's constants to the training flights first (as `identify`)",
+    )
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_window_options(p)
+    add_vehicle_options(p)
+    p.set_defaults(func=cmd_train)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from lightning.pytorch.utilities import rank_zero_only
+
+    from ..config import ModelConfig, WindowConfig
+    from ..training.trainer import train
+
+    run = train(
+        args.data,
+        out=args.out,
+        variant=args.variant,
+        model_config=ModelConfig(architecture=args.model),
+        preset=args.preset,
+        device=args.device,
+        devices=args.devices,
+        seed=args.seed,
+        max_epochs=args.epochs,
+        resume=args.resume,
+        window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
+        params=resolve_params(Path(args.data), args),
+        progress=not args.quiet,
+        num_threads=args.threads,
+        fit_constants=args.fit_constants,
+    )
+    if rank_zero_only.rank == 0:  # with --devices K every process runs this command
+        print(run.summary())
+    return 0
+
+
+def add_identify(sub: Any) -> None:
+    p = new_command(
+        sub,
+        "identify",
+        "fit the physics model's constants to a dataset's flights",
+        "System identification: the load mass, cable length, load damping and thrust gain "
+        "that make the discrete model's open-loop rollouts (--horizon steps from every "
+        "training window) closest to the recorded flights, starting from vehicle.json (or the "
+        "paper's constants). The vehicle mass stays as given. `train --fit-constants` does "
+        "the same before training.",
+    )
+    p.add_argument("data", type=Path, help="dataset folder")
+    p.add_argument(
+        "--horizon", type=int, default=10, metavar="N", help="steps per rollout (default 10)"
+    )
+    p.add_argument(
+        "--out", type=Path, help="write the fitted constants as a vehicle.json file here"
+    )
+    add_vehicle_options(p)
+    p.set_defaults(func=cmd_identify)
+
+
+def cmd_identify(args: argparse.Namespace) -> int:
+    from ..config import to_dict
+    from ..fileio import write_json
+    from ..training.identify import identify
+
+    found = identify(args.data, params=resolve_params(Path(args.data), args), horizon=args.horizon)
+    print(found.summary())
+    if args.out is not None:
+        if args.out.is_dir():
+            raise IsADirectoryError(f"--out takes a file name (e.g. {args.out / 'vehicle.json'})")
+        write_json(args.out, {"vehicle": to_dict(found.params), "identified": found.table})
+        print(f"wrote {args.out}")
+    return 0
