@@ -17,7 +17,10 @@ def add_control(sub: Any) -> None:
         "Closed loop in the simulator with every unmodelled effect on: the simulator's PID, "
         "an MPPI controller predicting with the physics model, and the same MPC with each "
         "--model; vehicle and load tracking, swing, time at a limit, failures, fallbacks, "
-        "compute per step; report.md and figures in --out (docs/control.md).",
+        "compute per step; report.md and figures in --out (docs/control.md). Fly a "
+        "physics-step network trained on flights with perturbed commands (`simulate "
+        "--excite`): a network trained on the PID's flights alone ignores its inputs and "
+        "fails in this controller.",
     )
     p.add_argument(
         "--model",
@@ -25,7 +28,8 @@ def add_control(sub: Any) -> None:
         type=Path,
         default=[],
         metavar="RUN_DIR",
-        help="a trained run folder or .ckpt (any architecture); repeat for more",
+        help="a trained run folder or .ckpt (any architecture; see above for which); repeat "
+        "for more",
     )
     p.add_argument(
         "--maneuvers",
