@@ -191,6 +191,13 @@ def imported(folder: Path) -> dict[str, dict[str, np.ndarray]]:
     return {p.stem: read_npz(p) for p in sorted((folder / "data").glob("*.npz"))}
 
 
+def import_to_train(bag: Path, out: Path, params: VehicleParams = PARAMS):
+    """``import_logs`` of one MAVROS bag into ``out`` (the test bags' hover throttle, every
+    flight listed as training), no progress bar."""
+    options = ImportOptions(hover_throttle=HOVER, split="train")
+    return import_logs([bag], out, params=params, options=options, progress=False)
+
+
 def rotation_angle(q1_xyzw: np.ndarray, q2_xyzw: np.ndarray) -> np.ndarray:
     dot = np.abs(np.sum(q1_xyzw * q2_xyzw, axis=-1))
     return 2 * np.arccos(np.clip(dot, -1.0, 1.0))
@@ -212,13 +219,7 @@ def test_simulated_flight_round_trip_through_a_bag(tmp_path, ros1):
         store,
         ros1=ros1,
     )
-    result = import_logs(
-        [bag],
-        tmp_path / "ds",
-        params=params,
-        options=ImportOptions(hover_throttle=HOVER, split="train"),
-        progress=False,
-    )
+    result = import_to_train(bag, tmp_path / "ds", params)
     assert result.flights == {"flight": 70}
     got = imported(tmp_path / "ds")["flight"]
     np.testing.assert_allclose(got["time"], arrays["time"], atol=1e-12)
@@ -261,13 +262,7 @@ def test_multi_rate_bag_matches_the_flight_within_the_interpolation_error(tmp_pa
         ros1=ros1,
         storage=storage,
     )
-    import_logs(
-        [bag],
-        tmp_path / "ds",
-        params=PARAMS,
-        options=ImportOptions(hover_throttle=HOVER, split="train"),
-        progress=False,
-    )
+    import_to_train(bag, tmp_path / "ds")
     got = imported(tmp_path / "ds")["multi"]
     start = max(t[0] for t in times.values())
     expected = truth(start + got["time"])
@@ -369,13 +364,7 @@ def test_gap_splits_the_flight_and_short_pieces_are_dropped(tmp_path):
         Msgs(store, False), {}, {POSE: t[keep], LOAD: t, VEL: t, CMD: np.arange(0, 5, 0.02)}
     )
     bag = write_bag(tmp_path / "gappy", topics, store, ros1=False)
-    result = import_logs(
-        [bag],
-        tmp_path / "ds",
-        params=PARAMS,
-        options=ImportOptions(hover_throttle=HOVER, split="train"),
-        progress=False,
-    )
+    result = import_to_train(bag, tmp_path / "ds")
     assert sorted(result.flights) == ["gappy_00", "gappy_01"]
     flights = imported(tmp_path / "ds")
     assert abs(len(flights["gappy_00"]["time"]) * PARAMS.dt - 2.0) < 2 * PARAMS.dt

@@ -86,12 +86,6 @@ class Excitation:
     def active(self) -> bool:
         return self.thrust_std > 0 or max(self.rate_std) > 0
 
-    @classmethod
-    def for_control(cls) -> Excitation:
-        """The magnitudes of the MPC's own sampling noise (``control.mpc.MPCConfig``): 1 N of
-        thrust and (0.5, 0.5, 0.2) rad/s, correlated over 0.15 s."""
-        return cls(thrust_std=1.0, rate_std=(0.5, 0.5, 0.2), tau=0.15)
-
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -185,17 +179,18 @@ class SimConfig:
         """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
         data = dict(data)
         effects = Effects(**data.pop("effects", {}))
-        exc = dict(data.pop("excitation", {}))
-        if "rate_std" in exc:
-            exc["rate_std"] = tuple(exc["rate_std"])
-        excitation = Excitation(**exc)
+        excitation = Excitation(**_tuples(data.pop("excitation", {})))
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
-        data = {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
-        return cls(effects=effects, excitation=excitation, **data)
+        return cls(effects=effects, excitation=excitation, **_tuples(data))
 
     def with_effects(self, effects: Effects) -> SimConfig:
         """A copy with other effect switches."""
         return replace(self, effects=effects)
+
+
+def _tuples(data: dict) -> dict:
+    """JSON lists back to the tuples the frozen configs hold."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
