@@ -25,6 +25,16 @@ def choices(kind: str) -> list[str]:
     return sorted(names)
 
 
+def comma_names(text: str) -> list[str]:
+    """'a,b,' -> ['a', 'b']: an option's comma-separated names (empty items dropped)."""
+    return [name for name in text.split(",") if name]
+
+
+def comma_ints(text: str) -> list[int]:
+    """'6,12' -> [6, 12]: an option's comma-separated counts (empty items dropped)."""
+    return [int(k) for k in text.split(",") if k]
+
+
 def seed_range(text: str) -> tuple[int, ...]:
     """'3' -> (3,); '1..3' -> (1, 2, 3); '0,4' -> (0, 4)."""
     try:

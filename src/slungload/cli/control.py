@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import new_command, seed_range
+from .common import comma_ints, comma_names, new_command, seed_range
 
 
 def add_control(sub: Any) -> None:
@@ -33,7 +33,7 @@ def add_control(sub: Any) -> None:
     )
     p.add_argument(
         "--maneuvers",
-        type=lambda text: [m for m in text.split(",") if m],
+        type=comma_names,
         default=["baf_very_fast", "roll_35", "fast_8_lap_xyz"],
         metavar="NAME,NAME",
         help="maneuvers (default baf_very_fast,roll_35,fast_8_lap_xyz)",
@@ -44,7 +44,7 @@ def add_control(sub: Any) -> None:
     )  # fmt: skip
     p.add_argument(
         "--samples",
-        type=lambda text: [int(k) for k in text.split(",") if k],
+        type=comma_ints,
         default=[32],
         metavar="K,K",
         help="MPC samples per step; each model flies once per K (default 32)",

@@ -9,6 +9,7 @@ from typing import Any
 from .common import (
     add_vehicle_options,
     add_window_options,
+    comma_names,
     new_command,
     resolve_params,
     vehicle_overrides,
@@ -28,7 +29,7 @@ def add_simulate(sub: Any) -> None:
     p.add_argument("--flights", type=int, default=48, help="number of flights (default 48)")
     p.add_argument(
         "--maneuvers",
-        type=lambda text: [m for m in text.split(",") if m],
+        type=comma_names,
         metavar="NAME,NAME",
         help="fly only these families, in turn (default: all; see `slungload maneuvers`)",
     )

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .common import choices, new_command, seed_range
+from .common import choices, comma_ints, comma_names, new_command, seed_range
 
 
 def add_evaluate(sub: Any) -> None:
@@ -157,7 +157,7 @@ def add_study(sub: Any) -> None:
     d.add_argument("--out", required=True, type=Path, help="output folder")
     d.add_argument(
         "--flights",
-        type=lambda text: [int(k) for k in text.split(",") if k],
+        type=comma_ints,
         default=[6, 12, 24, 48],
         metavar="K,K",
         help="training-flight counts (default 6,12,24,48); the simulated dataset is sized "
@@ -166,14 +166,14 @@ def add_study(sub: Any) -> None:
     d.add_argument("--data", type=Path, help="dataset folder (default: simulate one)")
     d.add_argument(
         "--variants",
-        type=lambda text: [v for v in text.split(",") if v],
+        type=comma_names,
         default=["proposed", "no-slack", "no-physics"],
         metavar="V,V",
         help="loss variants (default proposed,no-slack,no-physics)",
     )
     d.add_argument(
         "--models",
-        type=lambda text: [m for m in text.split(",") if m],
+        type=comma_names,
         default=["lstm-attention"],
         metavar="NAME,NAME",
         help="architectures (default lstm-attention)",
