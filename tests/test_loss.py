@@ -13,14 +13,16 @@ from slungload.loss import (
     LOSS_VARIANTS,
     LossTerms,
     compute_loss,
+    fit_loss,
     model_config_for,
     physics_loss,
+    physics_relative_scale,
     physics_residual,
 )
 from slungload.models.base import Prediction
 from slungload.models.lstm_attention import SlungLoadNet
 from slungload.physics import hover_thrust, step
-from slungload.state import POS, QUAT, join_state, quat_from_rotvec
+from slungload.state import GROUPS, POS, QUAT, join_state, quat_from_rotvec
 
 torch.set_num_threads(1)
 
@@ -220,3 +222,55 @@ def test_gradients_flow_from_total_loss_to_every_parameter():
     terms.total.backward()
     for name, p in model.named_parameters():
         assert p.grad is not None and p.grad.abs().max() > 0, name
+
+
+# --- the "physics-relative" step weighting --------------------------------------------------
+
+
+def test_physics_relative_scale_keeps_the_loss_of_physics_level_errors():
+    # Errors whose square is exactly s_gn at every step (one group at a time): the scaled L_fit
+    # equals the paper's, while each step's share becomes e^{-alpha n} / sum, not s_gn-heavy.
+    g = torch.Generator().manual_seed(3)
+    s = torch.rand(len(GROUPS), N, generator=g, dtype=torch.float64) * torch.logspace(-4, 0, N)
+    scale = physics_relative_scale(s, WEIGHTS.alpha)
+    truth = torch.zeros(1, N, 13, dtype=torch.float64)
+    truth[..., QUAT.start] = 1.0
+    for i, (name, sl) in enumerate(GROUPS.items()):
+        pred = truth.clone()
+        if sl == QUAT:  # q = (cos t/2, sin t/2, 0, 0): |q (x) 1^-1 - q_id|^2 = 2 - 2 cos t/2
+            half = torch.acos(1.0 - s[i] / 2.0)
+            pred[0, :, sl] = torch.stack([half.cos(), half.sin(), 0 * half, 0 * half], -1)
+        else:
+            pred[0, :, sl.start] = s[i].sqrt()
+        paper = fit_loss(pred, truth, WEIGHTS)
+        relative = fit_loss(pred, truth, WEIGHTS, scale)
+        torch.testing.assert_close(relative, paper, rtol=1e-10, atol=0, msg=name)
+        # Per step, the scaled squared error is c_g: the same at every step.
+        torch.testing.assert_close(scale[i] * s[i], (scale[i] * s[i])[:1].expand(N))
+
+
+def test_physics_relative_scale_of_a_flat_error_is_one_and_bad_shapes_are_refused():
+    ones = physics_relative_scale(torch.full((len(GROUPS), N), 0.3), 0.1)
+    torch.testing.assert_close(ones, torch.ones(len(GROUPS), N))
+    with pytest.raises(ValueError, match=r"\(4, N\)"):
+        physics_relative_scale(torch.ones(3, N), 0.1)
+
+
+def test_step_weighting_and_fit_scale_must_agree():
+    states, inputs, aux = truth_windows()
+    pred = Prediction(states[:, M:] + 0.01, None)
+    relative = dataclasses.replace(WEIGHTS, steps="physics-relative")
+    scale = torch.ones(len(GROUPS), N, dtype=torch.float64)
+    run = dict(history=M, params=PARAMS, variant="no-physics")
+    with pytest.raises(ValueError, match="needs fit_scale"):
+        compute_loss(pred, states, inputs, aux, weights=relative, **run)
+    with pytest.raises(ValueError, match="takes no fit_scale"):
+        compute_loss(pred, states, inputs, aux, weights=WEIGHTS, fit_scale=scale, **run)
+    with pytest.raises(ValueError, match="fit_scale must be"):
+        compute_loss(pred, states, inputs, aux, weights=relative, fit_scale=scale[:, 1:], **run)
+    # A scale of ones is the paper's loss.
+    a = compute_loss(pred, states, inputs, aux, weights=relative, fit_scale=scale, **run)
+    b = compute_loss(pred, states, inputs, aux, weights=WEIGHTS, **run)
+    torch.testing.assert_close(a.total, b.total)
+    with pytest.raises(ValueError, match="unknown step weighting"):
+        LossWeights(steps="late")

@@ -189,6 +189,17 @@ def test_evaluate_end_to_end(tmp_path, monkeypatch, tiny_run):
     assert {(t.timing.history, t.timing.horizon) for t in report.timings} == {(M, 4), (M, 8)}
 
 
+def test_evaluate_on_the_validation_split(tmp_path, monkeypatch, tiny_run):
+    monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "val"
+    report = evaluate([tiny_run.out], out=out, horizons=(4,), split="val", progress=False)
+    assert report.split == "val" and report.test_flights == ("val_2",)
+    text = (out / "report.md").read_text()
+    assert "validation flights (1): val_2" in text and "RMSE over the validation set" in text
+    with pytest.raises(ValueError, match="split must be one of"):
+        evaluate([tiny_run.out], horizons=(4,), split="train", progress=False)
+
+
 def test_evaluate_refuses_nothing_to_do(tmp_path):
     with pytest.raises(ValueError, match="nothing|no run"):
         evaluate([], data=tmp_path, include_physics=False, progress=False)

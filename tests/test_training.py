@@ -350,3 +350,33 @@ def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
     original = physics_term(*batch)
     assert original > 0
     torch.testing.assert_close(physics_term(*turned), original, rtol=1e-9, atol=1e-12)
+
+
+# --- the "physics-relative" step weighting --------------------------------------------------
+
+
+def test_physics_step_mse_is_the_physics_predictors_error(dataset) -> None:
+    from slungload.evaluation.predictors import PhysicsPredictor
+    from slungload.state import GROUPS, group_errors
+    from slungload.training.trainer import physics_step_mse
+
+    windows = dataset.splits["train"]
+    mse = physics_step_mse(windows, dataset.params, batch_size=7)  # several batches
+    errors = group_errors(PhysicsPredictor(dataset.params)(windows), windows.future.states)
+    expected = torch.stack([errors[g].square().mean(0) for g in GROUPS])
+    torch.testing.assert_close(mse, expected)
+    assert mse.shape == (len(GROUPS), dataset.window.horizon)
+
+
+def test_physics_relative_run_records_its_scale_and_resumes(dataset, tmp_path: Path, train_tiny):
+    weights = LossWeights(steps="physics-relative")
+    run = train_tiny(dataset, tmp_path / "rel", weights=weights, max_epochs=1)
+    summary = json.loads((run.out / "run.json").read_text())
+    rms = summary["config"]["physics_rms"]
+    assert set(rms) == {"position", "velocity", "quaternion", "load_position"}
+    assert all(len(v) == dataset.window.horizon for v in rms.values())
+    assert load_checkpoint(run.out).weights.steps == "physics-relative"
+    again = train_tiny(dataset, tmp_path / "rel", weights=weights, max_epochs=2, resume=True)
+    assert again.epochs == 2
+    with pytest.raises(ValueError, match="weights.steps"):  # not with the paper's weighting
+        train_tiny(dataset, tmp_path / "rel", max_epochs=3, resume=True)

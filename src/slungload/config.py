@@ -107,9 +107,18 @@ class ModelConfig:
             )
 
 
+# How L_fit weighs the horizon steps (``LossWeights.steps``; ``loss.fit_loss``).
+STEP_WEIGHTINGS: dict[str, str] = {
+    "paper": "e^{-alpha n}, the paper's: late steps, with their larger errors, dominate",
+    "physics-relative": "e^{-alpha n} / (the physics model's mean-square error at step n, per "
+    "group), scaled so that physics-level errors give the paper's loss: every step counts by "
+    "how much it improves on the physics model",
+}
+
+
 @dataclass(frozen=True)
 class LossWeights:
-    """Weights of the four-term loss (the paper's values)."""
+    """Weights of the four-term loss (the paper's values) and how L_fit weighs the steps."""
 
     position: float = 20.0  # lambda_1
     velocity: float = 20.0  # lambda_2
@@ -120,6 +129,13 @@ class LossWeights:
     slack: float = 0.1  # rho
     alpha: float = 0.1  # 1/step, decay of the fit weights e^{-alpha (n - M)}
     beta: float = 0.6  # 1/step, decay of the physics and slack weights e^{-beta (n - M)}
+    steps: str = "paper"  # a name of STEP_WEIGHTINGS
+
+    def __post_init__(self) -> None:
+        if self.steps not in STEP_WEIGHTINGS:
+            raise ValueError(
+                f"unknown step weighting {self.steps!r}; known: {', '.join(STEP_WEIGHTINGS)}"
+            )
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ With the horizon index n = 0 ... N-1 standing for the steps M ... M+N-1 (so the 
 e^{-alpha (n - M)} is e^{-alpha n} here)::
 
     L_fit        = sum_n e^{-alpha n} (l1 |p^-p|^2 + l2 |v^-v|^2 + l3 |e(q^, q)|^2 + l4 |pL^-pL|^2)
+                   (each group's term times c_g / s_gn with the "physics-relative" steps)
     L_physics    = phi sum_n e^{-beta n} |x^_n - f(x_{n-1}, u_{n-1}, a_{n-1}) + s_n|^2
     L_projection = psi sum_n (1 - |q^_n|)^2
     L_slack      = rho sum_n e^{-beta n} |s_n|^2
@@ -28,7 +29,7 @@ from torch import Tensor
 from .config import LOSS_VARIANTS, LossVariant, LossWeights, ModelConfig, VehicleParams
 from .models.base import Prediction
 from .physics import step
-from .state import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL, quat_error
+from .state import AUX_DIM, GROUPS, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL, quat_error
 
 
 class LossTerms(NamedTuple):
@@ -69,17 +70,45 @@ def horizon_weights(n: int, rate: float, like: Tensor) -> Tensor:
     return torch.exp(-rate * k)
 
 
-def fit_loss(states_hat: Tensor, truth: Tensor, weights: LossWeights) -> Tensor:
-    """L_fit, scalar: states_hat, truth (B, N, 13), physical units; mean over the batch."""
-    per_step = (
-        weights.position * (states_hat[..., POS] - truth[..., POS]).square().sum(-1)
-        + weights.velocity * (states_hat[..., VEL] - truth[..., VEL]).square().sum(-1)
-        + weights.quaternion * quat_error(states_hat[..., QUAT], truth[..., QUAT]).square().sum(-1)
-        + weights.load_position
-        * (states_hat[..., LOAD_POS] - truth[..., LOAD_POS]).square().sum(-1)
-    )  # (B, N)
+def fit_loss(
+    states_hat: Tensor, truth: Tensor, weights: LossWeights, scale: Tensor | None = None
+) -> Tensor:
+    """L_fit, scalar: states_hat, truth (B, N, 13), physical units; mean over the batch.
+
+    scale: optional (4, N) factors on each group's (``state.GROUPS`` order) squared error at
+    each step, e.g. ``physics_relative_scale``; None for the paper's loss.
+    """
+    groups = (
+        (states_hat[..., POS] - truth[..., POS]).square().sum(-1),
+        (states_hat[..., VEL] - truth[..., VEL]).square().sum(-1),
+        quat_error(states_hat[..., QUAT], truth[..., QUAT]).square().sum(-1),
+        (states_hat[..., LOAD_POS] - truth[..., LOAD_POS]).square().sum(-1),
+    )  # 4 x (B, N)
+    lambdas = (weights.position, weights.velocity, weights.quaternion, weights.load_position)
+    if scale is None:
+        per_step = sum(w * g for w, g in zip(lambdas, groups, strict=True))  # (B, N)
+    else:
+        per_step = sum(w * g * s for w, g, s in zip(lambdas, groups, scale, strict=True))
     decay = horizon_weights(per_step.shape[-1], weights.alpha, per_step)
     return (per_step * decay).sum(-1).mean()
+
+
+def physics_relative_scale(physics_mse: Tensor, alpha: float) -> Tensor:
+    """The "physics-relative" step weighting: (4, N) factors c_g / s_gn for ``fit_loss``.
+
+    physics_mse (4, N): s_gn, the physics model's mean-square error of group g (``GROUPS``
+    order, squared group unit) at horizon step n on the training windows. With
+    c_g = sum_n e^{-alpha n} s_gn / sum_n e^{-alpha n}, errors at the physics model's level
+    give the paper's L_fit, spread evenly over the steps (times the decay) instead of falling
+    mostly on the late ones: the early steps, where the physics model is already good, weigh
+    as much as the late ones.
+    """
+    if physics_mse.dim() != 2 or physics_mse.shape[0] != len(GROUPS):
+        raise ValueError(f"physics_mse must be ({len(GROUPS)}, N), got {tuple(physics_mse.shape)}")
+    s = physics_mse.double().clamp_min(1e-12)  # a perfect step would get an infinite weight
+    decay = horizon_weights(s.shape[-1], alpha, s)
+    c = (s * decay).sum(-1, keepdim=True) / decay.sum()
+    return (c / s).to(physics_mse.dtype)
 
 
 def physics_residual(
@@ -144,12 +173,14 @@ def compute_loss(
     params: VehicleParams,
     weights: LossWeights,
     variant: str = "proposed",
+    fit_scale: Tensor | None = None,
 ) -> LossTerms:
     """The training loss of one batch of windows.
 
     pred: the network's output over the horizon, states (B, N, 13) and slack (B, N, 13) or
     None; states (B, M+N, 13), inputs (B, M+N, 4), aux (B, M+N, 6) = (vL, Omega_L): the
-    whole windows in physical units; history: M.
+    whole windows in physical units; history: M. fit_scale: (4, N) step factors of L_fit
+    (``physics_relative_scale``), needed when ``weights.steps`` is "physics-relative".
     """
     v = get_variant(variant)
     x_hat = pred.states
@@ -171,8 +202,17 @@ def compute_loss(
             f"loss variant {variant!r} needs a model built with slack=False (see model_config_for)"
         )
 
+    if (weights.steps == "paper") != (fit_scale is None):
+        raise ValueError(
+            f"compute_loss: step weighting {weights.steps!r} "
+            + ("takes no fit_scale" if fit_scale is not None else "needs fit_scale")
+        )
+    if fit_scale is not None and tuple(fit_scale.shape) != (len(GROUPS), n):
+        raise ValueError(
+            f"compute_loss: fit_scale must be ({len(GROUPS)}, N={n}), got {tuple(fit_scale.shape)}"
+        )
     zero = x_hat.new_zeros(())
-    fit = fit_loss(x_hat, states[:, m:], weights)
+    fit = fit_loss(x_hat, states[:, m:], weights, fit_scale)
     projection = projection_loss(x_hat, weights)
     physics, slack = zero, zero
     if v.physics:

@@ -20,6 +20,8 @@ def choices(kind: str) -> list[str]:
         from ..config import LOSS_VARIANTS as names
     elif kind == "models":
         from ..config import ARCHITECTURES as names
+    elif kind == "steps":
+        from ..config import STEP_WEIGHTINGS as names
     else:
         from ..training.presets import PRESETS as names
     return sorted(names)

@@ -30,6 +30,13 @@ def add_evaluate(sub: Any) -> None:
         metavar="N",
         help="predicted steps to evaluate (default 25 50; h = 0.03 s a step)",
     )
+    p.add_argument(
+        "--split",
+        default="test",
+        choices=("test", "val"),
+        help="flights to evaluate on (default test; val to choose a configuration without "
+        "looking at the test flights)",
+    )
     p.add_argument("--no-physics", action="store_true", help="leave out the physics predictor")
     _add_timing_options(p)
     p.add_argument(
@@ -62,6 +69,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         out=args.out,
         horizons=tuple(args.horizons),
         include_physics=not args.no_physics,
+        split=args.split,
         timing=args.timing and not args.no_timing,
         timing_repeats=args.timing_repeats,
         device=args.device,

@@ -54,6 +54,14 @@ def add_train(sub: Any) -> None:
         action="store_true",
         help="fit the physics model's constants to the training flights first (as `identify`)",
     )
+    p.add_argument(
+        "--steps",
+        default="paper",
+        choices=choices("steps"),
+        help="how the fit loss weighs the horizon steps: paper (e^{-alpha n}, the default) or "
+        "physics-relative (each step divided by the physics model's mean-square error there, "
+        "so the early steps, where physics is already good, count as much as the late ones)",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -64,7 +72,7 @@ def add_train(sub: Any) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     from lightning.pytorch.utilities import rank_zero_only
 
-    from ..config import ModelConfig, WindowConfig
+    from ..config import LossWeights, ModelConfig, WindowConfig
     from ..training.trainer import train
 
     run = train(
@@ -72,6 +80,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         out=args.out,
         variant=args.variant,
         model_config=ModelConfig(architecture=args.model),
+        weights=LossWeights(steps=args.steps),
         preset=args.preset,
         device=args.device,
         devices=args.devices,

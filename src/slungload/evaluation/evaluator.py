@@ -40,16 +40,23 @@ Timer = Callable[
 ]
 
 
-def horizon_windows(dataset: Any, *, history: int, horizons: Sequence[int]) -> dict[int, Windows]:
-    """Test windows for each horizon N, cut with stride 1 from the test flights of ``dataset``.
+SPLITS = ("test", "val")  # the splits ``evaluate`` measures on: report on test, choose on val
 
-    dataset: a ``data.Dataset`` (``.splits["test"].names``, ``.flights[name].states`` ...).
+
+def horizon_windows(
+    dataset: Any, *, history: int, horizons: Sequence[int], split: str = "test"
+) -> dict[int, Windows]:
+    """Windows for each horizon N, cut with stride 1 from the flights of one split.
+
+    dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...).
     Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
     """
-    test = dataset.splits["test"]
-    flights = [dataset.flights[name] for name in test.names if name in dataset.flights]
+    if split not in SPLITS:
+        raise ValueError(f"evaluate: split must be one of {SPLITS}, got {split!r}")
+    chosen = dataset.splits[split]
+    flights = [dataset.flights[name] for name in chosen.names if name in dataset.flights]
     if not flights:
-        raise ValueError("evaluate: the dataset has no test flight")
+        raise ValueError(f"evaluate: the dataset has no {split} flight")
     return {
         n: make_windows(flights, WindowConfig(history=history, horizon=n, stride=1))
         for n in horizons
@@ -101,6 +108,7 @@ def evaluate_predictors(
     params: VehicleParams,
     training_horizon: int,
     dataset: str = "",
+    split: str = "test",
     flights: Mapping[str, np.ndarray] | None = None,
     timer: Timer | None = None,
     device: str | torch.device = "cpu",
@@ -109,7 +117,7 @@ def evaluate_predictors(
 ) -> Report:
     """Run every candidate on the windows of every horizon and collect a ``Report``.
 
-    windows: N -> test windows cut with horizon N (same flights, same M). flights: optional
+    windows: N -> windows of ``split`` cut with horizon N (same flights, same M). flights: optional
     name -> states (T, 13) for the example figure (pieced from windows otherwise). timer:
     batch-1 timing of the candidates that hold a network (none without it).
     """
@@ -136,6 +144,7 @@ def evaluate_predictors(
     return Report(
         dataset=dataset,
         test_flights=tuple(test_flights),
+        split=split,
         params=params,
         history=history,
         training_horizon=training_horizon,
@@ -241,8 +250,10 @@ def evaluate(
     device: str = "cpu",
     batch_size: int = 1024,
     progress: bool = True,
+    split: str = "test",
 ) -> Report:
-    """Evaluate trained runs (run folders or ``.ckpt`` files) on the test flights.
+    """Evaluate trained runs (run folders or ``.ckpt`` files) on the test flights (or, with
+    ``split="val"``, the validation flights: the split to choose a configuration on).
 
     data: dataset folder (default: the one recorded in the first run). Every run must share
     the history M and the vehicle constants. Test windows are cut with stride 1 for each
@@ -264,14 +275,16 @@ def evaluate(
 
     window = WindowConfig(history=history, horizon=horizons[0], stride=1)
     dataset = load_dataset(folder, window=window, params=params)
-    windows = horizon_windows(dataset, history=history, horizons=horizons)
+    windows = horizon_windows(dataset, history=history, horizons=horizons, split=split)
     candidates = []
     if include_physics:
         candidates.append(Candidate(PHYSICS, PhysicsPredictor(dataset.params)))
+    several_horizons = len({lm.window.horizon for lm in loaded}) > 1
     for lm in loaded:
         predictor = NetworkPredictor(lm.model, batch_size=batch_size, device=device)
         seed = lm.train_config.seed
-        candidates.append(Candidate(run_label(lm), predictor, seed, lm.model, _run_info(lm)))
+        label = run_label(lm, with_horizon=several_horizons)
+        candidates.append(Candidate(label, predictor, seed, lm.model, _run_info(lm)))
     test = windows[horizons[0]].names
     report = evaluate_predictors(
         candidates,
@@ -279,6 +292,7 @@ def evaluate(
         params=dataset.params,
         training_horizon=loaded[0].window.horizon if loaded else horizons[0],
         dataset=str(dataset.folder),
+        split=split,
         flights={name: dataset.flights[name].states for name in test},
         timer=timer,
         device=device,
@@ -290,13 +304,17 @@ def evaluate(
     return report
 
 
-def run_label(lm: LoadedModel) -> str:
+def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
     """A run's label in the tables: its loss variant, prefixed by its architecture unless that
-    is the paper's network, suffixed "+fit" when it fitted the physical constants
-    ("proposed", "physics-step/proposed+fit"); seeds share a label."""
+    is the paper's network, suffixed by what it trained with beyond the defaults: "+fit"
+    (fitted physical constants), "+relative" (the physics-relative step weighting) and, with
+    ``with_horizon`` (runs of several training horizons in one report), "+N<steps>"; e.g.
+    "proposed", "physics-step/no-physics+relative+N50". Seeds share a label."""
     architecture = lm.model_config.architecture
     label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
-    return label + ("+fit" if "constants" in lm.meta else "")
+    label += "+fit" if "constants" in lm.meta else ""
+    label += "+relative" if lm.weights.steps == "physics-relative" else ""
+    return label + (f"+N{lm.window.horizon}" if with_horizon else "")
 
 
 def _params_source(loaded: Sequence[LoadedModel], dataset: Any) -> str:

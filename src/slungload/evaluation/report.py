@@ -206,7 +206,8 @@ def render_markdown(
         "## Dataset",
         "",
         f"- folder: `{report.dataset}`",
-        f"- test flights ({len(report.test_flights)}): {', '.join(report.test_flights)}",
+        f"- {_split_name(report)} flights ({len(report.test_flights)}): "
+        f"{', '.join(report.test_flights)}",
         f"- windows: M = {report.history} history steps, stride 1; "
         + ", ".join(
             f"N = {r.metrics.horizon}: {r.metrics.windows}" for r in _first_per_horizon(report)
@@ -347,11 +348,16 @@ def _budget_warnings(report: Report) -> list[str]:
     return lines
 
 
+def _split_name(report: Report) -> str:
+    """'test', or 'validation' for a report made to choose a configuration."""
+    return "validation" if report.split == "val" else report.split
+
+
 def _rmse_section(report: Report, n: int) -> list[str]:
     rows = [r for r in report.table if r.horizon == n]
     seeds = any(r.seeds > 1 for r in rows)
     note = " (mean ± std across seeds)" if seeds else ""
-    lines = [f"## RMSE over the test set, N = {n}{note}", ""]
+    lines = [f"## RMSE over the {_split_name(report)} set, N = {n}{note}", ""]
     lines += _table_header("Model (ours)")
     for r in rows:
         name = f"{r.label} ({r.seeds} seeds)" if r.seeds > 1 else r.label

@@ -142,7 +142,7 @@ class Report:
     """Everything ``evaluate`` measured; ``report.write_report`` turns it into files."""
 
     dataset: str  # folder of the flights
-    test_flights: tuple[str, ...]
+    test_flights: tuple[str, ...]  # the flights evaluated on (of ``split``)
     params: VehicleParams
     history: int  # M
     training_horizon: int  # N used in training (the dashed line in the MAE figures)
@@ -155,6 +155,7 @@ class Report:
     example: Example | None
     models: tuple[dict[str, Any], ...]  # per trained run: label, seed, run, configs
     environment: dict[str, Any]  # package and torch versions, threads, device
+    split: str = "test"  # the dataset split evaluated on ("val": to choose a configuration)
 
     @property
     def dt(self) -> float:
@@ -172,6 +173,7 @@ class Report:
         ex = self.example
         return {
             "dataset": self.dataset,
+            "split": self.split,
             "test_flights": list(self.test_flights),
             "params": to_dict(self.params),
             "history": self.history,

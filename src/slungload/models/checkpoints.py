@@ -22,7 +22,15 @@ import torch
 from torch import nn
 
 from .._version import __version__
-from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, from_dict
+from ..config import (
+    LossWeights,
+    ModelConfig,
+    TrainConfig,
+    VehicleParams,
+    WindowConfig,
+    from_dict,
+    to_dict,
+)
 from .registry import build
 
 CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
@@ -157,6 +165,8 @@ def _first_line(exc: BaseException) -> str:
 def check_resumable(last: Path, meta: dict[str, Any]) -> None:
     """Refuse to resume a run with other settings than it was started with, naming them."""
     _, saved = _read_checkpoint(last)
+    if isinstance(saved.get("weights"), dict):  # fields added since get their defaults
+        saved = {**saved, "weights": to_dict(from_dict(LossWeights, saved["weights"]))}
     # The epoch budget may be raised on resume, the data folder may have moved, and the same
     # constants may come from vehicle.json or from options.
     # The time cap is a safety net, not part of the schedule: a run it stopped resumes without.

@@ -60,6 +60,7 @@ class SlungLoadModule(L.LightningModule):
         window: WindowConfig,
         config: TrainConfig,
         meta: dict[str, Any],
+        fit_scale: Tensor | None = None,
     ) -> None:
         super().__init__()
         self.net = net
@@ -67,6 +68,9 @@ class SlungLoadModule(L.LightningModule):
         self.history = window.history
         self.config = config
         self.meta = meta  # plain dicts, embedded in every checkpoint
+        # L_fit's step factors (4, N) for the "physics-relative" weighting: a buffer, so it
+        # follows the module to its device; not saved (train recomputes it from the data).
+        self.register_buffer("fit_scale", fit_scale, persistent=False)
         self._sq_err = torch.zeros(len(GROUPS), dtype=torch.float64)
         self._count = torch.zeros((), dtype=torch.float64)
         self.skipped_steps = 0  # training steps with a non-finite loss, this call
@@ -91,6 +95,7 @@ class SlungLoadModule(L.LightningModule):
             params=self.params,
             weights=self.weights,
             variant=self.variant,
+            fit_scale=self.fit_scale,
         )
         return _terms(terms), pred
 

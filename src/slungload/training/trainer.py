@@ -59,9 +59,11 @@ from .._version import __version__
 from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..fileio import write_json
-from ..loss import model_config_for
+from ..loss import model_config_for, physics_relative_scale
 from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
 from ..models.registry import build
+from ..physics import rollout
+from ..state import GROUPS, group_errors
 from .batches import WindowData
 from .identify import identify
 from .module import MONITOR, SlungLoadModule
@@ -186,6 +188,12 @@ def train(
         fitted = identify(dataset)
         model_params = fitted.params
         meta.update(constants=fitted.table, model_params=to_dict(model_params))
+    fit_scale = None
+    if weights.steps == "physics-relative":
+        physics_mse = physics_step_mse(dataset.splits["train"], model_params)
+        fit_scale = physics_relative_scale(physics_mse, weights.alpha).float()
+        # In the run's record (a resume recomputes it: the same data give the same values).
+        meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
     if resume:
         check_resumable(last, meta)
 
@@ -198,6 +206,7 @@ def train(
         window=dataset.window,
         config=config,
         meta=meta,
+        fit_scale=fit_scale,
     )
     datamodule = WindowData(
         dataset.splits["train"], dataset.splits["val"], config, val_windows=config.val_windows
@@ -215,6 +224,28 @@ def train(
     if trainer.is_global_zero:
         write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
     return run
+
+
+def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192) -> torch.Tensor:
+    """The physics model's mean-square error per group and horizon step, (4, N) float64, over
+    ``windows`` (a ``data.windows.Windows``): open-loop ``physics.rollout`` from the last
+    history step with the data's load-state estimate and the true inputs, squared error norms
+    (``state.group_errors``, ``GROUPS`` order) averaged over the windows."""
+    m, n = windows.window.history, windows.window.horizon
+    if len(windows) == 0:
+        raise ValueError("physics_step_mse: no training window")
+    total = torch.zeros(len(GROUPS), n, dtype=torch.float64)
+    for i in range(0, len(windows), batch_size):
+        w = windows[i : i + batch_size]
+        pred, _ = rollout(
+            w.states[:, m - 1].double(),
+            w.aux[:, m - 1].double(),
+            w.inputs[:, m - 1 : m + n - 1].double(),
+            params,
+        )
+        errors = group_errors(pred, w.states[:, m:])
+        total += torch.stack([errors[g].square().sum(0) for g in GROUPS])
+    return total / len(windows)
 
 
 def _check_run_folder(out: Path, resume: bool) -> Path:
