@@ -15,7 +15,7 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-from slungload.config import VehicleParams, WindowConfig
+from slungload.config import LossWeights, VehicleParams, WindowConfig
 from slungload.data.windows import make_windows
 from slungload.deploy.timing import time_models
 from slungload.evaluation.evaluator import Candidate, evaluate, evaluate_predictors
@@ -198,6 +198,22 @@ def test_evaluate_on_the_validation_split(tmp_path, monkeypatch, tiny_run):
     assert "validation flights (1): val_2" in text and "RMSE over the validation set" in text
     with pytest.raises(ValueError, match="split must be one of"):
         evaluate([tiny_run.out], horizons=(4,), split="train", progress=False)
+
+
+def test_labels_name_the_step_weighting_and_another_training_horizon(
+    tmp_path, monkeypatch, tiny_run, train_tiny
+):
+    monkeypatch.setenv("SLUNGLOAD_CACHE", str(tmp_path / "cache"))
+    other = train_tiny(
+        tiny_run.data,
+        tmp_path / "rel",
+        window=WindowConfig(history=M, horizon=6),
+        weights=LossWeights(steps="physics-relative"),
+        max_epochs=1,
+    )
+    report = evaluate([tiny_run.out, other.out], horizons=(4,), progress=False)
+    assert report.labels == (PHYSICS, "proposed", "proposed+relative+N6")
+    assert report.training_horizon == 4  # the first run's
 
 
 def test_evaluate_refuses_nothing_to_do(tmp_path):

@@ -279,18 +279,18 @@ def evaluate(
     candidates = []
     if include_physics:
         candidates.append(Candidate(PHYSICS, PhysicsPredictor(dataset.params)))
-    several_horizons = len({lm.window.horizon for lm in loaded}) > 1
+    training_horizon = loaded[0].window.horizon if loaded else horizons[0]
     for lm in loaded:
         predictor = NetworkPredictor(lm.model, batch_size=batch_size, device=device)
         seed = lm.train_config.seed
-        label = run_label(lm, with_horizon=several_horizons)
+        label = run_label(lm, with_horizon=lm.window.horizon != training_horizon)
         candidates.append(Candidate(label, predictor, seed, lm.model, _run_info(lm)))
     test = windows[horizons[0]].names
     report = evaluate_predictors(
         candidates,
         windows,
         params=dataset.params,
-        training_horizon=loaded[0].window.horizon if loaded else horizons[0],
+        training_horizon=training_horizon,
         dataset=str(dataset.folder),
         split=split,
         flights={name: dataset.flights[name].states for name in test},
@@ -308,8 +308,9 @@ def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
     """A run's label in the tables: its loss variant, prefixed by its architecture unless that
     is the paper's network, suffixed by what it trained with beyond the defaults: "+fit"
     (fitted physical constants), "+relative" (the physics-relative step weighting) and, with
-    ``with_horizon`` (runs of several training horizons in one report), "+N<steps>"; e.g.
-    "proposed", "physics-step/no-physics+relative+N50". Seeds share a label."""
+    ``with_horizon`` (a training horizon other than the report's, the first run's),
+    "+N<steps>"; e.g. "proposed", "physics-step/no-physics+relative+N50". Seeds share a
+    label."""
     architecture = lm.model_config.architecture
     label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
     label += "+fit" if "constants" in lm.meta else ""
