@@ -18,6 +18,7 @@ from slungload.loss import (
     physics_loss,
     physics_relative_scale,
     physics_residual,
+    step_scale,
 )
 from slungload.models.base import Prediction
 from slungload.models.lstm_attention import SlungLoadNet
@@ -274,3 +275,13 @@ def test_step_weighting_and_fit_scale_must_agree():
     torch.testing.assert_close(a.total, b.total)
     with pytest.raises(ValueError, match="unknown step weighting"):
         LossWeights(steps="late")
+
+
+def test_mixed_step_weighting_is_the_mean_of_paper_and_physics_relative():
+    s = torch.logspace(-5, -1, N, dtype=torch.float64).expand(len(GROUPS), N)
+    relative = step_scale("physics-relative", s, 0.1)
+    torch.testing.assert_close(relative, physics_relative_scale(s, 0.1))
+    torch.testing.assert_close(step_scale("mixed", s, 0.1), 0.5 * (1.0 + relative))
+    assert relative[0, 0] > 1.0 > relative[0, -1]  # the early steps gain weight, the late lose
+    with pytest.raises(ValueError, match="no fit_scale"):
+        step_scale("paper", s, 0.1)

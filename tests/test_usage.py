@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -146,3 +147,9 @@ def test_run_folders_name_the_architecture_and_the_fit():
     assert RunSpec("proposed").folder(0) == "proposed-s0"  # the paper's network, as before
     spec = RunSpec("no-physics", architecture="physics-step", fit_constants=True)
     assert spec.folder(2) == "physics-step-no-physics-fitted-s2"
+    spec = RunSpec("no-physics", "physics-step", steps="physics-relative", horizon=50)
+    assert spec.folder(0) == "physics-step-no-physics-relative-N50-s0"
+    (job,) = _training_jobs(Path("/o"), Path("/d"), seeds=(0,), specs=[spec], preset="quick",
+                            device="cpu")  # fmt: skip
+    assert job["weights"].steps == "physics-relative" and job["window"].horizon == 50
+    assert job["window"].history == 50 and job["out"] == Path("/o/runs") / spec.folder(0)

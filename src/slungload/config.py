@@ -113,6 +113,8 @@ STEP_WEIGHTINGS: dict[str, str] = {
     "physics-relative": "e^{-alpha n} / (the physics model's mean-square error at step n, per "
     "group), scaled so that physics-level errors give the paper's loss: every step counts by "
     "how much it improves on the physics model",
+    "mixed": "the mean of the two: the paper's weight on the late steps, half the "
+    "physics-relative weight on the early ones",
 }
 
 

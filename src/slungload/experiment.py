@@ -21,7 +21,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from .config import DEFAULT_ARCHITECTURE, ModelConfig
+from .config import DEFAULT_ARCHITECTURE, LossWeights, ModelConfig, WindowConfig
 from .deploy.timing import time_models
 from .evaluation.evaluator import evaluate
 from .evaluation.results import Report
@@ -34,17 +34,29 @@ PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
 
 @dataclass(frozen=True)
 class RunSpec:
-    """One trained model of an experiment: loss variant, architecture, fitted constants."""
+    """One trained model of an experiment: loss variant, architecture, fitted constants, how
+    the fit loss weighs the steps (``LossWeights.steps``) and the training horizon N (None:
+    ``WindowConfig``'s, 25)."""
 
     variant: str
     architecture: str = DEFAULT_ARCHITECTURE
     fit_constants: bool = False
+    steps: str = "paper"
+    horizon: int | None = None
 
     def folder(self, seed: int) -> str:
         """Its run folder's name: the variant alone for the paper's network."""
         parts = [] if self.architecture == DEFAULT_ARCHITECTURE else [self.architecture]
         parts += [self.variant] + (["fitted"] if self.fit_constants else [])
+        parts += [{"physics-relative": "relative"}.get(self.steps, self.steps)] * (
+            self.steps != "paper"
+        )
+        parts += [f"N{self.horizon}"] if self.horizon is not None else []
         return "-".join(parts) + f"-s{seed}"
+
+    def window(self) -> WindowConfig:
+        """The training windows: M = 50 and this spec's horizon."""
+        return WindowConfig() if self.horizon is None else WindowConfig(horizon=self.horizon)
 
 
 # Beside the paper's three variants, ``reproduce`` trains the best configuration beyond the
@@ -188,6 +200,8 @@ def _training_jobs(
                     out=run_dir,
                     variant=spec.variant,
                     model_config=ModelConfig(architecture=spec.architecture),
+                    weights=LossWeights(steps=spec.steps),
+                    window=spec.window(),
                     fit_constants=spec.fit_constants,
                     preset=preset,
                     seed=seed,

@@ -93,6 +93,18 @@ def fit_loss(
     return (per_step * decay).sum(-1).mean()
 
 
+def step_scale(steps: str, physics_mse: Tensor, alpha: float) -> Tensor:
+    """The (4, N) ``fit_loss`` factors of a step weighting (``config.STEP_WEIGHTINGS``) other
+    than the paper's: "physics-relative" (``physics_relative_scale``) or "mixed" (its mean
+    with the paper's factor 1)."""
+    relative = physics_relative_scale(physics_mse, alpha)
+    if steps == "physics-relative":
+        return relative
+    if steps == "mixed":
+        return 0.5 * (1.0 + relative)
+    raise ValueError(f"step weighting {steps!r} has no fit_scale (known: physics-relative, mixed)")
+
+
 def physics_relative_scale(physics_mse: Tensor, alpha: float) -> Tensor:
     """The "physics-relative" step weighting: (4, N) factors c_g / s_gn for ``fit_loss``.
 
@@ -180,7 +192,7 @@ def compute_loss(
     pred: the network's output over the horizon, states (B, N, 13) and slack (B, N, 13) or
     None; states (B, M+N, 13), inputs (B, M+N, 4), aux (B, M+N, 6) = (vL, Omega_L): the
     whole windows in physical units; history: M. fit_scale: (4, N) step factors of L_fit
-    (``physics_relative_scale``), needed when ``weights.steps`` is "physics-relative".
+    (``step_scale``), needed when ``weights.steps`` is not "paper".
     """
     v = get_variant(variant)
     x_hat = pred.states

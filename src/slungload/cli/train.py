@@ -58,9 +58,10 @@ def add_train(sub: Any) -> None:
         "--steps",
         default="paper",
         choices=choices("steps"),
-        help="how the fit loss weighs the horizon steps: paper (e^{-alpha n}, the default) or "
+        help="how the fit loss weighs the horizon steps: paper (e^{-alpha n}, the default), "
         "physics-relative (each step divided by the physics model's mean-square error there, "
-        "so the early steps, where physics is already good, count as much as the late ones)",
+        "so the early steps, where physics is already good, count as much as the late ones) "
+        "or mixed (the mean of the two)",
     )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

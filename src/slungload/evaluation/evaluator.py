@@ -307,14 +307,14 @@ def evaluate(
 def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
     """A run's label in the tables: its loss variant, prefixed by its architecture unless that
     is the paper's network, suffixed by what it trained with beyond the defaults: "+fit"
-    (fitted physical constants), "+relative" (the physics-relative step weighting) and, with
+    (fitted physical constants), "+relative" or "+mixed" (the step weighting) and, with
     ``with_horizon`` (a training horizon other than the report's, the first run's),
     "+N<steps>"; e.g. "proposed", "physics-step/no-physics+relative+N50". Seeds share a
     label."""
     architecture = lm.model_config.architecture
     label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
     label += "+fit" if "constants" in lm.meta else ""
-    label += "+relative" if lm.weights.steps == "physics-relative" else ""
+    label += {"physics-relative": "+relative", "mixed": "+mixed"}.get(lm.weights.steps, "")
     return label + (f"+N{lm.window.horizon}" if with_horizon else "")
 
 

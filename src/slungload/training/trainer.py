@@ -59,7 +59,7 @@ from .._version import __version__
 from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..fileio import write_json
-from ..loss import model_config_for, physics_relative_scale
+from ..loss import model_config_for, step_scale
 from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
 from ..models.registry import build
 from ..physics import rollout
@@ -189,9 +189,9 @@ def train(
         model_params = fitted.params
         meta.update(constants=fitted.table, model_params=to_dict(model_params))
     fit_scale = None
-    if weights.steps == "physics-relative":
+    if weights.steps != "paper":
         physics_mse = physics_step_mse(dataset.splits["train"], model_params)
-        fit_scale = physics_relative_scale(physics_mse, weights.alpha).float()
+        fit_scale = step_scale(weights.steps, physics_mse, weights.alpha).float()
         # In the run's record (a resume recomputes it: the same data give the same values).
         meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
     if resume:
