@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from flights import predict_args
 
 from slungload import physics
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data.flight import estimate_load_state
+from slungload.data.flight import estimate_load_state, fit_load_state
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import (
     COMPILED_ARCHITECTURES,
@@ -24,7 +25,9 @@ from slungload.deploy.compiled import (
     VehicleConstants,
     _estimate_load_state,
     _exp,
+    _fit_load_state,
     _gelu,
+    _load_filters,
     _lstm_update,
     _physics_step,
     fold,
@@ -210,6 +213,20 @@ def test_compiled_load_state_estimate_is_estimate_load_state(dtype):
     np.testing.assert_allclose(got, want, rtol=rtol, atol=atol)
 
 
+@pytest.mark.parametrize("rows", [50, 9, 5, 3])
+def test_compiled_smoothed_load_state_is_fit_load_state(rows: int):
+    xu, _ = random_steps(20 * rows, np.float64, seed=2)
+    windows = xu[:, :13].reshape(20, rows, 13)
+    model = SimpleNamespace(params=OTHER_PARAMS)
+    filters = _load_filters("smoothed", model)
+    want = fit_load_state(torch.from_numpy(windows[:, -min(rows, 9) :]), OTHER_PARAMS).numpy()
+    got = np.empty((len(windows), 6))
+    for i, window in enumerate(windows):
+        _fit_load_state(window, rows, filters, VehicleConstants.of(OTHER_PARAMS), got[i])
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+    assert _load_filters("difference", model).shape == (0, 0)
+
+
 def test_vehicle_constants_are_the_ones_physics_step_reads():
     assert VehicleConstants.of(OTHER_PARAMS)._asdict() == {
         name: getattr(OTHER_PARAMS, name) for name in VehicleConstants._fields
@@ -254,9 +271,10 @@ def physics_step_predictor(physics_flight):
 
 @pytest.mark.parametrize(
     "change",
-    [{}, {"normalize": False}, {"relative_positions": False, "slack": False}],
-    ids=["default", "raw-units", "absolute-no-slack"],
-)
+    [{}, {"normalize": False}, {"relative_positions": False, "slack": False},
+     {"load_estimate": "smoothed"}],
+    ids=["default", "raw-units", "absolute-no-slack", "smoothed"],
+)  # fmt: skip
 @pytest.mark.parametrize("params", [VehicleParams(), OTHER_PARAMS], ids=["default", "other"])
 @pytest.mark.parametrize("horizon", [25, 50])
 def test_physics_step_predictions_match_the_eager_network(

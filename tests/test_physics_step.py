@@ -14,7 +14,12 @@ from flights import SMALL, TINY, predict_args
 
 from slungload.config import LossWeights, ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.data.dataset import load_dataset
-from slungload.data.flight import estimate_load_state
+from slungload.data.flight import (
+    LOAD_FIT_STEPS,
+    estimate_load_state,
+    fit_load_state,
+    load_fit_coefficients,
+)
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import CompiledPredictor, unsupported
 from slungload.deploy.onnx import OnnxPredictor, export
@@ -76,9 +81,13 @@ def zero_head(net: PhysicsStepNet) -> PhysicsStepNet:
     return net
 
 
-def physics_only(states, inputs, params: VehicleParams):
-    """``physics.rollout`` from x_{M-1} and the load state estimated from x_{M-2}, x_{M-1}."""
-    aux = estimate_load_state(states[:, M - 2 : M], params)[:, -1]
+def physics_only(states, inputs, params: VehicleParams, estimate: str = "difference"):
+    """``physics.rollout`` from x_{M-1} and the load state estimated from x_{M-2}, x_{M-1}
+    (or, "smoothed", fitted through the last LOAD_FIT_STEPS states)."""
+    if estimate == "smoothed":
+        aux = fit_load_state(states[:, M - LOAD_FIT_STEPS : M], params)
+    else:
+        aux = estimate_load_state(states[:, M - 2 : M], params)[:, -1]
     return rollout(states[:, M - 1], aux, inputs[:, M - 1 : M + N - 1], params)[0]
 
 
@@ -111,18 +120,53 @@ def test_refuses_other_configs_and_short_histories():
         net(x, u[:, :1], u[:, 1:])
 
 
+def test_smoothed_load_estimate_is_exact_at_constant_acceleration_and_quieter():
+    # Vehicle and cable vector r = pL - p accelerating uniformly: the quadratic fit's slopes
+    # are the velocities at the last sample, where the backward difference lags half a step.
+    params = VehicleParams()
+    h, k = params.dt, LOAD_FIT_STEPS
+    t = (torch.arange(-k + 1, 1, dtype=torch.float64) * h)[:, None]  # (K, 1), last at 0
+    f64 = torch.float64
+    v0, acc = torch.tensor([0.3, 0.2, -0.1], dtype=f64), torch.tensor([0.5, -1.0, 2.0], dtype=f64)
+    r0, w = torch.tensor([0.1, 0.0, -0.7], dtype=f64), torch.tensor([0.2, -0.1, 0.0], dtype=f64)
+    b = torch.tensor([-1.0, 0.5, 0.3], dtype=f64)
+    p = v0 * t + 0.5 * acc * t**2
+    r = r0 + w * t + 0.5 * b * t**2
+    x = torch.zeros(1, k, 13, dtype=torch.float64)
+    x[0, :, POS], x[0, :, QUAT.start], x[0, :, LOAD_POS] = p, 1.0, p + r
+    got = fit_load_state(x, params)[0]
+    want_rate = torch.linalg.cross(r0 / r0.norm(), w) / params.cable_length
+    torch.testing.assert_close(got, torch.cat([v0 + w, want_rate]), atol=1e-9, rtol=0)
+    lagged = estimate_load_state(x[:, -2:], params)[0, -1]
+    assert (lagged[:3] - (v0 + w)).abs().max() > 0.01  # (acc + b) h / 2
+    # Noise: the slope's variance is sum c^2 sigma^2, about a ninth of the difference's
+    # 2 sigma^2 / h^2; the weights ignore a constant offset.
+    c = load_fit_coefficients(k, h)
+    assert (c**2).sum() < 0.12 * 2 / h**2 and abs(c.sum()) < 1e-9
+    with pytest.raises(ValueError, match=">= 3 steps"):
+        load_fit_coefficients(2, h)
+
+
+def test_load_estimate_is_a_physics_step_option_only():
+    with pytest.raises(ValueError, match="physics-step network"):
+        ModelConfig(load_estimate="smoothed")
+    with pytest.raises(ValueError, match="unknown load estimate"):
+        ModelConfig(architecture=NAME, load_estimate="kalman")
+
+
 @pytest.mark.parametrize(
     "change",
-    [{}, {"normalize": False}, {"relative_positions": False}, {"slack": False}],
-    ids=["default", "normalize=False", "relative_positions=False", "slack=False"],
-)
+    [{}, {"normalize": False}, {"relative_positions": False}, {"slack": False},
+     {"load_estimate": "smoothed"}],
+    ids=["default", "normalize=False", "relative_positions=False", "slack=False", "smoothed"],
+)  # fmt: skip
 def test_zero_head_is_the_physics_only_rollout(windows, change):
     params = VehicleParams()
     states, inputs = windows
     net = zero_head(fitted(dataclasses.replace(PS_TINY, **change), states, inputs)).eval()
     with torch.no_grad():
         pred = net(states[:, :M], inputs[:, :M], inputs[:, M:])
-    want = physics_only(states, inputs, params)
+    want = physics_only(states, inputs, params, change.get("load_estimate", "difference"))
     assert pred.states.dtype == torch.float64
     torch.testing.assert_close(pred.states, want, atol=1e-9, rtol=0)  # float64 round-off only
     if change.get("slack") is False:
@@ -228,13 +272,16 @@ def test_onnx_export_records_the_architecture_and_matches_eager(run_dir, val_arg
     assert np.abs(moved - got).max() > 1e-3
 
 
-def test_onnx_export_of_the_paper_size_network_on_physics_windows(physics_flight, tmp_path):
+@pytest.mark.parametrize("estimate", ["difference", "smoothed"])
+def test_onnx_export_of_the_paper_size_network_on_physics_windows(
+    physics_flight, tmp_path, estimate
+):
     """Default sizes, random weights, normalisation fitted on physics windows, N = 25."""
     window = WindowConfig(history=50, horizon=25)
     flights = [physics_flight(f"p{i}", 20 + i, 100) for i in range(3)]
     windows = make_windows(flights, dataclasses.replace(window, stride=9))
     torch.manual_seed(0)
-    model = PhysicsStepNet(ModelConfig(architecture=NAME))
+    model = PhysicsStepNet(ModelConfig(architecture=NAME, load_estimate=estimate))
     model.fit_normalization(windows.states, windows.inputs, origin_step=window.history - 1)
     predictor = Predictor(model.eval(), window, VehicleParams(), "proposed")
     result = export(predictor, tmp_path / "paper.onnx")

@@ -76,6 +76,13 @@ ARCHITECTURES: dict[str, str] = {
 }
 
 
+# The physics-step network's estimate of the load state at the last history step.
+LOAD_ESTIMATES: dict[str, str] = {
+    "difference": "backward differences of the last two positions (the data's estimate)",
+    "smoothed": "slopes of least-squares quadratics through the last 9 positions",
+}
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the LSTM encoder-decoder with Bahdanau attention.
@@ -99,8 +106,20 @@ class ModelConfig:
     # vehicle position: the dynamics do not depend on where the arena's origin is, and a network
     # that sees absolute positions can tell training flights apart and memorise them.
     relative_positions: bool = True
+    # How the physics-step network estimates the load state (vL, Omega_L) it starts f from
+    # (a name of LOAD_ESTIMATES); the paper's network has no such estimate.
+    load_estimate: str = "difference"
 
     def __post_init__(self) -> None:
+        if self.load_estimate not in LOAD_ESTIMATES:
+            raise ValueError(
+                f"unknown load estimate {self.load_estimate!r}; known: {sorted(LOAD_ESTIMATES)}"
+            )
+        if self.load_estimate != "difference" and self.architecture != "physics-step":
+            raise ValueError(
+                f"load_estimate={self.load_estimate!r} is for the physics-step network; the "
+                f"{self.architecture!r} architecture starts no physics step"
+            )
         if self.architecture not in ARCHITECTURES:
             raise ValueError(
                 f"unknown model architecture {self.architecture!r}; known: {sorted(ARCHITECTURES)}"

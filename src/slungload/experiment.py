@@ -43,6 +43,7 @@ class RunSpec:
     fit_constants: bool = False
     steps: str = "paper"
     horizon: int | None = None
+    load_estimate: str = "difference"  # ModelConfig.load_estimate (physics-step only)
 
     def folder(self, seed: int) -> str:
         """Its run folder's name: the variant alone for the paper's network."""
@@ -52,6 +53,7 @@ class RunSpec:
             self.steps != "paper"
         )
         parts += [f"N{self.horizon}"] if self.horizon is not None else []
+        parts += [self.load_estimate] if self.load_estimate != "difference" else []
         return "-".join(parts) + f"-s{seed}"
 
     def window(self) -> WindowConfig:
@@ -203,7 +205,9 @@ def _training_jobs(
                     data=data,
                     out=run_dir,
                     variant=spec.variant,
-                    model_config=ModelConfig(architecture=spec.architecture),
+                    model_config=ModelConfig(
+                        architecture=spec.architecture, load_estimate=spec.load_estimate
+                    ),
                     weights=LossWeights(steps=spec.steps),
                     window=spec.window(),
                     fit_constants=spec.fit_constants,

@@ -22,6 +22,8 @@ def choices(kind: str) -> list[str]:
         from ..config import ARCHITECTURES as names
     elif kind == "steps":
         from ..config import STEP_WEIGHTINGS as names
+    elif kind == "load-estimates":
+        from ..config import LOAD_ESTIMATES as names
     else:
         from ..training.presets import PRESETS as names
     return sorted(names)

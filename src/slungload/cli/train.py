@@ -63,6 +63,14 @@ def add_train(sub: Any) -> None:
         "so the early steps, where physics is already good, count as much as the late ones) "
         "or mixed (the mean of the two)",
     )
+    p.add_argument(
+        "--load-estimate",
+        default="difference",
+        choices=choices("load-estimates"),
+        help="physics-step network: how it estimates the load's velocity and swing rate to "
+        "start f from: difference (the last two positions, the data's estimate; default) or "
+        "smoothed (quadratic fits through the last 9: less motion-capture noise)",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -80,7 +88,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         args.data,
         out=args.out,
         variant=args.variant,
-        model_config=ModelConfig(architecture=args.model),
+        model_config=ModelConfig(architecture=args.model, load_estimate=args.load_estimate),
         weights=LossWeights(steps=args.steps),
         preset=args.preset,
         device=args.device,

@@ -141,6 +141,38 @@ def estimate_load_state(states: np.ndarray | Tensor, params: VehicleParams) -> n
     return aux.numpy() if isinstance(states, np.ndarray) else aux
 
 
+LOAD_FIT_STEPS = 9  # history steps of the smoothed load-state estimate (``fit_load_state``)
+
+
+def load_fit_coefficients(steps: int, dt: float) -> np.ndarray:
+    """(steps,) weights c with sum_j c_j y_{k-steps+1+j} = the slope at sample k of the
+    least-squares quadratic through the last ``steps`` samples y, spaced ``dt`` s apart: a
+    causal derivative with less noise than the backward difference (which is steps = 2, a
+    line) and no lag for a constant acceleration."""
+    if steps < 3:
+        raise ValueError(f"load_fit_coefficients: a quadratic needs >= 3 steps, got {steps}")
+    t = np.arange(-steps + 1, 1, dtype=np.float64) * dt
+    basis = np.stack([np.ones_like(t), t, t * t], axis=-1)  # (steps, 3)
+    return np.linalg.pinv(basis)[1]  # the row giving the linear coefficient = slope at t = 0
+
+
+def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
+    """Smoothed causal estimate of the load state at the last of K steps, (..., K, 13) ->
+    (..., 6): vL and the rate of r = pL - p are the slopes of least-squares quadratics through
+    the K samples (``load_fit_coefficients``), Omega_L = xi x r_dot / l with xi from the last
+    sample, as ``estimate_load_state`` does with two samples. K >= 3."""
+    c = torch.as_tensor(load_fit_coefficients(states.shape[-2], params.dt), dtype=states.dtype).to(
+        states.device
+    )
+    p, _, _, p_load = split_state(states)
+    rel = p_load - p
+    v_load = torch.einsum("k,...kd->...d", c, p_load)
+    rel_rate = torch.einsum("k,...kd->...d", c, rel)
+    xi = rel[..., -1, :] / rel[..., -1, :].norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    rate = torch.linalg.cross(xi, rel_rate) / params.cable_length
+    return torch.cat([v_load, rate], dim=-1)
+
+
 def _backward_difference(y: Tensor, h: float) -> Tensor:
     """(y_k - y_{k-1}) / h along axis -2, the first step repeating the second."""
     d = (y[..., 1:, :] - y[..., :-1, :]) / h

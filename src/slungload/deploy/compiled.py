@@ -55,6 +55,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..config import VehicleParams
+from ..data.flight import LOAD_FIT_STEPS, load_fit_coefficients
 from ..models.lstm_attention import SlungLoadNet
 from ..models.physics_step import PhysicsStepNet
 from ..state import INPUT_DIM, STATE_DIM
@@ -136,6 +137,10 @@ class FoldedWeights(NamedTuple):
     architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
     physics_step: bool  # x_{k+1} = f(x_k, u_k, a_k) + head(...) (``PhysicsStepNet``)
     vehicle: VehicleConstants  # f's constants (the model's; defaults where f is not used)
+    # The smoothed load estimate's weights (``data.flight.load_fit_coefficients``): row K - 3
+    # holds the K weights for a window of K = min(M, LOAD_FIT_STEPS) steps; (0, 0) for the
+    # backward difference.
+    load_filters: np.ndarray
 
 
 def unsupported(model: nn.Module) -> str | None:
@@ -248,7 +253,19 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         architecture=model.architecture,
         physics_step=model.architecture == PhysicsStepNet.architecture,
         vehicle=VehicleConstants.of(getattr(model, "params", None) or VehicleParams()),
+        load_filters=_load_filters(cfg.load_estimate, model),
     )
+
+
+def _load_filters(load_estimate: str, model: nn.Module) -> np.ndarray:
+    """``FoldedWeights.load_filters`` for the model's load estimate."""
+    if load_estimate != "smoothed":
+        return np.zeros((0, 0), np.float64)
+    dt = model.params.dt
+    table = np.zeros((LOAD_FIT_STEPS - 2, LOAD_FIT_STEPS), np.float64)
+    for k in range(3, LOAD_FIT_STEPS + 1):
+        table[k - 3, :k] = load_fit_coefficients(k, dt)
+    return table
 
 
 class CompiledPredictor:
@@ -568,6 +585,36 @@ def _estimate_load_state(prev, last, c, aux):
     aux[5] = (xi[0] * r_dot[1] - xi[1] * r_dot[0]) / c.cable_length
 
 
+@_jit
+def _fit_load_state(xu, m, filters, c, aux):
+    """``data.flight.fit_load_state`` at history row m - 1 of xu (M, >= 13) -> aux (6,): the
+    slopes of least-squares quadratics through the last K = min(M, rows of filters + 2) rows of
+    pL and r = pL - p, weights ``filters[K - 3, :K]``; Omega_L = xi x r_dot / l with xi from
+    the last row. float64 inside."""
+    k = min(m, filters.shape[0] + 2)
+    v = np.zeros(3)
+    r_dot = np.zeros(3)
+    for j in range(k):
+        row = xu[m - k + j]
+        wgt = filters[k - 3, j]
+        for i in range(3):
+            v[i] += wgt * float(row[10 + i])
+            r_dot[i] += wgt * (float(row[10 + i]) - float(row[i]))
+    last = xu[m - 1]
+    r = (
+        float(last[10]) - float(last[0]),
+        float(last[11]) - float(last[1]),
+        float(last[12]) - float(last[2]),
+    )
+    norm = max(math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]), 1e-9)
+    xi = (r[0] / norm, r[1] / norm, r[2] / norm)
+    for i in range(3):
+        aux[i] = v[i]
+    aux[3] = (xi[1] * r_dot[2] - xi[2] * r_dot[1]) / c.cable_length
+    aux[4] = (xi[2] * r_dot[0] - xi[0] * r_dot[2]) / c.cable_length
+    aux[5] = (xi[0] * r_dot[1] - xi[1] * r_dot[0]) / c.cable_length
+
+
 # --- the forward pass ------------------------------------------------------------------------
 
 
@@ -620,7 +667,9 @@ def _forward(xu, origin, pre, future, w, out):
     aux = np.zeros(6, np.float32)
     aux_next = np.empty(6, np.float32)
     x_next = np.empty(13, np.float32)
-    if w.physics_step:
+    if w.physics_step and w.load_filters.shape[0] > 0:
+        _fit_load_state(xu, m, w.load_filters, w.vehicle, aux)
+    elif w.physics_step:
         _estimate_load_state(xu[m - 2], xu[m - 1], w.vehicle, aux)
     for step in range(n):
         for j in range(4):

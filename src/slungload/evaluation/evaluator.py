@@ -309,13 +309,14 @@ def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
     is the paper's network, suffixed by what it trained with beyond the defaults: "+fit"
     (fitted physical constants), "+relative" or "+mixed" (the step weighting) and, with
     ``with_horizon`` (a training horizon other than the report's, the first run's),
-    "+N<steps>"; e.g. "proposed", "physics-step/no-physics+relative+N50". Seeds share a
-    label."""
+    "+N<steps>", and "+smoothed" (the smoothed load-state estimate); e.g. "proposed",
+    "physics-step/no-physics+relative+N50". Seeds share a label."""
     architecture = lm.model_config.architecture
     label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
     label += "+fit" if "constants" in lm.meta else ""
     label += {"physics-relative": "+relative", "mixed": "+mixed"}.get(lm.weights.steps, "")
-    return label + (f"+N{lm.window.horizon}" if with_horizon else "")
+    label += f"+N{lm.window.horizon}" if with_horizon else ""
+    return label + ("+smoothed" if lm.model_config.load_estimate == "smoothed" else "")
 
 
 def _params_source(loaded: Sequence[LoadedModel], dataset: Any) -> str:

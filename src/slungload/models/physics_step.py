@@ -9,12 +9,15 @@ correction, in physical units::
 for k = M-1 ... M+N-2, with x_hat_{M-1} the last measured state, out_k the head's 13 state
 rows and a = (vL, Omega_L) the unmeasured load state: a_{M-1} is the causal estimate from the
 last two measured states (``data.flight.estimate_load_state``, as the data's estimate at that
-step), and from there f carries it; the network never sees or corrects it. In network units
+step) or, with ``ModelConfig.load_estimate = "smoothed"``, the slopes of quadratics fitted
+through the last 9 (``data.flight.fit_load_state``: less noise, no lag at constant
+acceleration); from there f carries it; the network never sees or corrects it. In network units
 the correction is out_k * delta_std / state_std, the paper network's residual gain, so the
 head's output has the same scale in both architectures: one step's typical change.
 
 A zero head (last head layer's weight and bias zero) therefore predicts ``physics.rollout``
-from the estimated load state, the paper's physics-only row, and the slack outputs are zero.
+from the estimated load state (with the data's estimate: the paper's physics-only row), and
+the slack outputs are zero.
 Same layers, parameters, attention and decoder as ``SlungLoadNet``; only the decoder's state
 update (``start_rollout``/``next_state``) differs. Shapes: B batch, M history steps (M >= 2),
 N horizon steps.
@@ -29,7 +32,7 @@ from torch import Tensor
 
 from .. import physics
 from ..config import ModelConfig, VehicleParams
-from ..data.flight import estimate_load_state
+from ..data.flight import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
 from .lstm_attention import SlungLoadNet
 
 
@@ -84,7 +87,15 @@ class PhysicsStepNet(SlungLoadNet):
                 f"PhysicsStepNet needs M >= 2 history steps to estimate the load state "
                 f"(vL, Omega_L); got M = {x_rel.shape[1]}"
             )
-        aux = estimate_load_state(x_rel[:, -2:], self.params)[:, -1]  # (B, 6) at step M-1
+        if self.config.load_estimate == "smoothed":
+            window = min(LOAD_FIT_STEPS, x_rel.shape[1])
+            if window < 3:
+                raise ValueError(
+                    f"the smoothed load estimate needs M >= 3 history steps; got M = {window}"
+                )
+            aux = fit_load_state(x_rel[:, -window:], self.params)  # (B, 6) at step M-1
+        else:
+            aux = estimate_load_state(x_rel[:, -2:], self.params)[:, -1]  # (B, 6) at step M-1
         inputs = torch.cat([u_hist[:, -1:], u_future[:, :-1]], dim=1)  # (B, N, 4)
         scale = self.delta_std if self.config.normalize else None
         return PhysicsCarry(x_rel[:, -1], aux, inputs.unbind(1), scale)
