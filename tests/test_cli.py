@@ -109,7 +109,7 @@ def test_quick_reproduce_writes_a_plausible_report(run_cli, tmp_path):
         rows = list(csv.DictReader(fh))
     labels = {row["label"] for row in rows}
     assert {"physics", "proposed", "no-slack", "no-physics"} <= labels
-    assert "physics-step/no-physics+mixed+N50" in labels  # beyond the paper, trained over N = 50
+    assert "physics-step/no-physics+mixed+N50+smoothed" in labels  # beyond the paper
     for row in rows:
         for group in ("position", "velocity", "quaternion", "load_position"):
             value = float(row[group])

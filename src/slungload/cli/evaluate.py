@@ -86,7 +86,8 @@ def add_reproduce(sub: Any) -> None:
         "the paper's experiment end to end (the main job)",
         "Simulate the default dataset (or use --data), train the variants proposed, no-slack "
         "and no-physics of the paper's network and the physics-step network (no-physics, "
-        "trained over N = 50 with the mixed step weighting) for every seed, two at a time, "
+        "trained over N = 50 with the mixed step weighting and the smoothed load estimate) "
+        "for every seed, two at a time, "
         "evaluate them with the physics-only predictor at N = 25 and 50, and write "
         "OUT/report/report.md. Every variant trains for its preset's epochs; a run stopped "
         "short by the time cap (a safety net) is reported and the command exits with status "
