@@ -153,3 +153,8 @@ def test_run_folders_name_the_architecture_and_the_fit():
                             device="cpu")  # fmt: skip
     assert job["weights"].steps == "physics-relative" and job["window"].horizon == 50
     assert job["window"].history == 50 and job["out"] == Path("/o/runs") / spec.folder(0)
+    spec = RunSpec("no-physics", "physics-step", load_estimate="smoothed")
+    assert spec.folder(1) == "physics-step-no-physics-smoothed-s1"
+    (job,) = _training_jobs(Path("/o"), Path("/d"), seeds=(1,), specs=[spec], preset="quick",
+                            device="cpu")  # fmt: skip
+    assert job["model_config"].load_estimate == "smoothed"
