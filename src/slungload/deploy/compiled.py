@@ -561,11 +561,9 @@ def _physics_step(xu, aux, c, x_next, aux_next):
 
 
 @_jit
-def _estimate_load_state(prev, last, c, aux):
-    """``data.flight.estimate_load_state`` at the later of two consecutive states prev, last
-    (>= 13,) (package layout) -> aux (6,) = (vL m/s, Omega_L rad/s): backward differences of
-    pL and of r = pL - p over h, Omega_L = xi x r_dot / l with xi = r / |r|. float64 inside."""
-    h = c.dt
+def _swing_rate(last, r_dot, c, aux):
+    """aux[3:6] = Omega_L = xi x r_dot / l, with xi = r / |r| and r = pL - p of the state
+    ``last`` (>= 13,) (package layout); r_dot (3,) m/s. float64 inside."""
     r = (
         float(last[10]) - float(last[0]),
         float(last[11]) - float(last[1]),
@@ -573,16 +571,24 @@ def _estimate_load_state(prev, last, c, aux):
     )
     norm = max(math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]), 1e-9)
     xi = (r[0] / norm, r[1] / norm, r[2] / norm)
-    r_dot = (
-        (r[0] - (float(prev[10]) - float(prev[0]))) / h,
-        (r[1] - (float(prev[11]) - float(prev[1]))) / h,
-        (r[2] - (float(prev[12]) - float(prev[2]))) / h,
-    )
-    for i in range(3):
-        aux[i] = (float(last[10 + i]) - float(prev[10 + i])) / h
     aux[3] = (xi[1] * r_dot[2] - xi[2] * r_dot[1]) / c.cable_length
     aux[4] = (xi[2] * r_dot[0] - xi[0] * r_dot[2]) / c.cable_length
     aux[5] = (xi[0] * r_dot[1] - xi[1] * r_dot[0]) / c.cable_length
+
+
+@_jit
+def _estimate_load_state(prev, last, c, aux):
+    """``data.flight.estimate_load_state`` at the later of two consecutive states prev, last
+    (>= 13,) (package layout) -> aux (6,) = (vL m/s, Omega_L rad/s): backward differences of
+    pL and of r = pL - p over h, Omega_L = xi x r_dot / l with xi = r / |r|. float64 inside."""
+    h = c.dt
+    r_dot = np.empty(3)
+    for i in range(3):
+        aux[i] = (float(last[10 + i]) - float(prev[10 + i])) / h
+        r_dot[i] = (
+            (float(last[10 + i]) - float(last[i])) - (float(prev[10 + i]) - float(prev[i]))
+        ) / h
+    _swing_rate(last, r_dot, c, aux)
 
 
 @_jit
@@ -592,7 +598,7 @@ def _fit_load_state(xu, m, filters, c, aux):
     pL and r = pL - p, weights ``filters[K - 3, :K]``; Omega_L = xi x r_dot / l with xi from
     the last row. float64 inside."""
     k = min(m, filters.shape[0] + 2)
-    v = np.zeros(3)
+    v = np.zeros(3)  # float64 sums, rounded once into aux
     r_dot = np.zeros(3)
     for j in range(k):
         row = xu[m - k + j]
@@ -600,19 +606,9 @@ def _fit_load_state(xu, m, filters, c, aux):
         for i in range(3):
             v[i] += wgt * float(row[10 + i])
             r_dot[i] += wgt * (float(row[10 + i]) - float(row[i]))
-    last = xu[m - 1]
-    r = (
-        float(last[10]) - float(last[0]),
-        float(last[11]) - float(last[1]),
-        float(last[12]) - float(last[2]),
-    )
-    norm = max(math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2]), 1e-9)
-    xi = (r[0] / norm, r[1] / norm, r[2] / norm)
     for i in range(3):
         aux[i] = v[i]
-    aux[3] = (xi[1] * r_dot[2] - xi[2] * r_dot[1]) / c.cable_length
-    aux[4] = (xi[2] * r_dot[0] - xi[0] * r_dot[2]) / c.cable_length
-    aux[5] = (xi[0] * r_dot[1] - xi[1] * r_dot[0]) / c.cable_length
+    _swing_rate(xu[m - 1], r_dot, c, aux)
 
 
 # --- the forward pass ------------------------------------------------------------------------
