@@ -15,7 +15,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import WindowConfig, to_dict
+from ..config import VehicleParams, WindowConfig, to_dict
+from ..physics import rollout
+from ..state import STATE_DIM
 
 
 class Segment(NamedTuple):
@@ -159,3 +161,18 @@ def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windo
         else:
             out[key] = torch.zeros(0, dtype=torch.int64)
     return Windows(**out, names=tuple(f.name for f in flights), window=window)
+
+
+def physics_rollout(windows: Windows, params: VehicleParams, batch_size: int = 8192) -> Tensor:
+    """The physics-only open-loop prediction of every window (the paper's "physics" row),
+    (W, N, 13) float64: ``physics.rollout`` from the last history state x_{M-1} with the data's
+    load-state estimate there and the true inputs u_{M-1} ... u_{M+N-2}, ``batch_size``
+    windows at a time."""
+    m, n = windows.window.history, windows.window.horizon
+    parts = [torch.zeros(0, n, STATE_DIM, dtype=torch.float64)]
+    for i in range(0, len(windows), batch_size):
+        w = windows[i : i + batch_size]
+        x0, aux0 = w.states[:, m - 1].double(), w.aux[:, m - 1].double()
+        states, _ = rollout(x0, aux0, w.inputs[:, m - 1 : m + n - 1].double(), params)
+        parts.append(states)
+    return torch.cat(parts)

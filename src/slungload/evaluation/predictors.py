@@ -11,8 +11,7 @@ import torch
 from torch import Tensor, nn
 
 from ..config import VehicleParams
-from ..data.windows import Windows
-from ..physics import rollout
+from ..data.windows import Windows, physics_rollout
 from ..state import with_unit_quaternion
 
 
@@ -32,23 +31,15 @@ class PhysicsPredictor:
     """Open-loop physics-only prediction (the paper's "physics" row).
 
     Rolls ``physics.rollout`` from the last measured state x_{M-1} with its estimated
-    (vL, Omega_L) and the true inputs u_{M-1} ... u_{M+N-2}; float64 inside.
+    (vL, Omega_L) and the true inputs u_{M-1} ... u_{M+N-2} (``data.windows.physics_rollout``,
+    which training shares); float64 inside.
     """
 
     params: VehicleParams
     batch_size: int = 8192
 
     def __call__(self, windows: Windows) -> Tensor:
-        m, n = windows.window.history, windows.window.horizon
-        out = []
-        for i in range(0, len(windows), self.batch_size):
-            w = windows[i : i + self.batch_size]
-            x0 = w.states[:, m - 1].double()
-            aux0 = w.aux[:, m - 1].double()
-            inputs = w.inputs[:, m - 1 : m + n - 1].double()
-            states, _ = rollout(x0, aux0, inputs, self.params)
-            out.append(states.to(windows.states.dtype))
-        return _cat(out, windows)
+        return physics_rollout(windows, self.params, self.batch_size).to(windows.states.dtype)
 
 
 @dataclass

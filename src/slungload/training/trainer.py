@@ -58,11 +58,11 @@ from torch import nn
 from .._version import __version__
 from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
 from ..data.dataset import Dataset, load_dataset
+from ..data.windows import physics_rollout
 from ..fileio import write_json
 from ..loss import model_config_for, step_scale
 from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
 from ..models.registry import build
-from ..physics import rollout
 from ..state import GROUPS, group_errors
 from .batches import WindowData
 from .identify import identify
@@ -228,24 +228,14 @@ def train(
 
 def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192) -> torch.Tensor:
     """The physics model's mean-square error per group and horizon step, (4, N) float64, over
-    ``windows`` (a ``data.windows.Windows``): open-loop ``physics.rollout`` from the last
-    history step with the data's load-state estimate and the true inputs, squared error norms
-    (``state.group_errors``, ``GROUPS`` order) averaged over the windows."""
-    m, n = windows.window.history, windows.window.horizon
+    ``windows`` (a ``data.windows.Windows``): the squared error norms (``state.group_errors``,
+    ``GROUPS`` order) of its open-loop prediction (``data.windows.physics_rollout``), averaged
+    over the windows."""
     if len(windows) == 0:
         raise ValueError("physics_step_mse: no training window")
-    total = torch.zeros(len(GROUPS), n, dtype=torch.float64)
-    for i in range(0, len(windows), batch_size):
-        w = windows[i : i + batch_size]
-        pred, _ = rollout(
-            w.states[:, m - 1].double(),
-            w.aux[:, m - 1].double(),
-            w.inputs[:, m - 1 : m + n - 1].double(),
-            params,
-        )
-        errors = group_errors(pred, w.states[:, m:])
-        total += torch.stack([errors[g].square().sum(0) for g in GROUPS])
-    return total / len(windows)
+    pred = physics_rollout(windows, params, batch_size)
+    errors = group_errors(pred, windows.states[:, windows.window.history :])
+    return torch.stack([errors[g].square().mean(0) for g in GROUPS])
 
 
 def _check_run_folder(out: Path, resume: bool) -> Path:
