@@ -137,6 +137,12 @@ STEP_WEIGHTINGS: dict[str, str] = {
 }
 
 
+def step_tag(steps: str) -> str:
+    """A step weighting's short name in run labels and folders: "" for the paper's,
+    "relative" for "physics-relative", "mixed"."""
+    return "" if steps == "paper" else steps.removeprefix("physics-")
+
+
 @dataclass(frozen=True)
 class LossWeights:
     """Weights of the four-term loss (the paper's values) and how L_fit weighs the steps."""

@@ -21,7 +21,7 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from .config import DEFAULT_ARCHITECTURE, LossWeights, ModelConfig, WindowConfig
+from .config import DEFAULT_ARCHITECTURE, LossWeights, ModelConfig, WindowConfig, step_tag
 from .deploy.timing import time_models
 from .evaluation.evaluator import evaluate
 from .evaluation.results import Report
@@ -49,9 +49,7 @@ class RunSpec:
         """Its run folder's name: the variant alone for the paper's network."""
         parts = [] if self.architecture == DEFAULT_ARCHITECTURE else [self.architecture]
         parts += [self.variant] + (["fitted"] if self.fit_constants else [])
-        parts += [{"physics-relative": "relative"}.get(self.steps, self.steps)] * (
-            self.steps != "paper"
-        )
+        parts += [step_tag(self.steps)] if self.steps != "paper" else []
         parts += [f"N{self.horizon}"] if self.horizon is not None else []
         parts += [self.load_estimate] if self.load_estimate != "difference" else []
         return "-".join(parts) + f"-s{seed}"

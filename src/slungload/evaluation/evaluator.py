@@ -21,7 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from .._version import __version__
-from ..config import DEFAULT_ARCHITECTURE, VehicleParams, WindowConfig
+from ..config import DEFAULT_ARCHITECTURE, VehicleParams, WindowConfig, step_tag
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
@@ -314,7 +314,8 @@ def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
     architecture = lm.model_config.architecture
     label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
     label += "+fit" if "constants" in lm.meta else ""
-    label += {"physics-relative": "+relative", "mixed": "+mixed"}.get(lm.weights.steps, "")
+    tag = step_tag(lm.weights.steps)
+    label += f"+{tag}" if tag else ""
     label += f"+N{lm.window.horizon}" if with_horizon else ""
     return label + ("+smoothed" if lm.model_config.load_estimate == "smoothed" else "")
 
