@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import torch
 
+from slungload import layout, state
 from slungload.state import (
     GROUPS,
     STATE_DIM,
@@ -25,6 +28,39 @@ from slungload.state import (
 def test_groups_tile_the_state():
     covered = sorted(i for s in GROUPS.values() for i in range(STATE_DIM)[s])
     assert covered == list(range(STATE_DIM))
+
+
+def test_layout_imports_without_torch():
+    # An onboard controller runs on numpy alone: the layout module must not pull in torch.
+    code = (
+        "import sys, slungload.layout as l\n"
+        "bad = sorted(m for m in ('torch', 'roma') if m in sys.modules)\n"
+        "assert not bad, bad\n"
+        "print(l.STATE_DIM)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "13"
+
+
+def test_layout_slices_partition_the_columns():
+    for names, dim in (
+        (("POS", "VEL", "QUAT", "LOAD_POS"), layout.STATE_DIM),
+        (("THRUST", "RATES"), layout.INPUT_DIM),
+        (("LOAD_VEL", "LOAD_RATE"), layout.AUX_DIM),
+    ):
+        covered = [i for name in names for i in range(dim)[getattr(layout, name)]]
+        assert covered == list(range(dim)), names  # in order, no gap, no overlap
+    assert (layout.STATE_DIM, layout.INPUT_DIM, layout.AUX_DIM) == (13, 4, 6)
+    assert len(layout.STATE_NAMES) == len(layout.STATE_COLUMNS) == layout.STATE_DIM
+    assert len(layout.HISTORY_COLUMNS) == layout.HISTORY_DIM == 17
+    assert layout.STATE_COLUMNS[layout.QUAT] == ("qx", "qy", "qz", "qw")  # the file order
+    assert [layout.WXYZ_TO_XYZW[i] for i in layout.XYZW_TO_WXYZ] == [0, 1, 2, 3]
+
+
+def test_state_re_exports_the_layout():
+    for name in ("POS", "QUAT", "GROUPS", "STATE_NAMES", "STATE_COLUMNS", "AUX_DIM"):
+        assert getattr(state, name) is getattr(layout, name)
 
 
 def test_split_join_round_trip():

@@ -1,24 +1,10 @@
-"""State and input layout, and quaternion helpers. The only place that knows which column is what.
+"""Quaternion and state helpers in torch, over the layout of ``layout.py``.
 
-State ``x`` (13 numbers, the paper's x_k)::
-
-    p   [0:3]    vehicle position, world frame, m
-    v   [3:6]    vehicle velocity, world frame, m/s
-    q   [6:10]   vehicle attitude, unit quaternion **w-x-y-z**, body -> world
-    pL  [10:13]  load position, world frame, m
-
-Input ``u`` (4 numbers, the paper's u_k)::
-
-    T      [0:1]  total thrust, N (the commanded value in the data files)
-    omega  [1:4]  body angular rates, body frame, rad/s
-
-Auxiliary load state ``a`` (6 numbers, not measured, estimated from data; see ``data.py``)::
-
-    vL       [0:3]  load velocity, world frame, m/s
-    OmegaL   [3:6]  load angular velocity about the vehicle, world frame, rad/s
-
-The data files store quaternions x-y-z-w (like roma); the package reorders them to w-x-y-z at
-the edges (``quat_xyzw_to_wxyz``). World frame is z up.
+The column layout (``STATE_DIM``, the named slices ``POS`` ... ``LOAD_RATE``, ``GROUPS``,
+``STATE_NAMES``, the file layout's ``STATE_COLUMNS``) lives in ``layout.py``, importable without
+torch; it is re-exported here, so ``from slungload.state import POS`` keeps working. Quaternions
+are w-x-y-z inside the package, x-y-z-w in the data files (and in roma); the package reorders
+them at the edges (``quat_xyzw_to_wxyz``). World frame is z up.
 """
 
 from __future__ import annotations
@@ -27,34 +13,36 @@ import roma
 import torch
 from torch import Tensor
 
-STATE_DIM = 13
-INPUT_DIM = 4
-AUX_DIM = 6
+from .layout import (
+    AUX_DIM,
+    GROUP_UNITS,
+    GROUPS,
+    HISTORY_COLUMNS,
+    HISTORY_DIM,
+    INPUT_DIM,
+    INPUT_NAMES,
+    LOAD_POS,
+    LOAD_RATE,
+    LOAD_VEL,
+    POS,
+    QUAT,
+    RATES,
+    STATE_COLUMNS,
+    STATE_DIM,
+    STATE_NAMES,
+    THRUST,
+    VEL,
+)
 
-# State slices.
-POS = slice(0, 3)
-VEL = slice(3, 6)
-QUAT = slice(6, 10)
-LOAD_POS = slice(10, 13)
-# Input slices.
-THRUST = slice(0, 1)
-RATES = slice(1, 4)
-# Auxiliary load-state slices.
-LOAD_VEL = slice(0, 3)
-LOAD_RATE = slice(3, 6)
-
-# Named groups used by the loss, metrics and plots, in the paper's order.
-GROUPS: dict[str, slice] = {
-    "position": POS,
-    "velocity": VEL,
-    "quaternion": QUAT,
-    "load_position": LOAD_POS,
-}
-GROUP_UNITS = {"position": "m", "velocity": "m/s", "quaternion": "-", "load_position": "m"}
-STATE_NAMES = (
-    "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "pLx", "pLy", "pLz",
-)  # fmt: skip
-INPUT_NAMES = ("T", "wx", "wy", "wz")
+__all__ = [  # the layout's names, re-exported, then this module's own
+    "AUX_DIM", "GROUPS", "GROUP_UNITS", "HISTORY_COLUMNS", "HISTORY_DIM", "INPUT_DIM",
+    "INPUT_NAMES", "LOAD_POS", "LOAD_RATE", "LOAD_VEL", "POS", "QUAT", "RATES", "STATE_COLUMNS",
+    "STATE_DIM", "STATE_NAMES", "THRUST", "VEL",
+    "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
+    "quat_from_rotvec", "quat_identity", "quat_mul", "quat_normalize", "quat_to_rotmat",
+    "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "split_input", "split_state",
+    "with_unit_quaternion",
+]  # fmt: skip
 
 
 def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:

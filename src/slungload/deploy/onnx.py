@@ -41,6 +41,7 @@ import onnxruntime as ort
 from .._version import __version__
 from ..config import to_dict
 from ..fileio import atomic_path, write_json
+from ..layout import HISTORY_DIM, STATE_COLUMNS
 from ..models.checkpoints import load_checkpoint
 from ..state import (
     GROUP_UNITS,
@@ -55,9 +56,7 @@ from ..state import (
     with_unit_quaternion,
 )
 from .predictor import (
-    HISTORY_DIM,
     PARITY_TOLERANCE,
-    STATE_COLUMNS,
     FileLayoutNet,
     Predictor,
     check_inputs,

@@ -3,9 +3,9 @@
     predictor = Predictor.from_checkpoint("runs/proposed")   # a run folder or a .ckpt
     states = predictor.predict(history, future_inputs)        # (N, 13)
 
-Columns follow the data files (``fileio``): quaternions are **x-y-z-w** here, as in the files,
-while the package works in w-x-y-z inside (``state.py``); the conversion happens only at this
-edge. ``history`` row k holds x_k then u_k::
+Columns follow the data files (``layout.HISTORY_COLUMNS``): quaternions are **x-y-z-w** here,
+as in the files, while the package works in w-x-y-z inside (``layout.py``); the conversion
+happens only at this edge. ``history`` row k holds x_k then u_k::
 
     p (3) m | v (3) m/s | q x-y-z-w (4) | pL (3) m | T (1) N | omega (3) rad/s    (17 columns)
 
@@ -34,14 +34,18 @@ import torch
 from torch import Tensor, nn
 
 from ..config import VehicleParams, WindowConfig
-from ..models.checkpoints import load_checkpoint
-from ..models.lstm_attention import SlungLoadNet
-from ..state import (
+from ..layout import (
+    HISTORY_COLUMNS,
+    HISTORY_DIM,
     INPUT_DIM,
     INPUT_NAMES,
     QUAT,
     STATE_DIM,
-    STATE_NAMES,
+    WXYZ_TO_XYZW,
+)
+from ..models.checkpoints import load_checkpoint
+from ..models.lstm_attention import SlungLoadNet
+from ..state import (
     quat_continuous,
     quat_normalize,
     quat_wxyz_to_xyzw,
@@ -49,18 +53,9 @@ from ..state import (
     with_unit_quaternion,
 )
 
-HISTORY_DIM = STATE_DIM + INPUT_DIM  # 17 columns: x_k then u_k
 # Largest |difference| from this eager predictor, physical units, that a faster path (the ONNX
 # export, the compiled predictor) may show on real windows; checked at export and in tests.
 PARITY_TOLERANCE = 1e-4
-_WXYZ_TO_XYZW = [1, 2, 3, 0]  # file order of the package's quaternion components
-# Column names of the file layout: the 13 states (quaternion x-y-z-w) then the 4 inputs.
-STATE_COLUMNS: tuple[str, ...] = (
-    STATE_NAMES[: QUAT.start]
-    + tuple(STATE_NAMES[QUAT.start + i] for i in _WXYZ_TO_XYZW)
-    + STATE_NAMES[QUAT.stop :]
-)
-HISTORY_COLUMNS: tuple[str, ...] = STATE_COLUMNS + INPUT_NAMES
 # A history quaternion whose norm is further than this from 1 is refused (the network
 # normalises it, but a zero or far-off quaternion means wrong columns or a broken estimator).
 QUAT_NORM_TOLERANCE = 0.1
@@ -235,7 +230,7 @@ def flight_window(flight: FlightLike, start: int, *, history: int, horizon: int)
             f"{len(states) - history - horizon}"
         )
     file_states = states.copy()
-    file_states[:, QUAT] = states[:, QUAT][:, _WXYZ_TO_XYZW]
+    file_states[:, QUAT] = states[:, QUAT][:, list(WXYZ_TO_XYZW)]
     mid = start + history
     return FlightWindow(
         history=np.concatenate([file_states[start:mid], inputs[start:mid]], axis=1),
