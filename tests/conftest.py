@@ -53,14 +53,19 @@ def run_cli(capsys: pytest.CaptureFixture[str]) -> Callable[..., tuple[int, str,
 
 @pytest.fixture(scope="session")
 def train_tiny() -> Callable[..., Any]:
-    """Factory ``train_tiny(data, out, **overrides) -> Run``: ``train`` of the TINY network
-    on SMALL windows with the quick preset, one thread, no progress bar."""
+    """Factory ``train_tiny(data, out, *, resume=False, device="auto", **run) -> Run``:
+    ``train`` of ``RunConfig.from_preset(**run)`` with the quick preset, the TINY network and
+    SMALL windows unless ``run`` says otherwise; one thread, no progress bar."""
+    from slungload.run_config import RunConfig
     from slungload.training.trainer import train
 
-    def run(data: Path | Dataset, out: Path, **overrides: Any):
-        options = {"preset": "quick", "model_config": TINY, "window": SMALL,
-                   "progress": False, "num_threads": 1, **overrides}  # fmt: skip
-        return train(data, out=out, **options)
+    def run(
+        data: Path | Dataset, out: Path, *, resume: bool = False, device: str = "auto", **what: Any
+    ):
+        config = RunConfig.from_preset(**{"preset": "quick", "model": TINY, "window": SMALL,
+                                          **what})  # fmt: skip
+        return train(data, config, out=out, resume=resume, device=device, progress=False,
+                     num_threads=1)  # fmt: skip
 
     return run
 

@@ -230,7 +230,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory, write_dataset, train_tiny)
     root = tmp_path_factory.mktemp("physics_step")
     data = write_dataset(root / "data", physics=True)
     dataset = load_dataset(data, window=SMALL, params=OTHER_PARAMS, cache_dir=root / "cache")
-    train_tiny(dataset, root / "run", model_config=PS_TINY)
+    train_tiny(dataset, root / "run", model=PS_TINY)
     return root / "run"
 
 

@@ -208,7 +208,7 @@ def test_labels_name_the_step_weighting_and_another_training_horizon(
         tiny_run.data,
         tmp_path / "rel",
         window=WindowConfig(history=M, horizon=6),
-        weights=LossWeights(steps="physics-relative"),
+        loss=LossWeights(steps="physics-relative"),
         max_epochs=1,
     )
     report = evaluate([tiny_run.out, other.out], horizons=(4,), progress=False)

@@ -28,7 +28,7 @@ from flights import SMALL, WINDOW_ARGS, flight_arrays
 
 from slungload.fileio import write_npz
 from slungload.models.checkpoints import load_checkpoint
-from slungload.training.presets import PRESETS, Preset
+from slungload.run_config import PRESETS, Preset
 from slungload.training.runtime import AtomicCheckpointIO
 from slungload.training.trainer import TrainingInterrupted
 

@@ -22,10 +22,10 @@ from slungload.config import LossWeights, TrainConfig, to_dict
 from slungload.data.dataset import load_dataset
 from slungload.loss import LOSS_VARIANTS, compute_loss
 from slungload.models.checkpoints import load_checkpoint
+from slungload.run_config import PRESETS, Preset
 from slungload.state import LOAD_POS, POS, VEL
 from slungload.training.batches import EpochBatches
 from slungload.training.module import _warmup_cosine
-from slungload.training.presets import PRESETS, Preset
 
 torch.set_num_threads(1)
 
@@ -188,9 +188,9 @@ def test_epoch_batches_are_seeded_by_epoch_and_shard_evenly() -> None:
 
 def test_same_seed_gives_identical_weights(dataset, tmp_path: Path, train_tiny, weights_of) -> None:
     config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
-    a = train_tiny(dataset, tmp_path / "a", seed=3, model_config=config)
-    b = train_tiny(dataset, tmp_path / "b", seed=3, model_config=config)
-    c = train_tiny(dataset, tmp_path / "c", seed=4, model_config=config)
+    a = train_tiny(dataset, tmp_path / "a", seed=3, model=config)
+    b = train_tiny(dataset, tmp_path / "b", seed=3, model=config)
+    c = train_tiny(dataset, tmp_path / "c", seed=4, model=config)
     wa, wb, wc = (weights_of(r.last_checkpoint) for r in (a, b, c))
     assert all(torch.equal(wa[k], wb[k]) for k in wa)
     assert not all(torch.equal(wa[k], wc[k]) for k in wa)
@@ -200,17 +200,17 @@ def test_resume_continues_the_epoch_count_and_matches_one_long_run(
     dataset, tmp_path: Path, train_tiny, weights_of
 ) -> None:
     config = dataclasses.replace(TINY, dropout=0.2, num_layers=2)  # dropout draws numbers too
-    first = train_tiny(dataset, tmp_path / "split", max_epochs=1, model_config=config)
+    first = train_tiny(dataset, tmp_path / "split", max_epochs=1, model=config)
     assert first.epochs == 1
     one_epoch = torch.load(first.last_checkpoint, weights_only=True)["global_step"]
     resumed = train_tiny(
-        dataset, tmp_path / "split", max_epochs=3, resume=True, model_config=config
+        dataset, tmp_path / "split", max_epochs=3, resume=True, model=config
     )
     assert resumed.epochs == 3
     rows = read_metrics(tmp_path / "split")
     assert epoch_values(rows, "epoch")[-1] == 2
     assert len(epoch_values(rows, "train/total")) == 3  # the first call's rows are kept
-    straight = train_tiny(dataset, tmp_path / "straight", max_epochs=3, model_config=config)
+    straight = train_tiny(dataset, tmp_path / "straight", max_epochs=3, model=config)
     # last.ckpt is the last epoch's even when that epoch did not improve on the best one.
     last = torch.load(straight.last_checkpoint, weights_only=True)
     assert last["global_step"] == 3 * one_epoch
@@ -370,13 +370,13 @@ def test_physics_step_mse_is_the_physics_predictors_error(dataset) -> None:
 
 def test_physics_relative_run_records_its_scale_and_resumes(dataset, tmp_path: Path, train_tiny):
     weights = LossWeights(steps="physics-relative")
-    run = train_tiny(dataset, tmp_path / "rel", weights=weights, max_epochs=1)
+    run = train_tiny(dataset, tmp_path / "rel", loss=weights, max_epochs=1)
     summary = json.loads((run.out / "run.json").read_text())
     rms = summary["config"]["physics_rms"]
     assert set(rms) == {"position", "velocity", "quaternion", "load_position"}
     assert all(len(v) == dataset.window.horizon for v in rms.values())
     assert load_checkpoint(run.out).weights.steps == "physics-relative"
-    again = train_tiny(dataset, tmp_path / "rel", weights=weights, max_epochs=2, resume=True)
+    again = train_tiny(dataset, tmp_path / "rel", loss=weights, max_epochs=2, resume=True)
     assert again.epochs == 2
     with pytest.raises(ValueError, match="weights.steps"):  # not with the paper's weighting
         train_tiny(dataset, tmp_path / "rel", max_epochs=3, resume=True)

@@ -6,17 +6,19 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
 
 from slungload.cli import main
+from slungload.config import LossWeights, ModelConfig, WindowConfig
 from slungload.evaluation.report import _budget_warnings, _epochs
-from slungload.experiment import RunSpec, _training_jobs, stopped_by_time_cap
+from slungload.experiment import BEYOND_PAPER, _training_jobs, stopped_by_time_cap
+from slungload.run_config import PRESETS, RunConfig
 from slungload.sim.dataset import flight_plan
 from slungload.sim.maneuvers import MANEUVER_DESCRIPTIONS, MANEUVERS
-from slungload.training.presets import PRESETS
 
 
 def test_help_loads_neither_torch_nor_mujoco():
@@ -104,16 +106,13 @@ def test_reproduce_resumes_runs_the_time_cap_stopped(tmp_path):
     write_run(runs / "no-physics-s0", epochs=30, reason="early_stopping")
     assert stopped_by_time_cap(runs / "proposed-s0")
     assert not stopped_by_time_cap(runs / "no-slack-s0")
-    jobs = _training_jobs(
-        tmp_path,
-        tmp_path / "data",
-        seeds=(0,),
-        specs=[RunSpec(v) for v in ("proposed", "no-slack", "no-physics")],
-        preset="default",
-        device="cpu",
-    )
+    runs = [RunConfig(v) for v in ("proposed", "no-slack", "no-physics")]
+    jobs = _training_jobs(tmp_path, tmp_path / "data", runs, device="cpu")
     # Only the capped run trains again: resumed from last.ckpt, without the cap.
-    assert [(j["variant"], j["resume"], j["time_cap"]) for j in jobs] == [("proposed", True, False)]
+    assert [(j.run.variant, j.resume, j.run.train.max_time) for j in jobs] == [
+        ("proposed", True, None)
+    ]
+    assert jobs[0].run == runs[0].uncapped() and runs[0].train.max_time is not None
 
 
 def test_the_report_says_loudly_when_the_time_cap_cut_a_run_short():
@@ -144,17 +143,20 @@ def test_a_missing_vehicle_json_is_one_readable_line(write_dataset, tmp_path):
 
 
 def test_run_folders_name_the_architecture_and_the_fit():
-    assert RunSpec("proposed").folder(0) == "proposed-s0"  # the paper's network, as before
-    spec = RunSpec("no-physics", architecture="physics-step", fit_constants=True)
-    assert spec.folder(2) == "physics-step-no-physics-fitted-s2"
-    spec = RunSpec("no-physics", "physics-step", steps="physics-relative", horizon=50)
-    assert spec.folder(0) == "physics-step-no-physics-relative-N50-s0"
-    (job,) = _training_jobs(Path("/o"), Path("/d"), seeds=(0,), specs=[spec], preset="quick",
-                            device="cpu")  # fmt: skip
-    assert job["weights"].steps == "physics-relative" and job["window"].horizon == 50
-    assert job["window"].history == 50 and job["out"] == Path("/o/runs") / spec.folder(0)
-    spec = RunSpec("no-physics", "physics-step", load_estimate="smoothed")
-    assert spec.folder(1) == "physics-step-no-physics-smoothed-s1"
-    (job,) = _training_jobs(Path("/o"), Path("/d"), seeds=(1,), specs=[spec], preset="quick",
-                            device="cpu")  # fmt: skip
-    assert job["model_config"].load_estimate == "smoothed"
+    assert RunConfig("proposed").folder() == "proposed-s0"  # the paper's network, as before
+    step = ModelConfig(architecture="physics-step")
+    run = RunConfig.from_preset("quick", variant="no-physics", model=step, fit_constants=True,
+                                seed=2)  # fmt: skip
+    assert run.folder() == "physics-step-no-physics-fitted-s2"
+    run = RunConfig("no-physics", model=step, loss=LossWeights(steps="physics-relative"),
+                    window=WindowConfig(horizon=50))  # fmt: skip
+    assert run.folder() == "physics-step-no-physics-relative-N50-s0"
+    (job,) = _training_jobs(Path("/o"), Path("/d"), [run], device="cpu")
+    assert job.out == Path("/o/runs") / run.folder() and job.run == run
+    smoothed = replace(step, load_estimate="smoothed")
+    run = RunConfig("no-physics", model=smoothed).scheduled("quick", seed=1)
+    assert run.folder() == "physics-step-no-physics-smoothed-s1"
+    assert run.preset == "quick" and run.train == replace(PRESETS["quick"].config, seed=1)
+    # reproduce's configuration beyond the paper keeps the folder name of its earlier runs
+    (beyond,) = BEYOND_PAPER
+    assert beyond.folder() == "physics-step-no-physics-mixed-N50-smoothed-s0"

@@ -21,42 +21,16 @@ from typing import Any
 
 from tqdm.auto import tqdm
 
-from .config import DEFAULT_ARCHITECTURE, LossWeights, ModelConfig, WindowConfig, step_tag
+from .config import LossWeights, ModelConfig, WindowConfig
 from .deploy.timing import time_models
 from .evaluation.evaluator import evaluate
 from .evaluation.results import Report
 from .loss import LOSS_VARIANTS
+from .run_config import RunConfig
 from .sim import simulate_dataset
 from .training.trainer import Run, train
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """One trained model of an experiment: loss variant, architecture, fitted constants, how
-    the fit loss weighs the steps (``LossWeights.steps``) and the training horizon N (None:
-    ``WindowConfig``'s, 25)."""
-
-    variant: str
-    architecture: str = DEFAULT_ARCHITECTURE
-    fit_constants: bool = False
-    steps: str = "paper"
-    horizon: int | None = None
-    load_estimate: str = "difference"  # ModelConfig.load_estimate (physics-step only)
-
-    def folder(self, seed: int) -> str:
-        """Its run folder's name: the variant alone for the paper's network."""
-        parts = [] if self.architecture == DEFAULT_ARCHITECTURE else [self.architecture]
-        parts += [self.variant] + (["fitted"] if self.fit_constants else [])
-        parts += [step_tag(self.steps)] if self.steps != "paper" else []
-        parts += [f"N{self.horizon}"] if self.horizon is not None else []
-        parts += [self.load_estimate] if self.load_estimate != "difference" else []
-        return "-".join(parts) + f"-s{seed}"
-
-    def window(self) -> WindowConfig:
-        """The training windows: M = 50 and this spec's horizon."""
-        return WindowConfig() if self.horizon is None else WindowConfig(horizon=self.horizon)
 
 
 # Beside the paper's three variants, ``reproduce`` trains the best configuration beyond the
@@ -66,15 +40,38 @@ class RunSpec:
 # 0.702 with the backward-difference estimate, 0.724 with the paper's weighting over N = 25,
 # 0.723 physics-relative; the physics loss term and fitted constants changed nothing
 # measurable. It is also the only one whose early steps are nowhere above physics.
-BEYOND_PAPER: tuple[RunSpec, ...] = (
-    RunSpec(
+# A template: ``reproduce`` puts it on its preset and seeds (``RunConfig.scheduled``).
+BEYOND_PAPER: tuple[RunConfig, ...] = (
+    RunConfig(
         "no-physics",
-        architecture="physics-step",
-        steps="mixed",
-        horizon=50,
-        load_estimate="smoothed",
+        model=ModelConfig(architecture="physics-step", load_estimate="smoothed"),
+        loss=LossWeights(steps="mixed"),
+        window=WindowConfig(horizon=50),
     ),
 )
+
+
+@dataclass(frozen=True)
+class TrainingJob:
+    """One training run to start or continue: ``train(data, run, out=out, resume=resume,
+    device=device)`` on one torch thread, quietly."""
+
+    data: Path
+    out: Path  # the run folder
+    run: RunConfig
+    resume: bool = False  # continue from out/last.ckpt
+    device: str = "cpu"
+
+    def __call__(self) -> Run:
+        return train(
+            self.data,
+            self.run,
+            out=self.out,
+            resume=self.resume,
+            device=self.device,
+            progress=False,
+            num_threads=1,
+        )
 
 
 @dataclass(frozen=True)
@@ -89,12 +86,8 @@ class Reproduction:
     time_capped: tuple[Path, ...] = ()  # runs the time cap stopped short (run again: resumed)
 
 
-def _train_job(job: dict) -> Run:
-    return train(job.pop("data"), **job)
-
-
-def _pool_job(job: Any, parent: int, run: Callable[[Any], Any] = _train_job) -> Any:
-    """``run(job)`` (a training run) in a pool worker that stops when its parent goes.
+def _pool_job(job: Callable[[], Any], parent: int) -> Any:
+    """``job()`` (a training run) in a pool worker that stops when its parent goes.
 
     A ``kill`` of ``reproduce`` reaches the parent only; its workers would train on as
     orphans, using the cores and writing into the output folder. Each watches its parent from
@@ -103,7 +96,7 @@ def _pool_job(job: Any, parent: int, run: Callable[[Any], Any] = _train_job) -> 
     for work from a parent that is gone.
     """
     try:
-        return run(job)
+        return job()
     finally:
         if os.getppid() != parent:
             os._exit(128 + signal.SIGTERM)
@@ -130,7 +123,7 @@ def reproduce(
     preset: str = "default",
     seeds: Sequence[int] = (0,),
     variants: Sequence[str] = PAPER_VARIANTS,
-    beyond: Sequence[RunSpec] = BEYOND_PAPER,
+    beyond: Sequence[RunConfig] = BEYOND_PAPER,
     workers: int = 2,
     sim_seed: int = 0,
     flights: int = 48,
@@ -141,10 +134,10 @@ def reproduce(
 ) -> Reproduction:
     """Simulate the default dataset (unless ``data`` is given; ``flights`` and ``sim_seed`` set
     its size and seed), train every variant of the paper's network and every ``beyond`` model
-    for every seed, evaluate them with the physics-only predictor at N = 25 and 50, write the
-    report.
+    (templates whose schedule and seed ``preset`` and ``seeds`` set) for every seed, evaluate
+    them with the physics-only predictor at N = 25 and 50, write the report.
 
-    Layout of ``out``: ``data/`` (if simulated), ``runs/<RunSpec.folder>/`` (the paper's
+    Layout of ``out``: ``data/`` (if simulated), ``runs/<RunConfig.folder()>/`` (the paper's
     network: ``<variant>-s<seed>``), ``report/``.
     Existing finished runs (with a ``run.json``) are kept, so an interrupted call can be re-run.
     """
@@ -167,10 +160,11 @@ def reproduce(
     seconds["simulate"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    specs = [RunSpec(v) for v in variants] + list(beyond)
-    jobs = _training_jobs(out, data, seeds=seeds, specs=specs, preset=preset, device=device)
-    run_training_jobs(jobs, workers=workers, progress=progress)
-    run_dirs = tuple(out / "runs" / spec.folder(s) for s in seeds for spec in specs)
+    templates = [RunConfig(v) for v in variants] + list(beyond)
+    runs = [t.scheduled(preset, seed=s) for s in seeds for t in templates]
+    run_training_jobs(_training_jobs(out, data, runs, device=device), workers=workers,
+                      progress=progress)  # fmt: skip
+    run_dirs = tuple(out / "runs" / run.folder() for run in runs)
     seconds["train"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -188,44 +182,19 @@ def reproduce(
 
 
 def _training_jobs(
-    out: Path,
-    data: Path,
-    *,
-    seeds: Sequence[int],
-    specs: Sequence[RunSpec],
-    preset: str,
-    device: str,
-) -> list[dict]:
-    """``train`` arguments of every (seed, variant) run not finished yet: no ``run.json``, or
-    stopped by the time cap before its epoch budget. A run with a ``last.ckpt`` resumes."""
+    out: Path, data: Path, runs: Sequence[RunConfig], *, device: str
+) -> list[TrainingJob]:
+    """The jobs of every run not finished yet (in ``out/runs/<folder>``): no ``run.json``, or
+    stopped by the time cap before its epoch budget (then resumed without the cap). A run with
+    a ``last.ckpt`` resumes."""
     jobs = []
-    for seed in seeds:
-        for spec in specs:
-            run_dir = out / "runs" / spec.folder(seed)
-            capped = stopped_by_time_cap(run_dir)
-            if (run_dir / "run.json").is_file() and not capped:
-                continue  # finished earlier
-            jobs.append(
-                dict(
-                    data=data,
-                    out=run_dir,
-                    variant=spec.variant,
-                    model_config=ModelConfig(
-                        architecture=spec.architecture, load_estimate=spec.load_estimate
-                    ),
-                    weights=LossWeights(steps=spec.steps),
-                    window=spec.window(),
-                    fit_constants=spec.fit_constants,
-                    preset=preset,
-                    seed=seed,
-                    device=device,
-                    progress=False,
-                    num_threads=1,
-                    resume=(run_dir / "last.ckpt").is_file(),
-                    # A run the clock stopped short goes on to its full budget, uncapped.
-                    time_cap=not capped,
-                )
-            )
+    for run in runs:
+        run_dir = out / "runs" / run.folder()
+        capped = stopped_by_time_cap(run_dir)
+        if (run_dir / "run.json").is_file() and not capped:
+            continue  # finished earlier
+        resume = (run_dir / "last.ckpt").is_file()
+        jobs.append(TrainingJob(data, run_dir, run.uncapped() if capped else run, resume, device))
     return jobs
 
 
@@ -279,15 +248,15 @@ def worker_pool(workers: int) -> ProcessPoolExecutor:
     )
 
 
-def run_training_jobs(jobs: list[dict], *, workers: int, progress: bool) -> None:
-    """``train(**job)`` for every job, ``workers`` at a time in a pool (one torch thread each)
-    that stops with its parent; a failed run raises here."""
+def run_training_jobs(jobs: Sequence[TrainingJob], *, workers: int, progress: bool) -> None:
+    """Every job, ``workers`` at a time in a pool (one torch thread each) that stops with its
+    parent; a failed run raises here."""
     if not jobs:
         return
     bar = tqdm(total=len(jobs), desc="training runs", unit="run", disable=not progress)
     if workers == 1:
         for job in jobs:
-            _train_job(job)
+            job()
             bar.update()
     else:
         with worker_pool(min(workers, len(jobs))) as pool:

@@ -7,7 +7,7 @@ flights, beside the physics model's (which no training changes).
 
 Layout of ``out``: ``data/`` (simulated unless given), ``subsets/train<k>/`` (the k first
 flights of a seeded order as train.txt, the same val.txt and test.txt; the listed flights
-linked, not copied), ``runs/train<k>/<architecture>-<variant>-s<seed>/``, ``study.csv``,
+linked, not copied), ``runs/train<k>/<RunConfig.folder()>/``, ``study.csv``,
 ``study.md``, ``study.png``. Finished runs are kept, so an interrupted study can be re-run.
 """
 
@@ -28,8 +28,9 @@ from .data.dataset import check_folder, read_splits
 from .evaluation.evaluator import evaluate
 from .evaluation.metrics import COMBINED
 from .evaluation.results import PHYSICS
-from .experiment import PAPER_VARIANTS, run_training_jobs
+from .experiment import PAPER_VARIANTS, TrainingJob, run_training_jobs
 from .fileio import write_splits, write_text
+from .run_config import RunConfig
 from .sim import simulate_dataset
 
 TRAIN_SHARE = 0.58  # of a simulated dataset's windows in training (sim.dataset.SPLIT_FRACTIONS)
@@ -72,14 +73,18 @@ def study_data(
         else _simulated(out / "data", sizes[-1], sim_seed, workers, progress)
     )
     subsets = _nested_subsets(data, out / "subsets", sizes, sim_seed)
+    runs = [
+        RunConfig(variant, model=ModelConfig(architecture=arch)).scheduled(preset, seed=seed)
+        for arch in architectures
+        for variant in variants
+        for seed in seeds
+    ]
     jobs = []
     for k, folder in subsets.items():
-        for arch in architectures:
-            for variant in variants:
-                for seed in seeds:
-                    run = out / "runs" / f"train{k}" / f"{arch}-{variant}-s{seed}"
-                    if not (run / "run.json").is_file():
-                        jobs.append(_job(folder, run, variant, arch, seed, preset))
+        for run in runs:
+            run_dir = _run_dir(out / "runs" / f"train{k}", run)
+            if not (run_dir / "run.json").is_file():
+                jobs.append(TrainingJob(folder, run_dir, run, (run_dir / "last.ckpt").is_file()))
     run_training_jobs(jobs, workers=workers, progress=progress)
     rows = []
     for k, folder in subsets.items():
@@ -125,18 +130,12 @@ def _nested_subsets(data: Path, root: Path, sizes: list[int], seed: int) -> dict
     return out
 
 
-def _job(data: Path, run: Path, variant: str, arch: str, seed: int, preset: str) -> dict:
-    return dict(
-        data=data,
-        out=run,
-        variant=variant,
-        preset=preset,
-        seed=seed,
-        model_config=ModelConfig(architecture=arch),
-        progress=False,
-        num_threads=1,
-        resume=(run / "last.ckpt").is_file(),
-    )
+def _run_dir(root: Path, run: RunConfig) -> Path:
+    """Where a run of the study lives: ``root/<RunConfig.folder()>``, or the folder a study
+    written before runs had one name used (``<architecture>-<variant>-s<seed>``), if it holds
+    that run, so that such a study goes on where it stopped."""
+    earlier = root / f"{run.model.architecture}-{run.variant}-s{run.seed}"
+    return earlier if earlier.is_dir() else root / run.folder()
 
 
 def write_study(rows: Sequence[StudyRow], out: Path, horizon: int) -> None:

@@ -6,7 +6,11 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..config import ARCHITECTURES, LOSS_VARIANTS
+from ..run_config import PRESETS, RunConfig
 from .common import add_vehicle_options, add_window_options, choices, new_command, resolve_params
+
+RUN = RunConfig()  # the defaults of every option that describes the run
 
 
 def add_train(sub: Any) -> None:
@@ -16,28 +20,29 @@ def add_train(sub: Any) -> None:
         "train one model variant on a dataset",
         "Train one network (--model) with one loss variant (--variant) on a dataset's train "
         "split, validating on its val split. The run folder gets best.ckpt, last.ckpt (every "
-        "epoch), run.json and logs. Ctrl-C stops after the batch and saves last.ckpt; run the "
-        "same command with --resume to continue.",
+        "epoch), run.json, run.toml (the run's description) and logs. Ctrl-C stops after the "
+        "batch and saves last.ckpt; run the same command with --resume to continue.",
     )
     p.add_argument("--data", required=True, type=Path, help="dataset folder")
     p.add_argument("--out", required=True, type=Path, help="run folder to create")
     p.add_argument(
         "--variant",
-        default="proposed",
+        default=RUN.variant,
         choices=choices("variants"),
-        help="loss variant (default proposed: fit + physics with slack + projection)",
+        help=f"loss variant (default {RUN.variant}: {LOSS_VARIANTS[RUN.variant].description})",
     )
     p.add_argument(
         "--model",
-        default="lstm-attention",
+        default=RUN.model.architecture,
         choices=choices("models"),
-        help="network architecture (default lstm-attention, the paper's)",
+        help=f"network architecture (default {RUN.model.architecture}: "
+        f"{ARCHITECTURES[RUN.model.architecture]})",
     )
     p.add_argument(
         "--preset",
-        default="default",
+        default=RUN.preset,
         choices=choices("presets"),
-        help="training schedule (default: 45 epochs tuned for a 2-core CPU)",
+        help=f"training schedule (default {RUN.preset!r}: {PRESETS[RUN.preset].description})",
     )
     p.add_argument(
         "--device",
@@ -46,7 +51,9 @@ def add_train(sub: Any) -> None:
         help="default auto (GPU if any)",
     )
     p.add_argument("--devices", type=int, default=1, help="processes for DDP (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="weights and batch order (default 0)")
+    p.add_argument(
+        "--seed", type=int, default=RUN.seed, help=f"weights and batch order (default {RUN.seed})"
+    )
     p.add_argument("--epochs", type=int, help="override the preset's maximum epochs")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.ckpt")
     p.add_argument(
@@ -56,7 +63,7 @@ def add_train(sub: Any) -> None:
     )
     p.add_argument(
         "--steps",
-        default="paper",
+        default=RUN.loss.steps,
         choices=choices("steps"),
         help="how the fit loss weighs the horizon steps: paper (e^{-alpha n}, the default), "
         "physics-relative (each step divided by the physics model's mean-square error there, "
@@ -65,7 +72,7 @@ def add_train(sub: Any) -> None:
     )
     p.add_argument(
         "--load-estimate",
-        default="difference",
+        default=RUN.model.load_estimate,
         choices=choices("load-estimates"),
         help="physics-step network: how it estimates the load's velocity and swing rate to "
         "start f from: difference (the last two positions, the data's estimate; default) or "
@@ -82,28 +89,32 @@ def cmd_train(args: argparse.Namespace) -> int:
     from lightning.pytorch.utilities import rank_zero_only
 
     from ..config import LossWeights, ModelConfig, WindowConfig
+    from ..run_config import RunConfig
     from ..training.trainer import train
 
-    run = train(
-        args.data,
-        out=args.out,
+    run = RunConfig.from_preset(
+        args.preset,
         variant=args.variant,
-        model_config=ModelConfig(architecture=args.model, load_estimate=args.load_estimate),
-        weights=LossWeights(steps=args.steps),
-        preset=args.preset,
-        device=args.device,
-        devices=args.devices,
         seed=args.seed,
         max_epochs=args.epochs,
-        resume=args.resume,
+        fit_constants=args.fit_constants,
+        model=ModelConfig(architecture=args.model, load_estimate=args.load_estimate),
+        loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
+    )
+    result = train(
+        args.data,
+        run,
+        out=args.out,
+        device=args.device,
+        devices=args.devices,
+        resume=args.resume,
         params=resolve_params(Path(args.data), args),
         progress=not args.quiet,
         num_threads=args.threads,
-        fit_constants=args.fit_constants,
     )
     if rank_zero_only.rank == 0:  # with --devices K every process runs this command
-        print(run.summary())
+        print(result.summary())
     return 0
 
 

@@ -3,7 +3,8 @@ at every horizon, collected into a ``Report`` (and written by ``report.write_rep
 
 Read top to bottom: test windows per horizon, the candidates, the example window for the
 figures, ``evaluate_predictors`` (the loop), and the entry ``evaluate`` that loads runs and a
-dataset. The metrics are in ``metrics.py``, the predictors in ``predictors.py``. Batch-1
+dataset. The metrics are in ``metrics.py``; every candidate is a prediction model
+(``models.prediction``) run through ``predict_windows``. Batch-1
 inference time is not measured here: a ``timer`` (e.g. ``deploy.timing.time_models``, which
 ``slungload evaluate`` passes) adds it to the report.
 """
@@ -21,14 +22,14 @@ import torch
 from torch import Tensor, nn
 
 from .._version import __version__
-from ..config import DEFAULT_ARCHITECTURE, VehicleParams, WindowConfig, step_tag
+from ..config import VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
+from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..state import GROUPS, group_errors
 from .machine import device_name
 from .metrics import Curve, mae_curve, metrics_from_errors
-from .predictors import NetworkPredictor, PhysicsPredictor, Predictor
 from .report import write_report
 from .results import PHYSICS, Example, Report, RunResult, TimingResult, table_rows
 
@@ -68,12 +69,12 @@ def horizon_windows(
 
 @dataclass(frozen=True)
 class Candidate:
-    """One predictor to evaluate: ``label`` groups seeds of one variant in the table."""
+    """One prediction model to evaluate: ``label`` groups seeds of one variant in the table."""
 
     label: str
-    predictor: Predictor
+    model: PredictionModel
     seed: int | None = None
-    model: nn.Module | None = None  # for timing; None for the physics predictor
+    network: nn.Module | None = None  # for timing; None for the physics model
     info: dict[str, Any] = field(default_factory=dict)  # run path, variant, configs
 
 
@@ -131,7 +132,7 @@ def evaluate_predictors(
 
     example = _example(candidates, windows[horizons[-1]], predictions, horizons[-1], flights)
 
-    networks = [(c.label, c.seed, c.model) for c in candidates if c.model is not None]
+    networks = [(c.label, c.seed, c.network) for c in candidates if c.network is not None]
     timings = tuple(timer(networks, windows, params)) if timer is not None and networks else ()
 
     test_flights = windows[horizons[0]].names
@@ -155,7 +156,7 @@ def evaluate_predictors(
         curves=curves,
         timings=timings,
         example=example,
-        models=tuple({"label": c.label, "seed": c.seed, **c.info} for c in candidates if c.model),
+        models=tuple({"label": c.label, "seed": c.seed, **c.info} for c in candidates if c.network),
         environment=env,
     )
 
@@ -186,7 +187,7 @@ def _run_candidates(
     predictions: dict[tuple[int, int], Tensor] = {}
     for c, n in jobs:
         bar.set_description(f"{c.label} N={n}")
-        pred = c.predictor(windows[n])
+        pred = c.model.predict_windows(windows[n])
         errors = group_errors(pred, windows[n].future.states)
         results.append(RunResult(c.label, c.seed, metrics_from_errors(errors)))
         pooled.setdefault((c.label, n), []).append(errors)
@@ -278,13 +279,14 @@ def evaluate(
     windows = horizon_windows(dataset, history=history, horizons=horizons, split=split)
     candidates = []
     if include_physics:
-        candidates.append(Candidate(PHYSICS, PhysicsPredictor(dataset.params)))
+        candidates.append(Candidate(PHYSICS, PhysicsModel(dataset.params)))
     training_horizon = loaded[0].window.horizon if loaded else horizons[0]
     for lm in loaded:
-        predictor = NetworkPredictor(lm.model, batch_size=batch_size, device=device)
+        model = NetworkModel(lm.model, lm.window.history, batch_size=batch_size, device=device)
         seed = lm.train_config.seed
-        label = run_label(lm, with_horizon=lm.window.horizon != training_horizon)
-        candidates.append(Candidate(label, predictor, seed, lm.model, _run_info(lm)))
+        # "+N<steps>" where the training horizon differs from the report's (the first run's)
+        label = lm.run.label(with_horizon=lm.window.horizon != training_horizon)
+        candidates.append(Candidate(label, model, seed, lm.model, _run_info(lm)))
     test = windows[horizons[0]].names
     report = evaluate_predictors(
         candidates,
@@ -302,22 +304,6 @@ def evaluate(
     if out is not None:
         write_report(report, out)
     return report
-
-
-def run_label(lm: LoadedModel, *, with_horizon: bool = False) -> str:
-    """A run's label in the tables: its loss variant, prefixed by its architecture unless that
-    is the paper's network, suffixed by what it trained with beyond the defaults: "+fit"
-    (fitted physical constants), "+relative" or "+mixed" (the step weighting) and, with
-    ``with_horizon`` (a training horizon other than the report's, the first run's),
-    "+N<steps>", and "+smoothed" (the smoothed load-state estimate); e.g. "proposed",
-    "physics-step/no-physics+relative+N50". Seeds share a label."""
-    architecture = lm.model_config.architecture
-    label = lm.variant if architecture == DEFAULT_ARCHITECTURE else f"{architecture}/{lm.variant}"
-    label += "+fit" if "constants" in lm.meta else ""
-    tag = step_tag(lm.weights.steps)
-    label += f"+{tag}" if tag else ""
-    label += f"+N{lm.window.horizon}" if with_horizon else ""
-    return label + ("+smoothed" if lm.model_config.load_estimate == "smoothed" else "")
 
 
 def _params_source(loaded: Sequence[LoadedModel], dataset: Any) -> str:

@@ -31,6 +31,7 @@ from ..config import (
     from_dict,
     to_dict,
 )
+from ..run_config import RunConfig
 from .registry import build
 
 CKPT_KEY = "slungload"  # where the configs live inside a Lightning checkpoint
@@ -52,6 +53,11 @@ class LoadedModel:
     train_config: TrainConfig
     meta: dict[str, Any]  # everything embedded in the file (plain dicts)
     path: Path
+
+    @property
+    def run(self) -> RunConfig:
+        """The run it was trained as: its folder name and its label in the tables."""
+        return RunConfig.from_meta(self.meta)
 
 
 def checkpoint_path(path: str | Path) -> Path:

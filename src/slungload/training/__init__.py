@@ -1,7 +1,7 @@
-"""Training: ``trainer.train`` (one entry), the Lightning module and loss (``module``), batches
-and yaw augmentation (``batches``), named schedules (``presets``), and the Lightning
-workarounds for atomic checkpoints, signals and resumable logs (``runtime``).
+"""Training: ``trainer.train`` (one entry, taking a ``run_config.RunConfig``), the Lightning
+module and loss (``module``), batches and yaw augmentation (``batches``), system
+identification (``identify``), and the Lightning workarounds for atomic checkpoints, signals
+and resumable logs (``runtime``). The named schedules are ``run_config.PRESETS``.
 
-Nothing is imported here, so that ``training.presets`` (read by the CLI's help) does not pull
-in Lightning.
+Nothing is imported here, so that importing a module of this package loads only what it needs.
 """

@@ -1,15 +1,16 @@
-"""Training: one entry function, ``train(data, out=...) -> Run``.
+"""Training: one entry function, ``train(data, run, out=...) -> Run``.
 
-Its inverse for the trained file is ``models.checkpoints.load_checkpoint(path) ->
-LoadedModel``; the Lightning module is ``module.py``, the batches come from ``batches.py``, the
-schedules from ``presets.py``, and ``runtime.py`` holds the Lightning workarounds. Its command
-line is ``slungload train`` (cli/train.py).
+What a run trains is one ``run_config.RunConfig`` (configs, schedule, seed). Its inverse for
+the trained file is ``models.checkpoints.load_checkpoint(path) -> LoadedModel``; the Lightning
+module is ``module.py``, the batches come from ``batches.py``, and ``runtime.py`` holds the
+Lightning workarounds. Its command line is ``slungload train`` (cli/train.py).
 
 A run folder holds::
 
     best.ckpt, last.ckpt    Lightning checkpoints; each embeds every config (plain dicts under
                             the key "slungload"), so ``load_checkpoint`` rebuilds the model from
                             the file alone, with ``torch.load(weights_only=True)``
+    run.toml                the run's description (``RunConfig``; ``run_config.read_toml``)
     run.json                summary (``Run``), written atomically by rank 0
     csv/metrics.csv         every loss term per epoch, train and val, and the val RMSEs
     tensorboard/            the same for TensorBoard
@@ -26,7 +27,8 @@ batch's dropout are drawn from ``(seed, epoch, batch)``, so a run resumed at an 
 draws what the uninterrupted run would have (a resume mid-epoch, after a signal, cannot). Two
 CPU runs with the same seed give identical weights, unless the wall-clock cap
 (``TrainConfig.max_time``, a safety net) stops one: its epoch count then depends on the machine,
-``Run.stop_reason`` is "max_time", and ``train(..., resume=True, time_cap=False)`` continues it.
+``Run.stop_reason`` is "max_time", and ``train(data, run.uncapped(), resume=True, ...)``
+continues it.
 
 Several processes (``devices > 1``): Lightning's "ddp" strategy (gloo on CPU, NCCL on GPU)
 re-launches the running command once per extra process, so call ``train`` from a script or
@@ -56,18 +58,18 @@ from lightning.pytorch.utilities.exceptions import SIGTERMException
 from torch import nn
 
 from .._version import __version__
-from ..config import LossWeights, ModelConfig, TrainConfig, VehicleParams, WindowConfig, to_dict
+from ..config import ModelConfig, TrainConfig, VehicleParams, to_dict
 from ..data.dataset import Dataset, load_dataset
 from ..data.windows import physics_rollout
 from ..fileio import write_json
-from ..loss import model_config_for, step_scale
+from ..loss import step_scale
 from ..models.checkpoints import BEST, CKPT_FORMAT, LAST, check_resumable
 from ..models.registry import build
+from ..run_config import RunConfig
 from ..state import GROUPS, group_errors
 from .batches import WindowData
 from .identify import identify
 from .module import MONITOR, SlungLoadModule
-from .presets import Preset, get_preset
 from .runtime import (
     AtomicCheckpointIO,
     SaveOnInterrupt,
@@ -77,6 +79,7 @@ from .runtime import (
 )
 
 RUN_JSON = "run.json"
+RUN_TOML = "run.toml"  # the run's description (``RunConfig``), readable by ``read_toml``
 
 
 class TrainingInterrupted(KeyboardInterrupt):
@@ -131,58 +134,44 @@ def _accelerator(device: str) -> str:
 
 def train(
     data: str | Path | Dataset,
+    run: RunConfig | None = None,
     *,
     out: str | Path,
-    variant: str = "proposed",
-    preset: str | Preset = "default",
     device: str = "auto",
     devices: int = 1,
-    seed: int = 0,
-    max_epochs: int | None = None,
     resume: bool = False,
-    model_config: ModelConfig = ModelConfig(),  # noqa: B008 (frozen)
-    weights: LossWeights = LossWeights(),  # noqa: B008 (frozen)
-    window: WindowConfig = WindowConfig(),  # noqa: B008 (frozen)
     params: VehicleParams | None = None,
     progress: bool = True,
     num_threads: int | None = None,
-    time_cap: bool = True,
-    fit_constants: bool = False,
 ) -> Run:
-    """Train one model variant on a dataset folder (or a loaded ``Dataset``) into ``out``.
+    """Train the run ``run`` describes (default ``RunConfig()``: the paper's network, the
+    proposed loss, the default preset, seed 0) on a dataset folder (or a loaded ``Dataset``)
+    into ``out``; ``RunConfig.from_preset`` builds one from a preset's name.
 
-    ``preset`` names a schedule in ``PRESETS``; ``seed`` and ``max_epochs`` override its own.
-    ``variant`` names a loss variant of ``loss.py`` (it may change the network, e.g. no slack
-    outputs). ``window``/``params`` are used only when ``data`` is a folder. ``resume=True``
-    continues from ``out/last.ckpt`` (epochs, optimiser, schedule and early-stopping state);
-    without it, an ``out`` that already holds a run is refused. ``num_threads`` sets torch's
-    CPU threads for this process. ``time_cap=False`` drops the preset's wall-clock cap
-    (``TrainConfig.max_time``, a safety net): a run it stopped then resumes to its full budget.
-    ``fit_constants=True`` (or the preset's ``TrainConfig.fit_constants``) fits the physics
-    model's constants to the training flights first (``identify``) and trains with them.
+    ``run.window`` and ``params`` (vehicle constants overriding the folder's vehicle.json) are
+    used only when ``data`` is a folder. ``resume=True`` continues from ``out/last.ckpt``
+    (epochs, optimiser, schedule and early-stopping state); without it, an ``out`` that already
+    holds a run is refused. ``num_threads`` sets torch's CPU threads for this process. A run
+    whose ``TrainConfig.fit_constants`` is set fits the physics model's constants to the
+    training flights first (``identify``) and trains with them. The run folder gets the
+    description as ``run.toml``.
 
     Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
     ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
     """
+    run = run if run is not None else RunConfig()
     out = Path(out).expanduser()
     last = _check_run_folder(out, resume)
-    _check_counts(devices=devices, max_epochs=max_epochs, num_threads=num_threads)
+    _check_counts(devices=devices, num_threads=num_threads)
     accelerator = _accelerator(device)
     if num_threads is not None:
         torch.set_num_threads(num_threads)
-    chosen = get_preset(preset)
-    config = replace(chosen.config, seed=seed)
-    if max_epochs is not None:
-        config = replace(config, max_epochs=max_epochs)
-    if not time_cap:
-        config = replace(config, max_time=None)
-    if fit_constants:
-        config = replace(config, fit_constants=True)
+    config, variant, weights = run.train, run.variant, run.loss
     dataset = (
-        data if isinstance(data, Dataset) else load_dataset(data, window=window, params=params)
+        data if isinstance(data, Dataset) else load_dataset(data, window=run.window, params=params)
     )
-    model_config = model_config_for(variant, model_config)
-    meta = _checkpoint_meta(variant, chosen.name, model_config, weights, config, dataset)
+    model_config = run.model
+    meta = _checkpoint_meta(run, dataset)
     model_params = dataset.params  # the constants of the physics loss and of the network's f
     if config.fit_constants:
         fitted = identify(dataset)
@@ -197,7 +186,7 @@ def train(
     if resume:
         check_resumable(last, meta)
 
-    L.seed_everything(seed, workers=False, verbose=False)  # the network's initial weights
+    L.seed_everything(config.seed, workers=False, verbose=False)  # the network's initial weights
     module = SlungLoadModule(
         _new_network(model_config, dataset, model_params),
         variant=variant,
@@ -212,6 +201,8 @@ def train(
         dataset.splits["train"], dataset.splits["val"], config, val_windows=config.val_windows
     )
     callbacks = _callbacks(out, config)
+    if _is_global_zero():
+        RunConfig.from_meta(meta).write_toml(out / RUN_TOML)
     start = time.perf_counter()
     trainer = _fit(
         module, datamodule, callbacks, out, accelerator, devices, config, progress, resume
@@ -219,11 +210,11 @@ def train(
     seconds = time.perf_counter() - start
 
     best_cb, _, stop_cb, _ = callbacks
-    run = _run_result(trainer, best_cb, stop_cb, out, variant, chosen.name, config, seconds)
-    run = replace(run, skipped_steps=module.skipped_steps)
+    result = _run_result(trainer, best_cb, stop_cb, out, variant, run.preset, config, seconds)
+    result = replace(result, skipped_steps=module.skipped_steps)
     if trainer.is_global_zero:
-        write_json(out / RUN_JSON, {**run.to_dict(), "config": meta})
-    return run
+        write_json(out / RUN_JSON, {**result.to_dict(), "config": meta})
+    return result
 
 
 def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192) -> torch.Tensor:
@@ -236,6 +227,13 @@ def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192
     pred = physics_rollout(windows, params, batch_size)
     errors = group_errors(pred, windows.states[:, windows.window.history :])
     return torch.stack([errors[g].square().mean(0) for g in GROUPS])
+
+
+def _is_global_zero() -> bool:
+    """Whether this is the first process of a run (DDP starts one per device)."""
+    from lightning.pytorch.utilities import rank_zero_only
+
+    return rank_zero_only.rank == 0
 
 
 def _check_run_folder(out: Path, resume: bool) -> Path:
@@ -253,11 +251,9 @@ def _check_run_folder(out: Path, resume: bool) -> Path:
     return last
 
 
-def _check_counts(*, devices: int, max_epochs: int | None, num_threads: int | None) -> None:
+def _check_counts(*, devices: int, num_threads: int | None) -> None:
     if devices < 1:
         raise ValueError(f"devices must be >= 1, got {devices}")
-    if max_epochs is not None and max_epochs < 1:
-        raise ValueError(f"max_epochs must be >= 1, got {max_epochs}")
     if num_threads is not None and num_threads < 1:
         raise ValueError(f"num_threads (torch CPU threads) must be >= 1, got {num_threads}")
 
@@ -274,24 +270,19 @@ def _new_network(model_config: ModelConfig, dataset: Dataset, params: VehiclePar
     return net
 
 
-def _checkpoint_meta(
-    variant: str,
-    preset: str,
-    model_config: ModelConfig,
-    weights: LossWeights,
-    config: TrainConfig,
-    dataset: Dataset,
-) -> dict[str, Any]:
+def _checkpoint_meta(run: RunConfig, dataset: Dataset) -> dict[str, Any]:
     """Every config of the run as plain dicts: embedded in each checkpoint (``CKPT_KEY``), so
-    ``load_checkpoint`` rebuilds the network from the file alone."""
+    ``load_checkpoint`` rebuilds the network from the file alone (``RunConfig.from_meta``
+    reads the run back; its loss weights are under "weights"). The windows are the dataset's
+    (a loaded ``Dataset`` brings its own)."""
     return {
         "format": CKPT_FORMAT,
         "package_version": __version__,
-        "variant": variant,
-        "preset": preset,
-        "model": to_dict(model_config),
-        "weights": to_dict(weights),
-        "train": to_dict(config),
+        "variant": run.variant,
+        "preset": run.preset,
+        "model": to_dict(run.model),
+        "weights": to_dict(run.loss),
+        "train": to_dict(run.train),
         "window": to_dict(dataset.window),
         "params": to_dict(dataset.params),
         "params_source": dataset.params_source,
