@@ -22,7 +22,6 @@ from slungload.deploy.compiled import (
     COMPILED_ARCHITECTURES,
     PARITY_TOLERANCE,
     CompiledPredictor,
-    VehicleConstants,
     _estimate_load_state,
     _exp,
     _fit_load_state,
@@ -36,6 +35,7 @@ from slungload.deploy.compiled import (
 from slungload.deploy.predictor import Predictor
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.lstm_attention import SlungLoadNet
+from slungload.physics import VehicleConstants
 from slungload.state import QUAT, STATE_DIM
 
 torch.set_num_threads(1)
@@ -227,12 +227,12 @@ def test_compiled_smoothed_load_state_is_fit_load_state(rows: int):
     assert _load_filters("difference", model).shape == (0, 0)
 
 
-def test_vehicle_constants_are_the_ones_physics_step_reads():
-    assert VehicleConstants.of(OTHER_PARAMS)._asdict() == {
-        name: getattr(OTHER_PARAMS, name) for name in VehicleConstants._fields
-    }
-    # Every field of VehicleParams is one f may read: a new one must reach the compiled copy.
-    assert set(VehicleConstants._fields) == {f.name for f in dataclasses.fields(VehicleParams)}
+def test_vehicle_constants_reach_the_compiled_copy_as_floats():
+    # The kernels read VehicleConstants' fields by name (physics.VehicleConstants mirrors every
+    # VehicleParams field, test_physics), as python floats, which Numba types as float64.
+    constants = VehicleConstants.of(OTHER_PARAMS)
+    assert constants._asdict() == dataclasses.asdict(OTHER_PARAMS)
+    assert all(type(value) is float for value in constants)
 
 
 # --- the physics-step network compiled --------------------------------------------------------

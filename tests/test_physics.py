@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,7 +10,14 @@ import pytest
 import torch
 
 from slungload.config import VehicleParams
-from slungload.physics import accelerations, hover_thrust, rollout, step, tension
+from slungload.physics import (
+    VehicleConstants,
+    accelerations,
+    hover_thrust,
+    rollout,
+    step,
+    tension,
+)
 from slungload.state import (
     AUX_DIM,
     INPUT_DIM,
@@ -232,3 +240,84 @@ def test_model_is_equivariant_under_a_turn_about_z():
     full, _ = rotate_about_z(x, aux, torch.tensor(2 * math.pi, dtype=torch.float64))
     assert torch.allclose(full[:, POS], x[:, POS], atol=1e-12)
     assert torch.allclose(full[:, QUAT], -x[:, QUAT], atol=1e-12)
+
+
+# --- the constants' tensor view: one set per dataset, one set per window ----------------------
+
+# Constants other than the defaults, every field changed.
+OTHER_PARAMS = VehicleParams(
+    mass_quad=1.5, mass_load=0.15, cable_length=0.85, load_damping=0.05, dt=0.025,
+    gravity=9.8, thrust_gain=1.12,
+)  # fmt: skip
+
+
+def test_vehicle_constants_mirror_vehicle_params():
+    # Every field of VehicleParams, in its order: a new constant reaches the tensor view.
+    assert VehicleConstants._fields == tuple(f.name for f in dataclasses.fields(VehicleParams))
+    constants = VehicleConstants.of(OTHER_PARAMS)
+    assert constants._asdict() == dataclasses.asdict(OTHER_PARAMS)
+    assert all(type(value) is float for value in constants)
+
+
+def test_one_set_of_floats_is_the_same_arithmetic_as_vehicle_params():
+    x, u, aux = random_batch(16)
+    inputs = u[:, None, :] + 0.3 * torch.randn(16, 20, 4, dtype=torch.float64)
+    for params in (PARAMS, OTHER_PARAMS):
+        want = rollout(x, aux, inputs, params)
+        got = rollout(x, aux, inputs, VehicleConstants.of(params))
+        for a, b in zip(got, want, strict=True):
+            assert torch.equal(a, b)
+
+
+def test_per_window_constants_equal_each_window_alone():
+    """A batch rolled out with one set of constants per window equals each window rolled out
+    alone with its own VehicleParams."""
+    batch = 6
+    x, u, aux = random_batch(batch)
+    inputs = u[:, None, :] + 0.3 * torch.randn(batch, 20, 4, dtype=torch.float64)
+    params = [
+        dataclasses.replace(
+            OTHER_PARAMS if i % 2 else PARAMS,
+            mass_load=0.05 + 0.03 * i,
+            cable_length=0.5 + 0.1 * i,
+            load_damping=0.01 * i,
+        )
+        for i in range(batch)
+    ]
+    constants = VehicleConstants.stack(params, dtype=torch.float64)
+    assert all(c.shape == (batch,) and c.dtype == torch.float64 for c in constants)
+    states, auxes = rollout(x, aux, inputs, constants)
+    for i, p in enumerate(params):
+        want_states, want_aux = rollout(x[i : i + 1], aux[i : i + 1], inputs[i : i + 1], p)
+        torch.testing.assert_close(states[i : i + 1], want_states, rtol=0.0, atol=1e-12)
+        torch.testing.assert_close(auxes[i : i + 1], want_aux, rtol=0.0, atol=1e-12)
+    # The windows do differ: the constants reached each row.
+    alone, _ = rollout(x, aux, inputs, PARAMS)
+    assert not torch.allclose(states[1:], alone[1:])
+
+
+def test_per_window_constants_broadcast_over_more_leading_dimensions():
+    # Windows (B,) each with K candidate input sequences: constants of shape (B, 1).
+    x, u, aux = random_batch(6)
+    params = [PARAMS, OTHER_PARAMS, PARAMS]
+    per_window = VehicleConstants.stack(params, dtype=torch.float64)
+    per_row = VehicleConstants(*(c[:, None] for c in per_window))
+    got, _ = step(x.view(3, 2, -1), u.view(3, 2, -1), aux.view(3, 2, -1), per_row)
+    for b, p in enumerate(params):
+        want, _ = step(x.view(3, 2, -1)[b], u.view(3, 2, -1)[b], aux.view(3, 2, -1)[b], p)
+        torch.testing.assert_close(got[b], want, rtol=0.0, atol=1e-12)
+
+
+def test_per_window_constants_keep_gradients_and_dtype():
+    x, u, aux = random_batch(3, dtype=torch.float32)
+    constants = VehicleConstants.stack([PARAMS, OTHER_PARAMS, PARAMS], dtype=torch.float32)
+    x_next, aux_next = step(x, u, aux, constants)
+    assert x_next.dtype == torch.float32 and aux_next.dtype == torch.float32
+    x, u, aux = random_batch(3)
+    lengths = torch.tensor([0.6, 0.7, 0.8], dtype=torch.float64, requires_grad=True)
+    stacked = VehicleConstants.stack([PARAMS] * 3, dtype=torch.float64)
+    x_next, _ = step(x, u, aux, stacked._replace(cable_length=lengths))
+    x_next[:, POS].sum().backward()
+    assert lengths.grad is not None and (lengths.grad != 0).all()
+    with pytest.raises(ValueError, match="at least one"):
+        VehicleConstants.stack([])

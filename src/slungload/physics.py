@@ -18,11 +18,18 @@ cable constraint (it is the paper's formula); it is not clipped at zero, as in t
 model assumes a taut cable and leaves slack to the learned part. T is the commanded thrust
 times ``params.thrust_gain`` (1 in the paper; fitted by ``slungload identify``).
 
-``params`` is a ``VehicleParams`` or any object with its attributes as tensors
-(``models.constants.LearnedConstants.current()``), so the constants can be fitted by gradient.
+``params`` is a ``VehicleParams`` or a ``VehicleConstants``, the constants' tensor view: one set
+as floats (a dataset's), as 0-d tensors (``models.constants.LearnedConstants.current()``, fitted
+by gradient) or one set per window (``VehicleConstants.stack``): tensors of the states' leading
+shape, e.g. (B,) for x (B, 13), so that a constant of shape (B,) scales a (B, 3) vector as
+(B, 1). Python floats stay floats, so the one-set path is the same arithmetic as with
+``VehicleParams``.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -40,10 +47,59 @@ from .state import (
     split_state,
 )
 
+Constant = float | Tensor  # a float, a 0-d tensor, or one value per window (B,)
 
-def cable_direction(p: Tensor, p_load: Tensor, params: VehicleParams) -> Tensor:
+
+class VehicleConstants(NamedTuple):
+    """The constants ``step`` reads: the fields of ``config.VehicleParams``, in its order and
+    units (a test holds the two equal), as floats (``of``), fitted tensors, or one value per
+    window (``stack``)."""
+
+    mass_quad: Constant
+    mass_load: Constant
+    cable_length: Constant
+    load_damping: Constant
+    dt: Constant
+    gravity: Constant
+    thrust_gain: Constant
+
+    @classmethod
+    def of(cls, params: VehicleParams | VehicleConstants) -> VehicleConstants:
+        """One set as python floats (any object with ``VehicleParams``' attributes)."""
+        return cls(*(float(getattr(params, name)) for name in cls._fields))
+
+    @classmethod
+    def stack(
+        cls,
+        params: Sequence[VehicleParams],
+        *,
+        dtype: torch.dtype | None = None,
+        device: torch.device | str | None = None,
+    ) -> VehicleConstants:
+        """One set per window: each constant a tensor (B,) of the B ``params`` in order (dtype:
+        torch's default; give the states' dtype to keep theirs)."""
+        if not params:
+            raise ValueError("VehicleConstants.stack needs at least one set of constants")
+        return cls(
+            *(
+                torch.tensor([float(getattr(p, name)) for p in params], dtype=dtype, device=device)
+                for name in cls._fields
+            )
+        )
+
+
+Vehicle = VehicleParams | VehicleConstants  # what the functions below take as ``params``
+
+
+def _per_row(c: Constant) -> Constant:
+    """A constant ready to scale vectors (..., 3): floats and 0-d tensors as they are, one value
+    per window (B,) as (B, 1)."""
+    return c.unsqueeze(-1) if isinstance(c, Tensor) and c.dim() > 0 else c
+
+
+def cable_direction(p: Tensor, p_load: Tensor, params: Vehicle) -> Tensor:
     """xi = (pL - p) / l, (..., 3): unit when the cable is at its nominal length."""
-    return (p_load - p) / params.cable_length
+    return (p_load - p) / _per_row(params.cable_length)
 
 
 def thrust_vector(q: Tensor, thrust: Tensor) -> Tensor:
@@ -51,7 +107,7 @@ def thrust_vector(q: Tensor, thrust: Tensor) -> Tensor:
     return quat_to_rotmat(q)[..., :, 2] * thrust.unsqueeze(-1)
 
 
-def tension(xi: Tensor, thrust_w: Tensor, load_rate: Tensor, params: VehicleParams) -> Tensor:
+def tension(xi: Tensor, thrust_w: Tensor, load_rate: Tensor, params: Vehicle) -> Tensor:
     """Cable tension T_L, N, (...,) from xi (..., 3), T R e3 (..., 3) and Omega_L (..., 3)."""
     mq, ml, length = params.mass_quad, params.mass_load, params.cable_length
     m_sum = mq + ml
@@ -60,7 +116,7 @@ def tension(xi: Tensor, thrust_w: Tensor, load_rate: Tensor, params: VehiclePara
 
 
 def accelerations(
-    x: Tensor, u: Tensor, load_rate: Tensor, params: VehicleParams
+    x: Tensor, u: Tensor, load_rate: Tensor, params: Vehicle
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Vehicle and load accelerations, m/s^2, and the load-rate derivative, rad/s^2.
 
@@ -72,22 +128,24 @@ def accelerations(
     xi = cable_direction(p, p_load, params)
     thrust_w = thrust_vector(q, params.thrust_gain * thrust)
     t_load = tension(xi, thrust_w, load_rate, params).unsqueeze(-1)
+    mq, ml = _per_row(params.mass_quad), _per_row(params.mass_load)
     g = torch.zeros_like(p)
     g[..., 2] = params.gravity
-    acc = thrust_w / params.mass_quad - g + (t_load / params.mass_quad) * xi
-    acc_load = -(t_load / params.mass_load) * xi - g
-    rate_dot = -torch.linalg.cross(xi, thrust_w) / (params.mass_quad * params.cable_length)
+    acc = thrust_w / mq - g + (t_load / mq) * xi
+    acc_load = -(t_load / ml) * xi - g
+    rate_dot = -torch.linalg.cross(xi, thrust_w) / (mq * _per_row(params.cable_length))
     return acc, acc_load, rate_dot
 
 
-def step(x: Tensor, u: Tensor, aux: Tensor, params: VehicleParams) -> tuple[Tensor, Tensor]:
+def step(x: Tensor, u: Tensor, aux: Tensor, params: Vehicle) -> tuple[Tensor, Tensor]:
     """One step of the discrete model: (x_k, u_k, a_k) -> (x_{k+1}, a_{k+1}).
 
     x (..., 13) state, u (..., 4) input, aux (..., 6) = (vL, Omega_L) the unmeasured load
-    velocity (m/s) and load angular velocity (rad/s). Leading dimensions broadcast.
+    velocity (m/s) and load angular velocity (rad/s). Leading dimensions broadcast, the
+    constants' too (one per window: shape (B,) for x (B, 13); see the module's docstring).
     The returned quaternion is renormalised.
     """
-    h = params.dt
+    h = _per_row(params.dt)
     p, v, q, p_load = split_state(x)
     _, rates = split_input(u)
     v_load, load_rate = aux[..., LOAD_VEL], aux[..., LOAD_RATE]
@@ -97,18 +155,17 @@ def step(x: Tensor, u: Tensor, aux: Tensor, params: VehicleParams) -> tuple[Tens
     p_load_next = p_load + h * v_load + 0.5 * h * h * acc_load
     v_load_next = v_load + h * acc_load
     q_next = quat_normalize(quat_mul(q, quat_from_rotvec(h * rates)))
-    rate_next = (1.0 - params.load_damping) * load_rate + h * rate_dot
+    rate_next = (1.0 - _per_row(params.load_damping)) * load_rate + h * rate_dot
     x_next = join_state(p_next, v_next, q_next, p_load_next)
     return x_next, torch.cat([v_load_next, rate_next], dim=-1)
 
 
-def rollout(
-    x0: Tensor, aux0: Tensor, inputs: Tensor, params: VehicleParams
-) -> tuple[Tensor, Tensor]:
+def rollout(x0: Tensor, aux0: Tensor, inputs: Tensor, params: Vehicle) -> tuple[Tensor, Tensor]:
     """Open-loop physics-only prediction (the paper's "physics" row).
 
     x0 (..., 13) last measured state x_{M-1}; aux0 (..., 6) its estimated (vL, Omega_L);
-    inputs (..., N, 4) the true inputs u_{M-1} ... u_{M+N-2}.
+    inputs (..., N, 4) the true inputs u_{M-1} ... u_{M+N-2}; params one set of constants or
+    one per window (shaped as x0's leading dimensions).
     Returns states (..., N, 13) = x_M ... x_{M+N-1} and aux (..., N, 6).
     """
     states, auxes = [], []

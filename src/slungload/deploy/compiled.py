@@ -58,6 +58,7 @@ from ..config import VehicleParams
 from ..data.flight import LOAD_FIT_STEPS, load_fit_coefficients
 from ..models.lstm_attention import SlungLoadNet
 from ..models.physics_step import PhysicsStepNet
+from ..physics import VehicleConstants
 from ..state import INPUT_DIM, STATE_DIM
 from .predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
 
@@ -81,23 +82,6 @@ _SQRT1_2 = 0.7071067811865476
 # Abramowitz & Stegun 7.1.26: erf(x) = 1 - t (a1 + t (a2 + ...)) exp(-x^2), t = 1 / (1 + p x).
 _ERF_P = 0.3275911
 _ERF_A = (0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429)
-
-
-class VehicleConstants(NamedTuple):
-    """The constants ``physics.step`` reads (``config.VehicleParams``), as plain floats, SI."""
-
-    mass_quad: float  # kg, m_Q
-    mass_load: float  # kg, m_L
-    cable_length: float  # m, l
-    load_damping: float  # -, d per step
-    dt: float  # s, h
-    gravity: float  # m/s^2, g
-    thrust_gain: float  # -, achieved / commanded thrust
-
-    @classmethod
-    def of(cls, params: VehicleParams) -> VehicleConstants:
-        """The constants of ``params`` (any object with ``VehicleParams``' attributes)."""
-        return cls(*(float(getattr(params, name)) for name in cls._fields))
 
 
 class FoldedWeights(NamedTuple):
@@ -136,7 +120,7 @@ class FoldedWeights(NamedTuple):
     origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (model.origin)
     architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
     physics_step: bool  # x_{k+1} = f(x_k, u_k, a_k) + head(...) (``PhysicsStepNet``)
-    vehicle: VehicleConstants  # f's constants (the model's; defaults where f is not used)
+    vehicle: VehicleConstants  # f's constants as floats (the model's; defaults where f is unused)
     # The smoothed load estimate's weights (``data.flight.load_fit_coefficients``): row K - 3
     # holds the K weights for a window of K = min(M, LOAD_FIT_STEPS) steps; (0, 0) for the
     # backward difference.
@@ -727,7 +711,6 @@ __all__ = [
     "PARITY_TOLERANCE",
     "CompiledPredictor",
     "FoldedWeights",
-    "VehicleConstants",
     "fold",
     "unsupported",
 ]

@@ -14,27 +14,15 @@ the initial constants (to rounding) (from ``vehicle.json`` or the defaults).
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import torch
-from torch import Tensor, nn
+from torch import nn
 
 from ..config import VehicleParams
+from ..physics import VehicleConstants
 
 POSITIVE = ("mass_load", "cable_length", "thrust_gain")  # fitted as initial * exp(theta)
 FITTED = (*POSITIVE, "load_damping")
-
-
-class Constants(NamedTuple):
-    """The constants ``physics.step`` reads, as tensors (fitted) or floats (fixed)."""
-
-    mass_quad: Tensor | float
-    mass_load: Tensor | float
-    cable_length: Tensor | float
-    load_damping: Tensor | float
-    dt: float
-    gravity: float
-    thrust_gain: Tensor | float
 
 
 class LearnedConstants(nn.Module):
@@ -52,16 +40,17 @@ class LearnedConstants(nn.Module):
         self.fitted = tuple(name for name in FITTED if name in fitted)
         self.theta = nn.Parameter(torch.zeros(len(self.fitted), dtype=torch.float64))
 
-    def current(self) -> Constants:
-        """The constants now (differentiable in ``theta``), float64 tensors where fitted."""
-        values = {name: getattr(self.initial, name) for name in Constants._fields}
+    def current(self) -> VehicleConstants:
+        """The constants now (differentiable in ``theta``): 0-d float64 tensors where fitted,
+        the initial floats elsewhere."""
+        values = {name: getattr(self.initial, name) for name in VehicleConstants._fields}
         for i, name in enumerate(self.fitted):
             if name == "load_damping":
                 d0 = self.initial.load_damping
                 values[name] = torch.sigmoid(math.log(d0 / (1.0 - d0)) + self.theta[i])
             else:
                 values[name] = values[name] * torch.exp(self.theta[i])
-        return Constants(**values)
+        return VehicleConstants(**values)
 
     def params(self) -> VehicleParams:
         """The constants now as plain ``VehicleParams`` (for files and the physics predictor)."""
