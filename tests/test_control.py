@@ -1,5 +1,6 @@
-"""Model-predictive control: prediction models behind one interface, the sampling MPC, its
-safety (limits, fallbacks, the arena) and the closed-loop command (docs/control.md)."""
+"""Model-predictive control: the controller's history, the sampling MPC, its safety (limits,
+fallbacks, the arena) and the closed-loop command (docs/control.md). The prediction models it
+runs are tested in test_prediction.py."""
 
 from __future__ import annotations
 
@@ -12,16 +13,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from flights import TINY
 
 from slungload import physics
 from slungload.config import VehicleParams
 from slungload.control.closed_loop import Arena, flight_metrics, fly
+from slungload.control.history import History
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC, state_from_measurement
-from slungload.control.prediction import History, NetworkModel, PhysicsModel, load_prediction_model
 from slungload.control.report import target_check
-from slungload.data.flight import estimate_load_state
-from slungload.models import MODELS, build
+from slungload.models.prediction import PhysicsModel
 from slungload.sim.config import SimConfig
 from slungload.sim.controller import Measurement
 from slungload.sim.maneuvers import Reference
@@ -49,49 +48,7 @@ def hold_reference(point, steps: int) -> Reference:
     return Reference(pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros(steps))
 
 
-def random_history(m: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    x = torch.from_numpy(np.tile(hover_state(), (m, 1)))
-    x = x + 0.01 * torch.randn(x.shape, generator=gen, dtype=torch.float64)
-    x[:, QUAT] = x[:, QUAT] / x[:, QUAT].norm(dim=-1, keepdim=True)
-    u = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64).repeat(m - 1, 1)
-    return x, u + 0.1 * torch.randn(u.shape, generator=gen, dtype=torch.float64)
-
-
-# --- the prediction interface ----------------------------------------------------------
-
-
-def test_physics_model_is_the_rollout_from_the_causal_load_estimate():
-    gen = torch.Generator().manual_seed(0)
-    x_hist, u_past = random_history(5, gen)
-    plans = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64) + 0.5 * torch.randn(
-        7, 12, 4, generator=gen, dtype=torch.float64
-    )
-    got = load_prediction_model("physics").predict(x_hist, u_past, plans)
-    aux = estimate_load_state(x_hist, PARAMS)[-1]
-    want, _ = physics.rollout(x_hist[-1].expand(7, 13), aux.expand(7, 6), plans, PARAMS)
-    assert got.shape == (7, 12, 13)
-    torch.testing.assert_close(got, want, rtol=0, atol=1e-12)
-
-
-@pytest.mark.parametrize("architecture", sorted(MODELS))
-def test_network_model_is_forward_with_the_candidate_as_the_last_history_input(architecture):
-    # Every registered architecture plugs in through forward_candidates, which runs the encoder
-    # once over the shared rows: it must equal forward per candidate, where the candidate u_k
-    # pairs with x_k (the history's last input row) and the predictions are x_{k+1} ... x_{k+N}.
-    torch.manual_seed(0)
-    net = build(replace(TINY, architecture=architecture), PARAMS).double().eval()
-    gen = torch.Generator().manual_seed(1)
-    x_hist, u_past = random_history(6, gen)
-    plans = torch.tensor([HOVER_T, 0, 0, 0], dtype=torch.float64) + torch.randn(
-        5, 4, 4, generator=gen, dtype=torch.float64
-    )
-    got = NetworkModel(net, 6).predict(x_hist, u_past, plans)
-    for i in range(5):
-        u_hist = torch.cat([u_past, plans[i, :1]])[None]
-        u_future = torch.cat([plans[i, 1:], torch.zeros(1, 4, dtype=torch.float64)])[None]
-        want = net(x_hist[None], u_hist, u_future).states[0]  # its last input is unused
-        want[:, QUAT] = want[:, QUAT] / want[:, QUAT].norm(dim=-1, keepdim=True)
-        torch.testing.assert_close(got[i], want, rtol=1e-10, atol=1e-10)
+# --- the history ------------------------------------------------------------------------
 
 
 def test_history_pads_with_the_first_row_and_keeps_the_last_m():
@@ -151,10 +108,10 @@ class BrokenModel:
         self.bad, self.raises = bad, raises
         self.inner = PhysicsModel(PARAMS)
 
-    def predict(self, x_hist, u_past, plans):
+    def predict_candidates(self, x_hist, u_past, plans):
         if self.raises:
             raise RuntimeError("boom")
-        out = self.inner.predict(x_hist, u_past, plans)
+        out = self.inner.predict_candidates(x_hist, u_past, plans)
         out[slice(None) if self.bad is None else self.bad] = math.nan
         return out
 

@@ -1,8 +1,10 @@
-"""Evaluation metrics, predictors and timing, on windows rolled out by the physics model."""
+"""Evaluation metrics, prediction models over windows and timing, on windows rolled out by the
+physics model."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
@@ -17,10 +19,10 @@ from slungload.deploy.predictor import Predictor as Facade
 from slungload.deploy.timing import time_compiled, time_inference, time_models
 from slungload.evaluation.evaluator import Candidate, evaluate_predictors, horizon_windows
 from slungload.evaluation.metrics import COMBINED, group_errors, metrics_from_errors
-from slungload.evaluation.predictors import NetworkPredictor, PhysicsPredictor
 from slungload.evaluation.results import PHYSICS
 from slungload.models.base import Prediction
 from slungload.models.lstm_attention import SlungLoadNet
+from slungload.models.prediction import NetworkModel, PhysicsModel
 from slungload.state import GROUPS, POS, QUAT, quat_from_rotvec, quat_mul
 
 torch.set_num_threads(1)
@@ -44,19 +46,28 @@ def timing_windows(physics_flight) -> Windows:
     return make_windows([flight], WindowConfig(history=M, horizon=N))
 
 
-def truth_predictor(windows: Windows) -> Tensor:
+def truth_states(windows: Windows) -> Tensor:
     return windows.future.states.clone()
 
 
-def offset_predictor(offset: Tensor):
+def offset_states(windows: Windows, offset: Tensor) -> Tensor:
     """Truth plus a constant position offset (m)."""
+    pred = windows.future.states.clone()
+    pred[..., POS] += offset
+    return pred
 
-    def predict(windows: Windows) -> Tensor:
-        pred = windows.future.states.clone()
-        pred[..., POS] += offset
-        return pred
 
-    return predict
+@dataclass
+class OffsetModel:
+    """A prediction model that knows the future: truth plus a constant position offset (m).
+    Evaluation calls only ``predict_windows``."""
+
+    offset: Tensor
+    name: str = "offset"
+    history: int = M
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        return offset_states(windows, self.offset)
 
 
 class HoldNet(nn.Module):
@@ -77,7 +88,7 @@ class HoldNet(nn.Module):
 
 
 def test_perfect_predictor_has_zero_error(windows):
-    m = metrics_from_errors(group_errors(truth_predictor(windows), windows.future.states))
+    m = metrics_from_errors(group_errors(truth_states(windows), windows.future.states))
     assert m.windows == len(windows) and m.horizon == N
     for key, value in m.rmse.items():
         assert value == pytest.approx(0.0, abs=1e-7), key
@@ -87,7 +98,7 @@ def test_perfect_predictor_has_zero_error(windows):
 
 def test_constant_position_offset(windows):
     d = torch.tensor([0.3, -0.4, 1.2])
-    m = metrics_from_errors(group_errors(offset_predictor(d)(windows), windows.future.states))
+    m = metrics_from_errors(group_errors(offset_states(windows, d), windows.future.states))
     size = float(d.norm())  # 1.3 m
     c = m.curves["position"]
     for arr in (c.mean, c.q1, c.median, c.q3):
@@ -161,18 +172,18 @@ def test_errors_reject_shape_mismatch(windows):
         group_errors(windows.future.states[:, :-1], windows.future.states)
 
 
-# --- predictors -----------------------------------------------------------------------------
+# --- prediction models over windows ---------------------------------------------------------
 
 
-def test_physics_predictor_reproduces_physics_data(windows):
-    pred = PhysicsPredictor(PARAMS)(windows)
+def test_physics_model_reproduces_physics_data(windows):
+    pred = PhysicsModel(PARAMS).predict_windows(windows)
     assert pred.shape == windows.future.states.shape
     m = metrics_from_errors(group_errors(pred, windows.future.states))
     for key, value in m.rmse.items():
         assert value < 1e-4, key
 
 
-def test_physics_predictor_uses_only_history_and_inputs(windows):
+def test_physics_model_uses_only_history_and_inputs(windows):
     spoiled = Windows(
         states=windows.states.clone(),
         inputs=windows.inputs,
@@ -184,11 +195,12 @@ def test_physics_predictor_uses_only_history_and_inputs(windows):
     )
     spoiled.states[:, M:] = 99.0
     spoiled.aux[:, M:] = 99.0
-    torch.testing.assert_close(PhysicsPredictor(PARAMS)(spoiled), PhysicsPredictor(PARAMS)(windows))
+    model = PhysicsModel(PARAMS)
+    torch.testing.assert_close(model.predict_windows(spoiled), model.predict_windows(windows))
 
 
-def test_network_predictor_normalises_quaternion_and_batches(windows):
-    pred = NetworkPredictor(HoldNet(), batch_size=7)(windows)
+def test_network_model_normalises_quaternion_and_batches(windows):
+    pred = NetworkModel(HoldNet(), M, batch_size=7).predict_windows(windows)
     assert pred.shape == (len(windows), N, 13)
     torch.testing.assert_close(pred[..., QUAT].norm(dim=-1), torch.ones(len(windows), N))
     last = windows.states[:, M - 1]
@@ -259,9 +271,9 @@ def test_evaluate_predictors_mean_and_std_across_seeds(flights):
     d1, d2 = torch.tensor([0.1, 0.0, 0.0]), torch.tensor([0.0, 0.3, 0.0])
     report = evaluate_predictors(
         [
-            Candidate(PHYSICS, PhysicsPredictor(PARAMS)),
-            Candidate("proposed", offset_predictor(d1), seed=0),
-            Candidate("proposed", offset_predictor(d2), seed=1),
+            Candidate(PHYSICS, PhysicsModel(PARAMS)),
+            Candidate("proposed", OffsetModel(d1), seed=0),
+            Candidate("proposed", OffsetModel(d2), seed=1),
         ],
         per_n,
         params=PARAMS,

@@ -20,11 +20,11 @@ from slungload.data.windows import make_windows
 from slungload.deploy.timing import time_models
 from slungload.evaluation.evaluator import Candidate, evaluate, evaluate_predictors
 from slungload.evaluation.metrics import METRIC_KEYS
-from slungload.evaluation.predictors import NetworkPredictor, PhysicsPredictor
 from slungload.evaluation.report import write_report
 from slungload.evaluation.results import PAPER_RMSE_N50, PHYSICS, Report
 from slungload.experiment import evaluate_runs
 from slungload.models.base import Prediction
+from slungload.models.prediction import NetworkModel, PhysicsModel
 from slungload.state import GROUPS, VEL
 
 torch.set_num_threads(1)
@@ -54,11 +54,11 @@ def report(physics_flight) -> Report:
     windows = {n: make_windows(flights, WindowConfig(history=M, horizon=n)) for n in (N, 2 * N)}
     # A physics model with the wrong load mass, so that it has an error like the real one.
     mismatched = dataclasses.replace(PARAMS, mass_load=0.2, cable_length=0.6)
-    candidates = [Candidate(PHYSICS, PhysicsPredictor(mismatched))]
+    candidates = [Candidate(PHYSICS, PhysicsModel(mismatched))]
     for label, seed, offset in (("proposed", 0, 0.1), ("proposed", 1, 0.2), ("no-physics", 0, 0.5)):
         net = OffsetNet(offset)
         candidates.append(
-            Candidate(label, NetworkPredictor(net), seed, net, {"run": f"runs/{label}-{seed}"})
+            Candidate(label, NetworkModel(net, M), seed, net, {"run": f"runs/{label}-{seed}"})
         )
     return evaluate_predictors(
         candidates,

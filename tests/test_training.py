@@ -355,14 +355,15 @@ def test_yaw_augmentation_is_a_symmetry_of_the_loss(dataset) -> None:
 # --- the "physics-relative" step weighting --------------------------------------------------
 
 
-def test_physics_step_mse_is_the_physics_predictors_error(dataset) -> None:
-    from slungload.evaluation.predictors import PhysicsPredictor
+def test_physics_step_mse_is_the_physics_models_error(dataset) -> None:
+    from slungload.models.prediction import PhysicsModel
     from slungload.state import GROUPS, group_errors
     from slungload.training.trainer import physics_step_mse
 
     windows = dataset.splits["train"]
     mse = physics_step_mse(windows, dataset.params, batch_size=7)  # several batches
-    errors = group_errors(PhysicsPredictor(dataset.params)(windows), windows.future.states)
+    predicted = PhysicsModel(dataset.params).predict_windows(windows)
+    errors = group_errors(predicted, windows.future.states)
     expected = torch.stack([errors[g].square().mean(0) for g in GROUPS])
     torch.testing.assert_close(mse, expected)
     assert mse.shape == (len(GROUPS), dataset.window.horizon)

@@ -1,7 +1,8 @@
 """Model-predictive control of the vehicle and its slung load, flown in the simulator.
 
-``prediction``: prediction models behind one interface (the physics model, any trained network
-of ``models.MODELS`` from a run folder); ``mpc``: the sampling (MPPI) controller that meets
+``history``: the measured states and applied inputs the controller keeps for its prediction
+model (``models.prediction``: the physics model or any trained network of ``models.MODELS``,
+through ``predict_candidates``); ``mpc``: the sampling (MPPI) controller that meets
 ``sim.controller.Controller``; ``closed_loop``: guarded flights and their metrics;
 ``report``: ``slungload control``'s comparison, report.md and figures (docs/control.md).
 

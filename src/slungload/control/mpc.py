@@ -2,13 +2,14 @@
 
 At every control step k (period h = 0.03 s, the data rate) the controller
 
-1. appends the measured state x_k to its history (``prediction.History``);
+1. appends the measured state x_k to its history (``history.History``);
 2. samples K input sequences u_k ... u_{k+N-1} around its nominal plan (the previous plan
    shifted by one step, its last row repeated): smooth noise (``MPCConfig.knots`` Gaussian
    control points per channel, linearly interpolated over the horizon), **clamped to the
    thrust and body-rate limits**, so every sample, and every convex combination of samples,
    is within them by construction; sample 0 is the nominal plan itself;
-3. predicts their N-step outcomes with its ``PredictionModel``;
+3. predicts their N-step outcomes with its ``models.prediction.PredictionModel``
+   (``predict_candidates``);
 4. scores them (``trajectory_cost``): vehicle position and velocity against the reference
    ahead, load position against its reference (vehicle reference minus l e3), load swing
    (horizontal cable offset), yaw, tilt beyond ``max_tilt``, input effort about hover and
@@ -36,11 +37,12 @@ import torch
 from torch import Tensor
 
 from ..config import VehicleParams
+from ..models.prediction import PredictionModel
 from ..sim.config import SimConfig
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
 from ..state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL
-from .prediction import History, PredictionModel
+from .history import History
 
 
 @dataclass(frozen=True)
@@ -262,7 +264,7 @@ class SamplingMPC:
         m = self.history.m
         x_hist, u_past = self.history.window(self.plan[0].numpy())
         try:
-            states = self.model.predict(x_hist[-m:], u_past[-(m - 1) :], samples)
+            states = self.model.predict_candidates(x_hist[-m:], u_past[-(m - 1) :], samples)
         except (RuntimeError, ValueError, FloatingPointError) as exc:
             return None, f"prediction error ({type(exc).__name__})"
         if states.shape != (*samples.shape[:2], STATE_DIM):

@@ -28,12 +28,12 @@ from matplotlib.figure import Figure
 from ..config import VehicleParams
 from ..evaluation.machine import cpu_model
 from ..fileio import atomic_path, write_json, write_npz, write_text
+from ..models.prediction import PHYSICS, PredictionModel, load_prediction_model
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.maneuvers import MANEUVERS
 from .closed_loop import Arena, FlightLog, flight_metrics, fly, swing_angle
 from .mpc import InputLimits, MPCConfig, SamplingMPC
-from .prediction import PHYSICS, PredictionModel, load_prediction_model
 
 AGGRESSIVE = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")  # the aggressive maneuvers
 DEFAULT_MANEUVERS = AGGRESSIVE

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import VehicleParams, WindowConfig, to_dict
+from ..config import WindowConfig, to_dict
 from ..physics import rollout
 from ..state import STATE_DIM
 
@@ -163,16 +163,28 @@ def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windo
     return Windows(**out, names=tuple(f.name for f in flights), window=window)
 
 
-def physics_rollout(windows: Windows, params: VehicleParams, batch_size: int = 8192) -> Tensor:
+def physics_rollout(windows: Windows, params: Any, batch_size: int | None = 8192) -> Tensor:
     """The physics-only open-loop prediction of every window (the paper's "physics" row),
     (W, N, 13) float64: ``physics.rollout`` from the last history state x_{M-1} with the data's
-    load-state estimate there and the true inputs u_{M-1} ... u_{M+N-2}, ``batch_size``
-    windows at a time."""
-    m, n = windows.window.history, windows.window.horizon
-    parts = [torch.zeros(0, n, STATE_DIM, dtype=torch.float64)]
+    load-state estimate there and the true inputs u_{M-1} ... u_{M+N-2}.
+
+    The one place that cuts a window for the physics model: the physics prediction model,
+    training's ``physics_step_mse`` and ``identify``'s fit all call it. params: a
+    ``VehicleParams`` or anything with its attributes (e.g. fitted constants as float64
+    tensors); nothing is detached, so the result is differentiable in them. batch_size:
+    windows per rollout, or None for all at once (no copy into a joined result).
+    """
+    if batch_size is None:
+        return _rollout_from_history(windows, params)
+    parts = [torch.zeros(0, windows.window.horizon, STATE_DIM, dtype=torch.float64)]
     for i in range(0, len(windows), batch_size):
-        w = windows[i : i + batch_size]
-        x0, aux0 = w.states[:, m - 1].double(), w.aux[:, m - 1].double()
-        states, _ = rollout(x0, aux0, w.inputs[:, m - 1 : m + n - 1].double(), params)
-        parts.append(states)
+        parts.append(_rollout_from_history(windows[i : i + batch_size], params))
     return torch.cat(parts)
+
+
+def _rollout_from_history(windows: Windows, params: Any) -> Tensor:
+    """One batch: x_{M-1}, aux_{M-1}, u_{M-1} ... u_{M+N-2} -> (W, N, 13) float64."""
+    m, n = windows.window.history, windows.window.horizon
+    x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
+    states, _ = rollout(x0, aux0, windows.inputs[:, m - 1 : m + n - 1].double(), params)
+    return states

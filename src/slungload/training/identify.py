@@ -17,9 +17,8 @@ from torch import Tensor
 
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import Dataset, load_dataset
-from ..data.windows import Windows, make_windows
+from ..data.windows import Windows, make_windows, physics_rollout
 from ..models.constants import FITTED, LearnedConstants
-from ..physics import rollout
 from ..state import group_errors
 
 
@@ -52,11 +51,7 @@ class Identification:
 def rollout_error(constants: LearnedConstants, windows: Windows) -> Tensor:
     """Mean squared rollout error of the physics model with ``constants`` on ``windows``
     (history M = 1 or more: the rollout starts at x_{M-1}), summed over the state groups."""
-    m, n = windows.window.history, windows.window.horizon
-    x0 = windows.states[:, m - 1].double()
-    aux0 = windows.aux[:, m - 1].double()
-    inputs = windows.inputs[:, m - 1 : m + n - 1].double()
-    predicted, _ = rollout(x0, aux0, inputs, constants.current())
+    predicted = physics_rollout(windows, constants.current(), batch_size=None)
     errors = group_errors(predicted, windows.future.states.double())
     return sum(e.square().mean() for e in errors.values())
 

@@ -1,0 +1,165 @@
+"""Prediction models: what evaluation and control predict with, behind one contract.
+
+Contract (``PredictionModel``), two entry points over the same model::
+
+    model.predict_windows(windows) -> states (W, N, 13)                        evaluation
+    model.predict_candidates(x_hist (M, 13), u_past (M-1, 4), plans (K, N, 4))
+                                   -> states (K, N, 13)                        control
+
+Both return the predicted states in physical units with unit quaternions (w-x-y-z).
+
+- ``predict_windows``: a batch of ``data.Windows``, states (W, M+N, 13), inputs and aux; only
+  the history, the inputs and the aux at the last history step are used. Returns
+  x_hat_M ... x_hat_{M+N-1}, in the windows' dtype for the physics model and float32 for a
+  network (what evaluation compares).
+- ``predict_candidates``: x_hist holds the last M measured states x_{k-M+1} ... x_k, u_past
+  the inputs applied at x_{k-M+1} ... x_{k-1}, and plans K candidate input sequences
+  u_k ... u_{k+N-1} (u_k is applied at x_k, the step being decided). Returns the predicted
+  x_{k+1} ... x_{k+N} per candidate, in the plans' dtype.
+
+The two agree: the candidates equal the windows whose history is (x_hist, [u_past; u_k]) and
+whose future inputs are the rest of each plan (a test holds it for both implementations).
+``history`` is the M that ``predict_candidates`` needs; ``name`` labels the model in reports.
+
+- ``PhysicsModel``: the paper's discrete model rolled out open loop from x_{M-1}
+  (``physics.rollout``, float64): over windows with the data's load-state estimate at step
+  M-1 (``data.windows.physics_rollout``, the one physics-only rollout over windows, which
+  training and ``identify`` share); over candidates with the same causal estimate from the
+  last two measured states (``data.flight.estimate_load_state``).
+- ``NetworkModel``: any registered architecture (``models.MODELS``) in eval mode: ``forward``
+  over windows in batches, ``forward_candidates`` over candidates (the encoder runs once over
+  the M - 1 rows the candidates share; equal to ``forward`` per candidate). Its quaternion is
+  normalised and its slack outputs are dropped.
+
+``load_prediction_model("physics" | run folder | .ckpt)`` builds either. The numpy facade for
+embedding a network in a user's own controller is ``deploy.Predictor``, a different thing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+import torch
+from torch import Tensor, nn
+
+from .. import physics
+from ..config import VehicleParams
+from ..data.flight import estimate_load_state
+from ..data.windows import Windows, physics_rollout
+from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
+from ..state import with_unit_quaternion
+from .checkpoints import load_checkpoint
+
+PHYSICS = "physics"  # the name that selects the physics model (``load_prediction_model``)
+
+
+@runtime_checkable
+class PredictionModel(Protocol):
+    """A model that predicts N future states (see the module)."""
+
+    name: str
+    history: int  # M: measured states ``predict_candidates`` needs (>= 2)
+
+    def predict_windows(self, windows: Windows) -> Tensor: ...
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor: ...
+
+
+@dataclass
+class PhysicsModel:
+    """The paper's discrete model rolled out from the last measured state (float64 inside).
+
+    batch_size: windows per rollout in ``predict_windows``.
+    """
+
+    params: VehicleParams
+    name: str = PHYSICS
+    history: int = 2
+    batch_size: int = 8192
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        return physics_rollout(windows, self.params, self.batch_size).to(windows.states.dtype)
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        check_candidates(x_hist, u_past, plans)
+        x_hist = x_hist.to(plans.dtype)
+        aux = estimate_load_state(x_hist[-2:], self.params)[-1]  # (6,) causal, steps k-1 and k
+        k = plans.shape[0]
+        states, _ = physics.rollout(
+            x_hist[-1].expand(k, STATE_DIM), aux.expand(k, AUX_DIM), plans, self.params
+        )
+        return states
+
+
+@dataclass
+class NetworkModel:
+    """A trained network (any registered architecture) in eval mode, physical units.
+
+    history: the M it was trained with; batch_size: windows per forward pass in
+    ``predict_windows``; device: where the network runs (moved there once).
+    """
+
+    net: nn.Module
+    history: int
+    name: str = "network"
+    batch_size: int = 1024
+    device: str | torch.device = "cpu"
+
+    def __post_init__(self) -> None:
+        self.net.eval()
+        self.net.to(self.device)
+        self.dtype = next(self.net.parameters()).dtype
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        m = windows.window.history
+        self.net.eval()
+        self.net.to(self.device)
+        out = []
+        with torch.inference_mode():
+            for i in range(0, len(windows), self.batch_size):
+                w = windows[i : i + self.batch_size].to(self.device)
+                pred = self.net(w.states[:, :m], w.inputs[:, :m], w.inputs[:, m:])
+                out.append(with_unit_quaternion(pred.states).float().cpu())
+        if not out:
+            return windows.states.new_zeros(0, windows.window.horizon, STATE_DIM)
+        return torch.cat(out)
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        check_candidates(x_hist, u_past, plans)
+        device, dtype = self.device, self.dtype
+        with torch.inference_mode():
+            states = self.net.forward_candidates(
+                x_hist.to(device, dtype), u_past.to(device, dtype), plans.to(device, dtype)
+            ).states
+        return with_unit_quaternion(states).to(plans.device, plans.dtype)
+
+
+def load_prediction_model(spec: str | Path, params: VehicleParams | None = None) -> PredictionModel:
+    """``"physics"`` (the discrete model with ``params``, default ``VehicleParams()``), or a
+    run folder / ``.ckpt`` of any registered architecture, named after its folder."""
+    if str(spec) == PHYSICS:
+        return PhysicsModel(params or VehicleParams())
+    loaded = load_checkpoint(spec)
+    path = Path(spec)
+    label = path.name if path.is_dir() else path.parent.name
+    return NetworkModel(loaded.model, loaded.window.history, name=label)
+
+
+def check_candidates(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> None:
+    """``predict_candidates``' shapes: x_hist (M >= 2, 13), u_past (M-1, 4), plans (K, N, 4)."""
+    ok = (
+        x_hist.dim() == 2
+        and x_hist.shape[1] == STATE_DIM
+        and x_hist.shape[0] >= 2
+        and u_past.shape == (x_hist.shape[0] - 1, INPUT_DIM)
+        and plans.dim() == 3
+        and plans.shape[-1] == INPUT_DIM
+    )
+    if not ok:
+        raise ValueError(
+            f"predict_candidates: expected x_hist (M>=2, {STATE_DIM}), u_past (M-1, "
+            f"{INPUT_DIM}), plans (K, N, {INPUT_DIM}); got {tuple(x_hist.shape)}, "
+            f"{tuple(u_past.shape)}, {tuple(plans.shape)}"
+        )
