@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import argparse
 import csv
+import dataclasses
 import json
 import math
 
 import pytest
 
-from slungload.cli import main
-from slungload.cli.common import seed_range
+from slungload.cli import build_parser, common, main
+from slungload.cli.common import seed_range, vehicle_overrides
+from slungload.config import VehicleParams, constant
 from slungload.evaluation.results import PAPER_RMSE_N50
 
 
@@ -141,3 +144,67 @@ def test_export_help_says_what_out_takes(capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "existing folder, to write <run name>-n<N>.onnx there" in text
     assert "A missing folder is an error, not created" in text
+
+
+# --- vehicle constants: options, help and overrides made from VehicleParams -------------------
+
+
+def _commands_with_vehicle_options() -> dict[str, argparse.ArgumentParser]:
+    (sub,) = (a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return {
+        name: p
+        for name, p in sub.choices.items()
+        if any("--mass-quad" in a.option_strings for a in p._actions)
+    }
+
+
+def test_every_command_with_vehicle_options_prints_the_real_defaults(capsys):
+    commands = _commands_with_vehicle_options()
+    assert {"train", "identify", "import", "inspect"} <= set(commands)
+    defaults = VehicleParams()
+    for command in commands:
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        for field in dataclasses.fields(VehicleParams):
+            value, unit = getattr(defaults, field.name), field.metadata["unit"]
+            symbol = field.metadata["symbol"]
+            # The group's description lists every default with its symbol and unit ...
+            listed = f"{symbol} {value:g}" + ("" if unit == "-" else f" {unit}")
+            assert listed in text, (command, listed)
+            # ... and each option's help states its own.
+            option = f"--{field.name.replace('_', '-')}"
+            assert option in text, (command, option)
+            assert f"{symbol} = {field.metadata['text']}" in text, (command, field.name)
+            assert f"(default {value:g})" in text, (command, field.name)
+        assert "1.54" not in text and "0.67" not in text  # the constants the help once stated
+
+
+def test_vehicle_options_keep_their_names_and_dests():
+    # Users' scripts pass these: the names and dests of before the options were generated.
+    legacy = {
+        "--mass-quad": "mass_quad", "--mass-load": "mass_load", "--cable-length": "cable_length",
+        "--load-damping": "load_damping", "--dt": "dt", "--gravity": "gravity",
+        "--thrust-gain": "thrust_gain",
+    }  # fmt: skip
+    for command, parser in _commands_with_vehicle_options().items():
+        options = {
+            a.option_strings[0]: a.dest for a in parser._actions if a.dest in legacy.values()
+        }
+        assert options == legacy, command
+    args = build_parser().parse_args(["identify", "d", "--cable-length", "0.9", "--dt", "0.02"])
+    assert vehicle_overrides(args) == {"cable_length": 0.9, "dt": 0.02}
+
+
+def test_a_new_vehicle_constant_is_a_new_option(monkeypatch):
+    @dataclasses.dataclass(frozen=True)
+    class Extended(VehicleParams):
+        drag: float = constant(0.3, "N s/m", "cD", "linear drag of the load")
+
+    monkeypatch.setattr(common, "VehicleParams", Extended)
+    parser = argparse.ArgumentParser()
+    common.add_vehicle_options(parser)
+    text = " ".join(parser.format_help().split())
+    assert "cD 0.3 N s/m" in text and "cD = linear drag of the load, N s/m (default 0.3)" in text
+    args = parser.parse_args(["--drag", "0.5", "--mass-load", "0.2"])
+    assert vehicle_overrides(args) == {"mass_load": 0.2, "drag": 0.5}

@@ -18,24 +18,42 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 
 
+def constant(default: float, unit: str, symbol: str, text: str) -> Any:
+    """A field of ``VehicleParams``: its default, SI unit ("-": unitless), the paper's symbol and
+    a one-line description, kept as the field's metadata (the command line's options, their help
+    and ``VehicleParams.summary`` are made from them)."""
+    return dataclasses.field(
+        default=default, metadata={"unit": unit, "symbol": symbol, "text": text}
+    )
+
+
 @dataclass(frozen=True)
 class VehicleParams:
     """Constants of the quadrotor + slung-load model (the paper's Section III-A).
 
     Defaults are the authors' values for an Intel Aero RTF carrying a 100 g cube on a 60 cm
     string; ``cable_length`` is the effective length (string + attachment + half cube).
+    ``thrust_gain`` is not in the paper (its value there is 1): the discrete model applies
+    thrust_gain * T, so a vehicle whose thrust commands are off by a factor (a mapping from
+    normalised throttle, battery sag) is fitted by ``slungload identify``.
+
+    This class is the one home of the vehicle's constants: ``physics.VehicleConstants`` is
+    their tensor view, and the ``--mass-quad`` ... options of every command are made from
+    these fields (``cli.common.add_vehicle_options``).
     """
 
-    mass_quad: float = 1.35  # kg, vehicle mass m_Q
-    mass_load: float = 0.100  # kg, load mass m_L
-    cable_length: float = 0.7  # m, effective cable length l
-    load_damping: float = 0.025  # -, per-step damping d of the load angular velocity
-    dt: float = 0.03  # s, sampling time h
-    gravity: float = 9.81  # m/s^2, g (the paper prints 9.8; the authors' code uses 9.81)
-    # -, achieved thrust per commanded thrust: the discrete model applies thrust_gain * T. Not in
-    # the paper (its value there is 1); a vehicle whose thrust commands are off by a factor (a
-    # mapping from normalised throttle, battery sag) is fitted by ``slungload identify``.
-    thrust_gain: float = 1.0
+    mass_quad: float = constant(1.35, "kg", "mQ", "vehicle mass")
+    mass_load: float = constant(0.100, "kg", "mL", "load mass")
+    cable_length: float = constant(
+        0.7, "m", "l", "effective cable length (string, attachment and half the load)"
+    )
+    load_damping: float = constant(
+        0.025, "-", "d", "per-step damping of the load angular velocity, in [0, 1]"
+    )
+    dt: float = constant(0.03, "s", "h", "sampling time")
+    # The paper prints 9.8; the authors' code uses 9.81.
+    gravity: float = constant(9.81, "m/s^2", "g", "gravity")
+    thrust_gain: float = constant(1.0, "-", "kT", "achieved / commanded thrust (the paper: 1)")
 
     def __post_init__(self) -> None:
         for name in ("mass_quad", "mass_load", "cable_length", "dt", "gravity", "thrust_gain"):
@@ -45,6 +63,14 @@ class VehicleParams:
             raise ValueError(
                 f"VehicleParams.load_damping must be in [0, 1], got {self.load_damping}"
             )
+
+    def summary(self) -> str:
+        """The constants with their symbols and units: "mQ 1.35 kg, mL 0.1 kg, ..., kT 1"."""
+        return ", ".join(
+            f"{f.metadata['symbol']} {getattr(self, f.name):g}"
+            + ("" if f.metadata["unit"] == "-" else f" {f.metadata['unit']}")
+            for f in fields(self)
+        )
 
 
 @dataclass(frozen=True)

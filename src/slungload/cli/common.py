@@ -4,8 +4,11 @@ options and the vehicle-constant options."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 from typing import Any
+
+from ..config import VehicleParams
 
 
 def new_command(sub: Any, name: str, summary: str, description: str) -> argparse.ArgumentParser:
@@ -25,7 +28,7 @@ def choices(kind: str) -> list[str]:
     elif kind == "load-estimates":
         from ..config import LOAD_ESTIMATES as names
     else:
-        from ..training.presets import PRESETS as names
+        from ..run_config import PRESETS as names
     return sorted(names)
 
 
@@ -74,51 +77,35 @@ def add_window_options(p: argparse.ArgumentParser, horizon: int = 25) -> None:
 
 
 def add_vehicle_options(p: argparse.ArgumentParser) -> None:
+    """One option per field of ``config.VehicleParams`` (``--mass-quad`` for ``mass_quad``),
+    its help, unit and default read from the field."""
     g = p.add_argument_group(
         "vehicle constants of the discrete model",
-        "Override the dataset's vehicle.json; without either, the paper's constants apply "
-        "(mQ 1.54 kg, mL 0.21 kg, l 0.67 m, d 0.01, h 0.03 s, g 9.81 m/s^2).",
+        "Override the vehicle.json in use; without one, these defaults apply "
+        f"({VehicleParams().summary()}).",
     )
-    g.add_argument("--mass-quad", dest="mass_quad", type=float, metavar="KG", help="vehicle mass")
-    g.add_argument("--mass-load", dest="mass_load", type=float, metavar="KG", help="load mass")
-    g.add_argument("--cable-length", dest="cable_length", type=float, metavar="M", help="cable")
-    g.add_argument(
-        "--load-damping",
-        dest="load_damping",
-        type=float,
-        metavar="D",
-        help="load damping d per step (unitless, in [0, 1))",
-    )
-    g.add_argument("--dt", type=float, metavar="S", help="sampling time h, s")
-    g.add_argument("--gravity", type=float, metavar="M/S2", help="gravity, m/s^2")
-    g.add_argument(
-        "--thrust-gain",
-        dest="thrust_gain",
-        type=float,
-        metavar="K",
-        help="achieved / commanded thrust (unitless; the paper's model: 1)",
-    )
+    for f in dataclasses.fields(VehicleParams):
+        unit, symbol = f.metadata["unit"], f.metadata["symbol"]
+        g.add_argument(
+            f"--{f.name.replace('_', '-')}",
+            dest=f.name,
+            type=float,
+            metavar=(symbol if unit == "-" else unit).upper().replace("^", ""),
+            help=f"{symbol} = {f.metadata['text']}, {'unitless' if unit == '-' else unit} "
+            f"(default {f.default:g})",
+        )
 
 
 def vehicle_overrides(args: argparse.Namespace) -> dict[str, float]:
-    names = (
-        "mass_quad",
-        "mass_load",
-        "cable_length",
-        "load_damping",
-        "dt",
-        "gravity",
-        "thrust_gain",
-    )
+    """The vehicle constants given on the command line, by ``VehicleParams`` field name."""
+    names = (f.name for f in dataclasses.fields(VehicleParams))
     return {n: getattr(args, n) for n in names if getattr(args, n, None) is not None}
 
 
 def resolve_params(folder: Path, args: argparse.Namespace):
     """Vehicle constants for a dataset folder with the CLI's overrides applied, or None when
-    there are none (the data module then reads vehicle.json or says it uses the paper's)."""
-    import dataclasses
-
-    from ..config import VehicleParams, load_vehicle
+    there are none (the data module then reads vehicle.json or says it uses the defaults)."""
+    from ..config import load_vehicle
 
     overrides = vehicle_overrides(args)
     if not overrides:

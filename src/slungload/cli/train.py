@@ -126,7 +126,7 @@ def add_identify(sub: Any) -> None:
         "System identification: the load mass, cable length, load damping and thrust gain "
         "that make the discrete model's open-loop rollouts (--horizon steps from every "
         "training window) closest to the recorded flights, starting from vehicle.json (or the "
-        "paper's constants). The vehicle mass stays as given. `train --fit-constants` does "
+        "defaults listed below). The vehicle mass stays as given. `train --fit-constants` does "
         "the same before training.",
     )
     p.add_argument("data", type=Path, help="dataset folder")
