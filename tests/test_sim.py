@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from slungload.config import load_vehicle, to_dict
+from slungload.data.split import SPLIT_FRACTIONS, split_flights, windows_of
 from slungload.fileio import FLIGHT_KEYS, read_npz
 from slungload.sim import (
     MANEUVERS,
@@ -30,7 +31,7 @@ from slungload.sim import (
 )
 from slungload.sim.aero import Aero, ou_wind
 from slungload.sim.controller import excitation_signal
-from slungload.sim.dataset import SPLIT_FRACTIONS, flight_plan, split_flights, windows_of
+from slungload.sim.dataset import flight_plan
 from slungload.sim.plant import Plant, PlantParams
 from slungload.sim.sensors import Mocap
 

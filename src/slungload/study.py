@@ -25,6 +25,7 @@ import numpy as np
 
 from .config import DEFAULT_ARCHITECTURE, VEHICLE_FILE, ModelConfig
 from .data.dataset import check_folder, read_splits
+from .data.split import SPLIT_FRACTIONS
 from .evaluation.evaluator import evaluate
 from .evaluation.metrics import COMBINED
 from .evaluation.results import PHYSICS
@@ -33,7 +34,7 @@ from .fileio import write_splits, write_text
 from .run_config import RunConfig
 from .sim import simulate_dataset
 
-TRAIN_SHARE = 0.58  # of a simulated dataset's windows in training (sim.dataset.SPLIT_FRACTIONS)
+TRAIN_SHARE = SPLIT_FRACTIONS["train"]  # of a simulated dataset's windows in training
 
 
 @dataclass(frozen=True)

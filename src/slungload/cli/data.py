@@ -151,6 +151,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def add_split(sub: Any) -> None:
+    from ..data.split import SPLIT_FRACTIONS  # light: no torch, no numpy
+
     p = new_command(
         sub,
         "split",
@@ -162,16 +164,16 @@ def add_split(sub: Any) -> None:
     p.add_argument(
         "--val",
         type=_share_or_names,
-        default=0.17,
+        default=SPLIT_FRACTIONS["val"],
         metavar="SHARE|NAME,NAME",
-        help="share of the flights (default 0.17, the paper's) or their names",
+        help="share of the flights (default %(default)s, the paper's) or their names",
     )
     p.add_argument(
         "--test",
         type=_share_or_names,
-        default=0.25,
+        default=SPLIT_FRACTIONS["test"],
         metavar="SHARE|NAME,NAME",
-        help="share of the flights (default 0.25, the paper's) or their names",
+        help="share of the flights (default %(default)s, the paper's) or their names",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the random draw (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace existing split lists")
@@ -279,11 +281,14 @@ def _add_import_resampling(p: argparse.ArgumentParser) -> None:
 def _add_import_output(p: argparse.ArgumentParser) -> None:
     """How the flights are split into train/val/test, the vehicle constants and the run's
     output."""
+    from ..data.split import shares_text
+
     p.add_argument(
         "--split",
         choices=("seeded", "train"),
         default="seeded",
-        help="a seeded split by flight toward 58/17/25 %% of steps (default), or all in train",
+        help=f"a seeded split by flight toward {shares_text()} %% of windows (default), or all in "
+        "train",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the split (default 0)")
     p.add_argument(

@@ -1,36 +1,103 @@
-"""Split lists for a folder of flights: ``slungload split``.
+"""The split policy: which flights train, validate and test, written once.
 
-Every command needs ``train.txt``, ``val.txt`` and ``test.txt``; this writes them for a user's
-own flights, by flight (never by window, so no flight is in two splits): either the named
-flights go to validation and test and the rest to training, or a seeded random draw takes the
-given shares of the flights.
+Whole flights go to one split each (no window crosses splits). ``SPLIT_FRACTIONS`` are the
+paper's shares of the windows; ``split_flights`` draws towards them (the simulator's and
+``slungload import``'s seeded split), ``split_dataset`` writes the lists of a folder of the
+user's own flights (``slungload split``, the same shares as its defaults), and the data study
+takes its training share from here.
+
+Nothing heavy is imported at module level: the CLI's help reads ``SPLIT_FRACTIONS``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
-from ..fileio import SPLITS, write_splits
-from .dataset import check_folder
+SPLIT_FRACTIONS = {"train": 0.58, "val": 0.17, "test": 0.25}  # of windows, the paper's split
+WINDOW_STEPS = 75  # M + N = 50 + 25: a flight of T steps gives T - 74 windows (stride 1)
+
+
+def shares_text() -> str:
+    """The shares in per cent as the help writes them: ``58/17/25``."""
+    return "/".join(f"{round(100 * f)}" for f in SPLIT_FRACTIONS.values())
+
+
+def windows_of(steps: int, window: int = WINDOW_STEPS) -> int:
+    """Sliding windows (stride 1) of ``window`` steps in a flight of ``steps`` steps."""
+    return max(steps - window + 1, 0)
+
+
+def split_flights(
+    names: list[str],
+    steps: list[int],
+    rng: np.random.Generator,
+    families: list[str] | None = None,
+) -> dict[str, tuple[str, ...]]:
+    """Assign whole flights to train/val/test so each split gets about its share of windows.
+
+    With ``families`` (the maneuver family of each flight), one flight of every family, drawn at
+    random, goes to training first: as in the authors' split, where every family has
+    repetitions in training, the test measures prediction on kinds of maneuver the network has
+    seen rather than extrapolation to new ones. The other flights, in random order and longest
+    first within the draw, each go to the split furthest below its target; every split gets
+    at least one flight when there are three or more.
+    """
+    from ..fileio import SPLITS
+
+    order = list(rng.permutation(len(names)))
+    got = {s: 0 for s in SPLITS}
+    out: dict[str, list[str]] = {s: [] for s in SPLITS}
+    if families is not None:
+        if len(families) != len(names):
+            raise ValueError(f"{len(families)} families for {len(names)} flights")
+        first: dict[str, int] = {}  # family -> its flight drawn first
+        for i in order:
+            if families[i] not in first and len(names) - len(first) > 2:
+                first[families[i]] = i
+                out["train"].append(names[i])
+                got["train"] += windows_of(steps[i])
+        seeded = set(first.values())
+        order = [i for i in order if i not in seeded]
+    total = sum(windows_of(s) for s in steps) or 1
+    order = sorted(order, key=lambda i: -windows_of(steps[i]))
+    for rank, i in enumerate(order):
+        empty = [s for s in SPLITS if not out[s]]
+        if empty and len(order) - rank <= len(empty):
+            split = empty[0]
+        else:
+            split = max(SPLITS, key=lambda s: SPLIT_FRACTIONS[s] * total - got[s])
+        out[split].append(names[i])
+        got[split] += windows_of(steps[i])
+    return {s: tuple(sorted(v)) for s, v in out.items()}
 
 
 def split_dataset(
     folder: str | Path,
     *,
-    val: float | Sequence[str] = 0.17,
-    test: float | Sequence[str] = 0.25,
+    val: float | Sequence[str] = SPLIT_FRACTIONS["val"],
+    test: float | Sequence[str] = SPLIT_FRACTIONS["test"],
     seed: int = 0,
     overwrite: bool = False,
 ) -> dict[str, list[str]]:
-    """Write the split lists of ``folder`` and return them (split -> flight names).
+    """Write the split lists of ``folder`` (``slungload split``) and return them (split ->
+    flight names).
 
-    val, test: a share of the flights in [0, 1) (rounded, at least one flight when the share
-    is positive and there are enough flights), drawn at random with ``seed``; or the names of
-    the flights. Every other flight is training. Existing lists are kept unless ``overwrite``.
+    Every command needs ``train.txt``, ``val.txt`` and ``test.txt``; this writes them for a
+    user's own flights, by flight. val, test: a share of the flights in [0, 1) (rounded, at
+    least one flight when the share is positive and there are enough flights), drawn at random
+    with ``seed``; or the names of the flights. Every other flight is training. Existing lists
+    are kept unless ``overwrite``.
     """
+    import numpy as np
+
+    from ..fileio import SPLITS, write_splits
+    from .dataset import check_folder
+
     folder, files = check_folder(folder)
     names = sorted(files)
     existing = [s for s in SPLITS if (folder / f"{s}.txt").is_file()]
