@@ -531,12 +531,13 @@ def test_a_pool_worker_stops_when_reproduce_is_killed(tmp_path):
     # way a training run does (it raises); the orphaned worker must then exit, not linger.
     tests, marker = str(Path(__file__).parent), tmp_path / "running"
     parent_code = (
-        "import os, sys, time\n"
+        "import functools, os, sys, time\n"
         f"sys.path.insert(0, {tests!r})\n"
         "from flights import stop_gracefully_on_sigterm\n"
         "from slungload.experiment import _pool_job, worker_pool\n"
         "pool = worker_pool(1)\n"
-        f"pool.submit(_pool_job, {str(marker)!r}, os.getpid(), stop_gracefully_on_sigterm)\n"
+        f"job = functools.partial(stop_gracefully_on_sigterm, {str(marker)!r})\n"
+        "pool.submit(_pool_job, job, os.getpid())\n"
         "print(*pool._processes, flush=True)\n"
         "time.sleep(120)\n"
     )

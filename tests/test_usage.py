@@ -160,3 +160,28 @@ def test_run_folders_name_the_architecture_and_the_fit():
     # reproduce's configuration beyond the paper keeps the folder name of its earlier runs
     (beyond,) = BEYOND_PAPER
     assert beyond.folder() == "physics-step-no-physics-mixed-N50-smoothed-s0"
+
+
+# The public names of slungload 0.1.0 as released before the foundations (issue 21) moved
+# their homes; each must still be importable from the package.
+RELEASED_NAMES = (
+    "BenchmarkResult CompiledPredictor Controller Dataset DatasetError DatasetSummary Effects "
+    "ExportResult Flight FlightFormatError FlightWindow GROUPS INPUT_DIM LOSS_VARIANTS "
+    "LoadedModel LossTerms LossWeights MANEUVERS MODELS Measurement ModelConfig "
+    "NetworkPredictor OnnxModelError OnnxPredictor PIDController PRESETS PhysicsPredictor "
+    "PhysicsStepNet Prediction Predictor Preset READERS Report Reproduction Run STATE_DIM "
+    "SimConfig SimulatedDataset SlungLoadNet TrainConfig TrainingDiverged TrainingInterrupted "
+    "VehicleParams WindowConfig Windows benchmark build compute_loss count_parameters "
+    "estimate_load_state evaluate evaluate_runs export flight_window load_checkpoint "
+    "load_dataset load_vehicle make_windows model_config_for quat_error read_flight read_splits "
+    "reproduce rollout simulate_dataset simulate_flight step summarize time_inference train "
+    "write_report __version__"
+).split()
+
+
+def test_every_public_name_resolves_and_the_released_ones_are_kept():
+    import slungload
+
+    assert set(RELEASED_NAMES) <= set(slungload.__all__)
+    for name in slungload.__all__:
+        assert getattr(slungload, name) is not None, name
