@@ -31,6 +31,7 @@ from ..fileio import atomic_path, write_json, write_npz, write_text
 from ..models.prediction import PHYSICS, PredictionModel, load_prediction_model
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
+from ..sim.dataset import vehicle_params
 from ..sim.maneuvers import MANEUVERS
 from .closed_loop import Arena, FlightLog, flight_metrics, fly, swing_angle
 from .mpc import InputLimits, MPCConfig, SamplingMPC
@@ -79,10 +80,7 @@ def compare(
     if unknown:
         raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
     cfg = config or SimConfig()
-    params = VehicleParams(
-        mass_quad=cfg.mass_quad, mass_load=cfg.load_mass, cable_length=cfg.cable_length,
-        dt=cfg.control_dt, gravity=cfg.gravity,
-    )  # fmt: skip
+    params = vehicle_params(cfg)
     limits = InputLimits.from_sim(cfg)
     predictors: list[PredictionModel] = [load_prediction_model(PHYSICS, params)]
     predictors += [load_prediction_model(m) for m in models]
