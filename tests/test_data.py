@@ -1,4 +1,4 @@
-"""Reading flights, estimating the load state, windows, splits and the cache.
+"""Reading flights, estimating the load state, windows, splits, the cache and the writer.
 
 The flights are analytic (``flights.flight_arrays``): a vehicle on a smooth curve with a load
 swinging on a cone around it, in the published schema (quaternions x-y-z-w).
@@ -7,6 +7,8 @@ swinging on a cone around it, in the published schema (quaternions x-y-z-w).
 from __future__ import annotations
 
 import json
+import os
+import stat
 import warnings
 from pathlib import Path
 
@@ -15,11 +17,13 @@ import pytest
 import torch
 from flights import flight_arrays
 
-from slungload.config import VehicleParams, WindowConfig
+from slungload._version import __version__
+from slungload.config import VehicleParams, WindowConfig, to_dict
 from slungload.data.dataset import load_dataset, read_splits
 from slungload.data.flight import DataWarning, FlightFormatError, estimate_load_state
 from slungload.data.readers import read_flight
 from slungload.data.summary import summarize
+from slungload.data.writer import DatasetWriter
 from slungload.fileio import write_npz, write_splits
 from slungload.state import LOAD_RATE, LOAD_VEL, QUAT
 
@@ -399,3 +403,78 @@ def test_summary_names_maneuvers_missing_from_training(tmp_path, write_dataset):
     write_splits(folder, {**splits, "train": [*splits["train"], "roll_35_01"]})
     table = summarize(folder, window=SMALL, params=PARAMS).to_table()
     assert "every maneuver of val and test also has flights in train" in table
+
+
+# --- the dataset writer --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("subfolder", ["", "data"], ids=["simulator-layout", "release-layout"])
+def test_writer_writes_either_layout_and_the_readers_load_it(tmp_path, subfolder):
+    out = tmp_path / "ds"
+    splits = {"train": ["a", "b"], "val": ["c"], "test": ["d"]}
+    with DatasetWriter(out, subfolder=subfolder) as writer:
+        assert writer.folder.parent == tmp_path and not out.exists()  # beside the target
+        for name in "abcd":
+            writer.write_flight(name, flight_arrays(steps=30, seed=ord(name)))
+        assert writer.flight_path("a") == writer.folder / subfolder / "a.npz"
+        writer.finish(splits, PARAMS, {"made_by": "a test", "version": __version__})
+    files = sorted(p.name for p in (out / subfolder).glob("*.npz"))
+    assert files == ["a.npz", "b.npz", "c.npz", "d.npz"]
+    assert (out / "train.txt").read_text() == "a.npz\nb.npz\n"
+    meta = json.loads((out / "vehicle.json").read_text())
+    assert meta == {"vehicle": to_dict(PARAMS), "made_by": "a test", "version": __version__}
+    assert read_splits(out) == splits  # the readers find the flights in either layout
+    ds = load_dataset(out, window=SMALL, use_cache=False)
+    assert sorted(ds.flights) == ["a", "b", "c", "d"] and ds.params == PARAMS
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary left
+
+
+def test_writer_folder_has_the_permissions_of_mkdir(tmp_path):
+    # tempfile.mkdtemp made dataset folders private (0o700); the writer's follow the umask.
+    umask = os.umask(0o022)
+    try:
+        with DatasetWriter(tmp_path / "ds") as writer:
+            writer.write_flight("a", flight_arrays(steps=10))
+            writer.finish({"train": ["a"]}, PARAMS, {})
+    finally:
+        os.umask(umask)
+    assert stat.S_IMODE((tmp_path / "ds").stat().st_mode) == 0o755
+    assert stat.S_IMODE((tmp_path / "ds" / "a.npz").stat().st_mode) == 0o644
+
+
+def test_writer_failure_leaves_nothing_and_the_old_folder_untouched(tmp_path):
+    with pytest.raises(RuntimeError, match="boom"):
+        with DatasetWriter(tmp_path / "new") as writer:
+            writer.write_flight("a", flight_arrays(steps=10))
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "keep.npz").write_bytes(b"x")
+    with pytest.raises(RuntimeError, match="boom"):
+        with DatasetWriter(old, overwrite=True) as writer:
+            writer.write_flight("a", flight_arrays(steps=10))
+            raise RuntimeError("boom")
+    assert [p.name for p in tmp_path.iterdir()] == ["old"]
+    assert [p.name for p in old.iterdir()] == ["keep.npz"]
+    with DatasetWriter(old, overwrite=True) as writer:  # (left without finish: nothing written)
+        writer.write_flight("a", flight_arrays(steps=10))
+    assert [p.name for p in tmp_path.iterdir()] == ["old"]
+
+
+def test_writer_refuses_a_non_empty_target_unless_overwrite(tmp_path):
+    (tmp_path / "ds").mkdir()
+    with DatasetWriter(tmp_path / "ds") as writer:  # an empty folder is taken
+        writer.finish({"train": []}, PARAMS, {})
+    with pytest.raises(FileExistsError, match=r"ds: exists and is not empty \(--overwrite"):
+        DatasetWriter(tmp_path / "ds")
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(FileExistsError, match="not empty"):
+        DatasetWriter(tmp_path / "file")
+    with DatasetWriter(tmp_path / "ds", overwrite=True) as writer:
+        writer.write_flight("b", flight_arrays(steps=10))
+        writer.finish({"train": ["b"]}, PARAMS, {})
+    assert sorted(p.name for p in (tmp_path / "ds").iterdir()) == [
+        "b.npz", "test.txt", "train.txt", "val.txt", "vehicle.json"]  # fmt: skip
+    with pytest.raises(RuntimeError, match="with block"):
+        _ = DatasetWriter(tmp_path / "x").folder

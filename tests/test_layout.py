@@ -1,8 +1,10 @@
 """The package's layout: every import points down the data flow, and no import circle.
 
-config/state/fileio -> physics -> sim -> data -> models, loss -> training -> evaluation ->
-deploy -> control -> experiment -> cli (docs/design.md). Read from the source's import
-statements, so a function-level import counts as much as a top-level one.
+config/state/fileio -> physics -> data -> sim -> models, loss -> training -> evaluation ->
+deploy -> control -> experiment -> cli (docs/design.md). The simulator is a data source above
+``data/``: it writes its datasets with ``data``'s writer and split policy, and nothing in
+``data`` knows it. Read from the source's import statements, so a function-level import counts
+as much as a top-level one.
 """
 
 from __future__ import annotations
@@ -17,8 +19,8 @@ ORDER = {  # wing -> floor; a module may import its own floor and those below
     "_version": 0, "config": 0, "state": 0, "fileio": 0, "run_config": 0,
     "layout": 0,
     "physics": 1,
-    "sim": 2,
-    "data": 3,
+    "data": 2,
+    "sim": 3,
     "models": 4, "loss": 4,
     "training": 5,
     "evaluation": 6,
@@ -127,3 +129,15 @@ def test_the_checks_find_an_upward_import_and_a_circle():
     ]
     # And the reader sees this package's real imports, relative ones included.
     assert "slungload.evaluation.results" in imports(PACKAGE / "deploy" / "timing.py")
+
+
+def test_the_simulator_is_a_data_source_above_data():
+    # data/ owns datasets (writer, split policy, readers); the simulator writes through them.
+    assert ORDER["sim"] > ORDER["data"]
+    edges = graph()
+    assert "slungload.data.writer" in edges["slungload.sim.dataset"]
+    assert not [(m, t) for m, ts in edges.items() if wing(m) == "data" for t in ts
+                if wing(t) == "sim"]  # fmt: skip
+    assert upward_imports({"slungload.data.importing": {"slungload.sim.dataset"}}) == [
+        "slungload.data.importing -> slungload.sim.dataset"
+    ]

@@ -21,36 +21,34 @@ package's frames (``readers/logs.py``); this module then, per log:
    estimate;
 5. validates the arrays with the ``.npz`` reader's own checks (``readers.npz.from_arrays``).
 
-Then the flights are split by flight (a seeded draw towards the paper's 58/17/25 % of steps,
-or all in ``train``) and written in the authors' release layout (``OUT/data/NAME.npz``,
+Then the flights are split by flight (``split.split_flights``: a seeded draw towards the
+paper's shares of the windows, ``split.SPLIT_FRACTIONS``, or all in ``train``) and written by
+``writer.DatasetWriter`` in the authors' release layout (``OUT/data/NAME.npz``,
 ``OUT/train.txt`` ... naming files with ``.npz``, ``OUT/vehicle.json`` with the constants and
-how the import was made) into a temporary folder that is renamed to ``OUT`` at the end:
-a failure leaves nothing behind. A log that cannot be imported raises ``LogError`` (a
-``ValueError``) naming the file and the topic or column.
+how the import was made), all or nothing: a failure leaves nothing behind. A log that cannot be
+imported raises ``LogError`` (a ``ValueError``) naming the file and the topic or column.
 """
 
 from __future__ import annotations
 
-import importlib.metadata
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..config import VEHICLE_FILE, VehicleParams, to_dict
-from ..fileio import SPLITS, write_json, write_npz, write_splits
-from ..sim.splits import split_flights
+from .._version import __version__
+from ..config import VehicleParams
+from ..fileio import SPLITS
 from .flight import FlightFormatError
 from .readers import DATA_SUBFOLDER, frames
 from .readers.logs import ROLES, LogError, RawLog, Stream
 from .readers.npz import from_arrays
+from .split import split_flights
+from .writer import DatasetWriter
 
 LOG_FORMATS = {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog", ".csv": "csv"}
 MAPPING_SECTIONS = {"ros1": "ros", "ros2": "ros", "ulog": "ulog", "csv": "csv"}
-SPLIT_FRACTIONS = {"train": 0.58, "val": 0.17, "test": 0.25}  # the paper's, of steps here
 STAMP_EPS = 1e-6  # s: a sample stamped this close after a grid instant counts as at it
 
 
@@ -206,9 +204,7 @@ def import_logs(
     Refuses a non-empty ``out`` unless ``overwrite``. Nothing is written unless every log
     imports.
     """
-    out = Path(out).expanduser()
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise FileExistsError(f"{out}: exists and is not empty (--overwrite replaces it)")
+    writer = DatasetWriter(out, overwrite=overwrite, subfolder=DATA_SUBFOLDER)
     logs = find_logs(inputs)
     notes: list[str] = []
     if params is None:
@@ -224,9 +220,12 @@ def import_logs(
     splits = split_by_flight(names, [f.steps for f in flights], options)
     if options.split == "seeded" and len(flights) < 3:
         notes.append(f"{len(flights)} flight(s): all in train.txt (a split needs 3 or more)")
-    _write(out, flights, splits, _metadata(params, options, settings, flights))
+    with writer:
+        for f in flights:
+            writer.write_flight(f.name, f.arrays)
+        writer.finish(splits, params, _about(params, options, settings, flights))
     return ImportResult(
-        out,
+        writer.out,
         {f.name: f.steps for f in flights},
         {f.name: f.log for f in flights},
         splits,
@@ -280,17 +279,16 @@ def _check_flights(flights: list[ImportedFlight], params: VehicleParams) -> None
             raise LogError(f"{exc} (flight {f.name} after resampling)") from None
 
 
-def _metadata(
+def _about(
     params: VehicleParams,
     options: ImportOptions,
     settings: dict[str, Any],
     flights: list[ImportedFlight],
 ) -> dict[str, Any]:
-    """The contents of ``vehicle.json``: the constants and how the import was made."""
+    """How the import was made, for ``vehicle.json`` beside the constants."""
     return {
-        "vehicle": to_dict(params),
         "import": {
-            "version": _version(),
+            "version": __version__,
             "dt": params.dt,
             "interpolation": {
                 "position, velocity, load": "linear",
@@ -309,30 +307,6 @@ def _metadata(
             },
         },
     }
-
-
-def _write(out: Path, flights: list[ImportedFlight], splits: dict, meta: dict) -> None:
-    """Everything into a temporary folder beside ``out``, renamed to ``out`` at the end."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    try:
-        for f in flights:
-            write_npz(tmp / DATA_SUBFOLDER / f"{f.name}.npz", f.arrays)
-        write_splits(tmp, splits)
-        write_json(tmp / VEHICLE_FILE, meta)
-        if out.exists():
-            shutil.rmtree(out) if out.is_dir() else out.unlink()
-        tmp.rename(out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
-
-
-def _version() -> str:
-    try:
-        return importlib.metadata.version("slungload")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 # --- one log -> flights ---------------------------------------------------------------------
@@ -516,10 +490,9 @@ def backward_velocity(p: np.ndarray, dt: float) -> np.ndarray:
 def split_by_flight(
     names: list[str], steps: list[int], options: ImportOptions
 ) -> dict[str, list[str]]:
-    """Whole flights per split: all in train, or the simulator's seeded draw
-    (``sim.splits.split_flights``: each flight, longest first, goes to the split furthest
-    below its share of the windows, 58/17/25 %; every split gets one when there are three or
-    more)."""
+    """Whole flights per split: all in train, or the seeded draw of ``split.split_flights``
+    (each flight, longest first, goes to the split furthest below its share of the windows,
+    ``SPLIT_FRACTIONS``; every split gets one when there are three or more)."""
     if options.split == "train" or len(names) < 3:
         return {"train": sorted(names), "val": [], "test": []}
     splits = split_flights(names, steps, np.random.default_rng(options.seed))

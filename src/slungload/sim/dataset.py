@@ -2,16 +2,14 @@
 
 Flights run in parallel (a process pool); each flight's random streams come from
 ``SeedSequence(seed).spawn`` so the bytes depend on the seed only, not on the worker count.
-Everything is written into a temporary folder beside the target and renamed into place at the
-end, so a crash leaves nothing half-written.
+The simulator is a data source above ``data/``: the folder is written by
+``data.writer.DatasetWriter`` (the workers write into its temporary folder, renamed into place
+at the end, so a crash leaves nothing half-written) and split by ``data.split.split_flights``.
 """
 
 from __future__ import annotations
 
-import importlib.metadata
 import multiprocessing
-import shutil
-import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -20,12 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import VEHICLE_FILE, VehicleParams, to_dict
-from ..fileio import write_json, write_npz, write_splits
+from .._version import __version__
+from ..config import VehicleParams, to_dict
+from ..data.split import split_flights
+from ..data.writer import DatasetWriter
+from ..fileio import write_npz
 from .config import SimConfig
 from .flight import simulate_flight
 from .maneuvers import MANEUVERS
-from .splits import SPLIT_FRACTIONS, WINDOW_STEPS, split_flights, windows_of  # noqa: F401 (re-exported)
 
 
 @dataclass(frozen=True)
@@ -59,9 +59,9 @@ def flight_plan(n: int, maneuvers: Sequence[str] | None = None) -> list[tuple[st
 
 
 def _fly(job: tuple[str, str, np.random.SeedSequence, SimConfig, Path]) -> tuple[str, int]:
-    family, name, seed, cfg, folder = job
+    family, name, seed, cfg, path = job
     flight = simulate_flight(family, seed=seed, config=cfg)
-    write_npz(folder / f"{name}.npz", flight.arrays)
+    write_npz(path, flight.arrays)
     return name, flight.steps
 
 
@@ -84,32 +84,22 @@ def simulate_dataset(
     cfg = config or SimConfig()
     if flights < 1:
         raise ValueError(f"flights must be >= 1, got {flights}")
-    out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not overwrite:
-        raise FileExistsError(
-            f"{out}: exists and is not empty (--overwrite, or overwrite=True, replaces it)"
-        )
+    writer = DatasetWriter(out_dir, overwrite=overwrite)  # flights at the top of the folder
     start = time.perf_counter()
     plan = flight_plan(flights, maneuvers)
     root = np.random.SeedSequence(seed)
     split_seed, *flight_seeds = root.spawn(flights + 1)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    try:
-        jobs = [(fam, name, s, cfg, tmp) for (fam, name), s in zip(plan, flight_seeds, strict=True)]
+    with writer:
+        jobs = [
+            (family, name, s, cfg, writer.flight_path(name))
+            for (family, name), s in zip(plan, flight_seeds, strict=True)
+        ]
         steps = dict(_run(jobs, workers, progress))
         names = [name for _, name in plan]
         lengths = [steps[n] for n in names]
         families = [family for family, _ in plan]
         splits = split_flights(names, lengths, np.random.default_rng(split_seed), families)
-        write_splits(tmp, {k: list(v) for k, v in splits.items()})
-        write_json(tmp / VEHICLE_FILE, _metadata(cfg, seed, flights))
-        if out.exists():
-            shutil.rmtree(out)
-        tmp.rename(out)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+        out = writer.finish(splits, vehicle_params(cfg), _about(cfg, seed, flights))
     return SimulatedDataset(
         out, tuple(names), tuple(lengths), splits, seed, time.perf_counter() - start
     )
@@ -126,18 +116,9 @@ def vehicle_params(cfg: SimConfig) -> VehicleParams:
     )
 
 
-def _metadata(cfg: SimConfig, seed: int, flights: int) -> dict:
-    try:
-        version = importlib.metadata.version("slungload")
-    except importlib.metadata.PackageNotFoundError:
-        version = "unknown"
-    return {
-        "vehicle": to_dict(vehicle_params(cfg)),
-        "sim": to_dict(cfg),
-        "seed": seed,
-        "flights": flights,
-        "version": version,
-    }
+def _about(cfg: SimConfig, seed: int, flights: int) -> dict:
+    """What made the data, for ``vehicle.json`` beside the constants."""
+    return {"sim": to_dict(cfg), "seed": seed, "flights": flights, "version": __version__}
 
 
 def _run(jobs: list, workers: int, progress: bool):
