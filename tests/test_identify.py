@@ -10,7 +10,7 @@ import torch
 
 from slungload.config import VehicleParams
 from slungload.models.constants import FITTED, LearnedConstants
-from slungload.physics import step
+from slungload.physics import VehicleConstants, step
 from slungload.sim import Effects, SimConfig, simulate_dataset
 from slungload.sim.dataset import vehicle_params
 from slungload.training.identify import identify
@@ -26,6 +26,18 @@ def test_untrained_constants_are_the_initial_ones():
     u, aux = torch.randn(3, 4, dtype=torch.float64), torch.randn(3, 6, dtype=torch.float64)
     for a, b in zip(step(x, u, aux, constants.current()), step(x, u, aux, initial), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
+
+
+def test_current_constants_are_the_physics_tensor_view():
+    # The fitted constants are 0-d float64 tensors (differentiable), the others stay the
+    # initial python floats, so the physics reads them as it reads VehicleParams.
+    initial = VehicleParams(mass_load=0.2, cable_length=0.9)
+    now = LearnedConstants(initial, ("cable_length", "thrust_gain")).current()
+    assert isinstance(now, VehicleConstants)
+    assert now.cable_length.shape == () and now.cable_length.requires_grad
+    assert now.thrust_gain.shape == () and now.thrust_gain.dtype == torch.float64
+    for name in ("mass_quad", "mass_load", "load_damping", "dt", "gravity"):
+        assert type(getattr(now, name)) is float and getattr(now, name) == getattr(initial, name)
 
 
 def test_constants_stay_physical_whatever_the_parameters():
