@@ -8,6 +8,7 @@ reads); CSV by hand. Each is imported back and compared with what was written.
 
 from __future__ import annotations
 
+import importlib
 import json
 import struct
 from pathlib import Path
@@ -21,8 +22,14 @@ from slungload.cli import main
 from slungload.config import VehicleParams, load_vehicle, vehicle_from_dict
 from slungload.data.dataset import load_dataset, read_splits
 from slungload.data.flight import DatasetError
-from slungload.data.importing import ImportOptions, backward_velocity, import_logs
-from slungload.data.readers import frames, read_flight
+from slungload.data.importing import (
+    ImportOptions,
+    backward_velocity,
+    find_logs,
+    import_logs,
+    read_log,
+)
+from slungload.data.readers import LOG_READERS, frames, read_flight
 from slungload.data.readers.logs import LogError
 from slungload.data.readers.rosbag import ATTITUDE_TARGET, MSG_DEFINITIONS
 from slungload.data.readers.ulog import ulog_streams
@@ -955,3 +962,55 @@ def test_log_libraries_load_only_when_a_log_is_read():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+# --- the log-reader registry ---------------------------------------------------------------------
+
+
+def test_every_log_suffix_dispatches_to_its_reader(tmp_path, monkeypatch):
+    """``find_logs`` names each suffix's format and ``read_log`` calls that format's reader with
+    its section of a mapping file (and the preset only for bags), imported when called."""
+    calls = []
+
+    def fake(name):
+        def read(path, mapping, *, progress=False):
+            calls.append((name, path.name, mapping, progress))
+            return name
+
+        return read
+
+    for reader in LOG_READERS.values():
+        module, function = reader.function.split(":")
+        target = importlib.import_module(f"slungload.data.readers.{module}")
+        assert callable(getattr(target, function))
+        monkeypatch.setattr(target, function, fake(reader.function))
+    mapping = {"ros": {"stamps": "header"}, "ulog": {"load": "x:1"}, "csv": {"world": "enu"}}
+    claimed = {}
+    for kind, reader in LOG_READERS.items():
+        for suffix in reader.suffixes:
+            path = tmp_path / f"log{suffix}"
+            path.write_bytes(b"")
+            claimed[suffix] = kind
+            assert find_logs([path]) == [(path, kind)]
+            assert read_log(path, kind, mapping, preset="px4", progress=True) == reader.function
+            settings = dict(mapping[reader.section])
+            if reader.presets:
+                settings["preset"] = "px4"
+            assert calls[-1] == (reader.function, path.name, settings, True)
+    assert claimed == {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog",
+                       ".csv": "csv"}  # fmt: skip
+    bag2 = tmp_path / "bag2"
+    bag2.mkdir()
+    (bag2 / "metadata.yaml").write_text("")
+    assert find_logs([bag2]) == [(bag2, "ros2")]
+    assert [k for _, k in find_logs([tmp_path])] == ["ros2", "ros1", "csv", "ros2", "ros2", "ulog"]
+
+
+def test_unknown_log_suffix_names_the_file(tmp_path):
+    log = tmp_path / "flight.txt"
+    log.write_text("")
+    with pytest.raises(LogError, match=r"flight.txt: unknown log format '.txt'; known: \.bag, "
+                       r"\.mcap, \.db3, \.ulg, \.csv and rosbag2 folders"):  # fmt: skip
+        find_logs([log])
+    with pytest.raises(LogError, match=rf"{tmp_path.name}: holds no logs \(\*\.bag"):
+        find_logs([tmp_path])

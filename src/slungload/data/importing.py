@@ -21,6 +21,9 @@ package's frames (``readers/logs.py``); this module then, per log:
    estimate;
 5. validates the arrays with the ``.npz`` reader's own checks (``readers.npz.from_arrays``).
 
+Each log's format comes from ``readers.LOG_READERS`` (by suffix; a rosbag2 folder by its
+``metadata.yaml``), which also names its reader and its section of a mapping file.
+
 Then the flights are split by flight (``split.split_flights``: a seeded draw towards the
 paper's shares of the windows, ``split.SPLIT_FRACTIONS``, or all in ``train``) and written by
 ``writer.DatasetWriter`` in the authors' release layout (``OUT/data/NAME.npz``,
@@ -41,14 +44,12 @@ from .._version import __version__
 from ..config import VehicleParams
 from ..fileio import SPLITS
 from .flight import FlightFormatError
-from .readers import DATA_SUBFOLDER, frames
+from .readers import DATA_SUBFOLDER, LOG_READERS, frames, log_format, log_suffixes
 from .readers.logs import ROLES, LogError, RawLog, Stream
 from .readers.npz import from_arrays
 from .split import split_flights
 from .writer import DatasetWriter
 
-LOG_FORMATS = {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog", ".csv": "csv"}
-MAPPING_SECTIONS = {"ros1": "ros", "ros2": "ros", "ulog": "ulog", "csv": "csv"}
 STAMP_EPS = 1e-6  # s: a sample stamped this close after a grid instant counts as at it
 
 
@@ -124,36 +125,25 @@ def find_logs(inputs: list[str | Path]) -> list[tuple[Path, str]]:
         path = Path(item).expanduser()
         if not path.exists():
             raise FileNotFoundError(f"{path}: no such log file or folder")
-        if path.is_dir():
-            if (path / "metadata.yaml").is_file():
-                found.append((path, "ros2"))
-                continue
-            inside = [
-                (p, _format_of(p)) for p in sorted(path.iterdir()) if _format_of(p) is not None
-            ]
-            if not inside:
-                raise LogError(
-                    f"{path}: holds no logs ({', '.join(f'*{s}' for s in LOG_FORMATS)}, rosbag2 "
-                    "folders)"
-                )
-            found += inside  # type: ignore[arg-type]
-        else:
-            kind = _format_of(path)
-            if kind is None:
-                raise LogError(
-                    f"{path}: unknown log format '{path.suffix}'; known: "
-                    f"{', '.join(LOG_FORMATS)} and rosbag2 folders"
-                )
+        kind = log_format(path)
+        if kind is not None:
             found.append((path, kind))
+        elif path.is_dir():
+            inside = [(p, log_format(p)) for p in sorted(path.iterdir())]
+            if not any(k for _, k in inside):
+                raise LogError(
+                    f"{path}: holds no logs ({', '.join(f'*{s}' for s in log_suffixes())}, "
+                    "rosbag2 folders)"
+                )
+            found += [(p, k) for p, k in inside if k is not None]
+        else:
+            raise LogError(
+                f"{path}: unknown log format '{path.suffix}'; known: "
+                f"{', '.join(log_suffixes())} and rosbag2 folders"
+            )
     if not found:
         raise LogError("no log given")
     return found
-
-
-def _format_of(path: Path) -> str | None:
-    if path.is_dir():
-        return "ros2" if (path / "metadata.yaml").is_file() else None
-    return LOG_FORMATS.get(path.suffix.lower())
 
 
 def read_log(
@@ -164,25 +154,10 @@ def read_log(
     preset: str | None = None,
     progress: bool = False,
 ) -> RawLog:
-    """One log's streams by its format. ``mapping`` holds the source's settings, or sections
-    "ros", "ulog", "csv" of them; ``preset`` names the bags' defaults ("mavros", "px4")."""
-    mapping = dict(mapping or {})
-    sections = set(MAPPING_SECTIONS.values())
-    if any(isinstance(mapping.get(s), dict) for s in sections):
-        mapping = dict(mapping.get(MAPPING_SECTIONS[kind], {}))
-    if kind in ("ros1", "ros2"):
-        if preset is not None:
-            mapping["preset"] = preset
-        from .readers.rosbag import read_bag
-
-        return read_bag(path, mapping, progress=progress)
-    if kind == "ulog":
-        from .readers.ulog import read_ulog
-
-        return read_ulog(path, mapping)
-    from .readers.csv_log import read_csv
-
-    return read_csv(path, mapping)
+    """One log's streams by its format (``readers.LOG_READERS``). ``mapping`` holds the
+    source's settings, or sections "ros", "ulog", "csv" of them; ``preset`` names the bags'
+    defaults ("mavros", "px4")."""
+    return LOG_READERS[kind].read(path, mapping, preset=preset, progress=progress)
 
 
 def import_logs(

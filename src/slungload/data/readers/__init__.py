@@ -6,18 +6,29 @@ flights are its files with a claimed suffix (``flight_files``), each read by the
 suffix, or by the reader named by an explicit ``format``. The flights lie at the top of the
 folder or under ``data/`` (the authors' release layout). A new source is a module here with a
 ``read(path, params, notes) -> Flight`` function and one entry below.
+
+``LOG_READERS`` does the same for flight *logs* (``slungload import``: ROS bags, PX4 ULog,
+CSV), which are recordings to convert rather than dataset files: a format name -> the suffixes
+it claims, its section of a mapping file and its reader, named as ``module:function`` and
+imported on first use (so rosbags and pyulog load only when such a log is read). A new log
+format is a module here with ``read(path, mapping, *, progress) -> logs.RawLog`` and one entry.
 """
 
 from __future__ import annotations
 
+import importlib
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ...config import VehicleParams
 from ..flight import DatasetError, DataWarning, Flight, FlightFormatError
 from . import npz
+
+if TYPE_CHECKING:
+    from .logs import RawLog
 
 
 @dataclass(frozen=True)
@@ -100,3 +111,64 @@ def read_flight(
     for note in notes:
         warnings.warn(note, DataWarning, stacklevel=2)
     return flight
+
+
+# --- flight logs (slungload import) ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LogReader:
+    """One log format: its suffixes, its section of a mapping file and its reader."""
+
+    suffixes: tuple[str, ...]  # lower case, with the dot
+    section: str  # the mapping file's section that holds this format's settings
+    function: str  # "module:function" in this package: (path, mapping, *, progress) -> RawLog
+    folder_marker: str | None = None  # a folder holding this file is one log (rosbag2)
+    presets: bool = False  # takes the bags' default topics (--preset)
+
+    def load(self) -> Callable[..., RawLog]:
+        """The reader function, imported now (its module may load a log library)."""
+        module, name = self.function.split(":")
+        return getattr(importlib.import_module(f"{__name__}.{module}"), name)
+
+    def read(
+        self,
+        path: Path,
+        mapping: dict[str, Any] | None = None,
+        *,
+        preset: str | None = None,
+        progress: bool = False,
+    ) -> RawLog:
+        """One log's streams. ``mapping`` holds this format's settings, or sections ("ros",
+        "ulog", "csv") of every format's; ``preset`` is ignored by formats without presets."""
+        mapping = dict(mapping or {})
+        if any(isinstance(mapping.get(r.section), dict) for r in LOG_READERS.values()):
+            mapping = dict(mapping.get(self.section, {}))
+        if preset is not None and self.presets:
+            mapping["preset"] = preset
+        return self.load()(path, mapping, progress=progress)
+
+
+LOG_READERS: dict[str, LogReader] = {
+    "ros1": LogReader((".bag",), "ros", "rosbag:read_bag", presets=True),
+    "ros2": LogReader((".mcap", ".db3"), "ros", "rosbag:read_bag", "metadata.yaml", True),
+    "ulog": LogReader((".ulg",), "ulog", "ulog:read_ulog"),
+    "csv": LogReader((".csv",), "csv", "csv_log:read_csv"),
+}
+
+
+def log_suffixes() -> list[str]:
+    """Every suffix a registered log reader claims."""
+    return [s for reader in LOG_READERS.values() for s in reader.suffixes]
+
+
+def log_format(path: Path) -> str | None:
+    """The log format of ``path`` (a file by its suffix, a folder by its marker file), or
+    None."""
+    for name, reader in LOG_READERS.items():
+        if path.is_dir():
+            if reader.folder_marker and (path / reader.folder_marker).is_file():
+                return name
+        elif path.suffix.lower() in reader.suffixes:
+            return name
+    return None

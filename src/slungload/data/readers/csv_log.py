@@ -55,8 +55,10 @@ _ROLE = {
 }
 
 
-def read_csv(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
-    """The streams of one CSV log."""
+def read_csv(
+    path: str | Path, mapping: dict[str, Any] | None = None, *, progress: bool = False
+) -> RawLog:
+    """The streams of one CSV log (``progress`` is unused: one quick pass)."""
     path = Path(path)
     what = str(path)
     settings = merge_settings(CSV_DEFAULTS, mapping, what)

@@ -48,8 +48,10 @@ _RATE_FIELDS = (("roll", "pitch", "yaw"),)
 _THRUST_FIELDS = (("xyz[2]",), ("thrust_body[2]",))
 
 
-def read_ulog(path: str | Path, mapping: dict[str, Any] | None = None) -> RawLog:
-    """The streams of one ``.ulg`` file."""
+def read_ulog(
+    path: str | Path, mapping: dict[str, Any] | None = None, *, progress: bool = False
+) -> RawLog:
+    """The streams of one ``.ulg`` file (``progress`` is unused: pyulog reads it at once)."""
     from pyulog import ULog
 
     path = Path(path)
