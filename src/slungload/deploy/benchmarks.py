@@ -170,7 +170,10 @@ def physics_windows(
 ) -> Windows:
     """``count`` windows of M + N steps, each rolled out by the physics model from its own
     random start: arena position, attitude within 0.3 rad, a swinging load, thrust around
-    hover and smooth random body rates (package layout, float32)."""
+    hover and smooth random body rates (package layout, float32).
+
+    Synthetic flights, not a prediction: each whole flight is generated from its first state
+    (the load at rest); predicting from windows is ``models.prediction.PhysicsModel``."""
     params = params or VehicleParams()
     gen = torch.Generator().manual_seed(seed)
     steps = window.length
