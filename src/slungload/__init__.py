@@ -7,9 +7,7 @@ training pulls in Lightning only when they are used.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
-
+from ._lazy import lazy_exports
 from ._version import __version__
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
@@ -43,19 +41,5 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "deploy.benchmarks": ("BenchmarkResult", "benchmark"),
     "experiment": ("Reproduction", "evaluate_runs", "reproduce"),
 }  # fmt: skip
-_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
-
-__all__ = sorted(_WHERE) + ["__version__"]
-
-
-def __getattr__(name: str) -> Any:
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module 'slungload' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value  # later look-ups skip this function
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
+__all__ += ["__version__"]

@@ -7,8 +7,7 @@ model has something to learn beyond ``physics.py``. See ``docs/simulator.md``.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from .._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
     "config": ("Effects", "Excitation", "SimConfig"),
@@ -17,20 +16,6 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "flight": ("Flight", "simulate_flight"),
     "maneuvers": ("MANEUVERS", "Maneuver", "Reference", "make_maneuver"),
 }
-_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> Any:
-    # Resolved on first use, like the package's own API: the configs and the maneuver table are
-    # read by the command line's help without starting MuJoCo.
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module 'slungload.sim' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+# Resolved on first use, like the package's own API: the configs and the maneuver table are
+# read by the command line's help without starting MuJoCo.
+__all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
