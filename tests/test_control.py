@@ -118,7 +118,7 @@ class BrokenModel:
 
 def test_nan_predictions_never_reach_the_vehicle_fall_back_and_are_counted():
     mpc = SamplingMPC(BrokenModel(), LIMITS, replace(FAST, max_fallback_steps=3), PARAMS)
-    safe = mpc.plan.clone()
+    safe = mpc.plan.copy()  # numpy (float64) since the MPPI core moved to control.mppi
     x = hover_state()
     ref = hold_reference(x[:3], 40)
     commands = [mpc(measurement(x), ref, k) for k in range(5)]

@@ -18,6 +18,7 @@ import pytest
 from flights import conical_swing
 from rosbags.typesys import get_types_from_msg
 
+from slungload import frames
 from slungload.cli import main
 from slungload.config import VehicleParams, load_vehicle, vehicle_from_dict
 from slungload.data.dataset import load_dataset, read_splits
@@ -29,7 +30,7 @@ from slungload.data.importing import (
     import_logs,
     read_log,
 )
-from slungload.data.readers import LOG_READERS, frames, read_flight
+from slungload.data.readers import LOG_READERS, read_flight
 from slungload.data.readers.logs import LogError
 from slungload.data.readers.rosbag import ATTITUDE_TARGET, MSG_DEFINITIONS
 from slungload.data.readers.ulog import ulog_streams

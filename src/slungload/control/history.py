@@ -2,14 +2,13 @@
 
 A prediction model (``models.prediction.PredictionModel``) takes them as
 ``predict_candidates(x_hist (M, 13), u_past (M - 1, 4), plans)``; ``History.window`` gives
-exactly those two arrays, padded with the first row until M steps have been seen.
+exactly those two arrays (numpy, float64), padded with the first row until M steps have been
+seen. numpy only: the onboard controller (``mppi``) keeps its history here without torch.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import torch
-from torch import Tensor
 
 
 class History:
@@ -33,12 +32,12 @@ class History:
     def push_input(self, u: np.ndarray) -> None:
         self.inputs = [*self.inputs, np.asarray(u, dtype=float)][-(self.m - 1) :]
 
-    def window(self, first_input: np.ndarray) -> tuple[Tensor, Tensor]:
-        """x_hist (M, 13) and u_past (M-1, 4) as float64 tensors; ``first_input`` pads the
+    def window(self, first_input: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """x_hist (M, 13) and u_past (M-1, 4), float64 arrays; ``first_input`` pads the
         inputs before any was applied."""
         if not self.states:
             raise ValueError("History: no state pushed yet")
         xs = [self.states[0]] * (self.m - len(self.states)) + self.states
         us = self.inputs or [np.asarray(first_input, dtype=float)]
         us = [us[0]] * (self.m - 1 - len(us)) + us
-        return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(us[-(self.m - 1) :]))
+        return np.stack(xs), np.stack(us[-(self.m - 1) :])

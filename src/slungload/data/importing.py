@@ -40,11 +40,12 @@ from typing import Any
 
 import numpy as np
 
+from .. import frames
 from .._version import __version__
 from ..config import VehicleParams
 from ..fileio import SPLITS
 from .flight import FlightFormatError
-from .readers import DATA_SUBFOLDER, LOG_READERS, frames, log_format, log_suffixes
+from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
 from .readers.logs import ROLES, LogError, RawLog, Stream
 from .readers.npz import from_arrays
 from .split import split_flights

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from . import frames
+from ... import frames
 from .logs import LogError, RawLog, Stream, choice, merge_settings
 
 PRESETS: dict[str, dict[str, str]] = {

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from . import frames
+from ... import frames
 from .logs import LogError, RawLog, Stream, merge_settings
 
 ULOG_DEFAULTS: dict[str, str] = {

@@ -1,4 +1,9 @@
-"""Frame conventions of flight logs, converted to the package's: world z up, body z up (FLU).
+"""Frame conventions, converted to the package's: world z up, body z up (FLU); numpy only.
+
+The log readers (``data.readers``) convert recorded flights with these helpers, and a
+vehicle's own control loop converts its autopilot's measurements with the same ones before
+calling the onboard controller (``control.mppi``; docs/control.md): this module imports
+numpy alone, no torch.
 
 The package's world frame is any z-up frame (ENU in ROS terms; the dynamics do not care where
 x points) and its body frame has z along the thrust (FLU: forward, left, up, ROS REP 103).

@@ -1,0 +1,380 @@
+"""The MPPI controller, written once in numpy (float64): the API a vehicle's own loop calls.
+
+    controller = MPPIController(model, limits, MPCConfig(samples=256), params)
+    for each measurement (every h = 0.03 s, the data rate):
+        command = controller.step(state, ReferenceAhead(position, velocity, yaw))
+        send command.thrust (N) and command.rates (rad/s, FLU body frame) to the autopilot
+
+``state`` is the measured x_k in the package's layout (``layout.py``: p m, v m/s, q w-x-y-z
+body -> world, pL m; world z up); the reference holds the N steps ahead, x_{k+1} ... x_{k+N}
+(positions (N, 3) m, velocities (N, 3) m/s, yaw (N,) rad). The controller keeps the history
+its model needs (``history.History``). ``model`` is any ``CandidateModel``: numpy in, numpy
+out, ``predict_candidates(x_hist (M, 13), u_past (M-1, 4), plans (K, N, 4)) -> (K, N, 13)``;
+onboard the exported network on ONNX Runtime (``deploy.onboard.OnnxCandidateModel``), in the
+simulator any torch ``models.prediction.PredictionModel`` behind ``mpc.TorchCandidates``.
+From PX4's NED/FRD, convert with ``frames`` first (docs/control.md).
+
+At every step the controller
+
+1. appends x_k to its history;
+2. samples K input sequences u_k ... u_{k+N-1} around its nominal plan (the previous plan
+   shifted by one step, its last row repeated): smooth noise (``MPCConfig.knots`` Gaussian
+   control points per channel from numpy's ``Generator``, linearly interpolated over the
+   horizon), **clamped to the thrust and body-rate limits**, so every sample, and every
+   convex combination of samples, is within them by construction; sample 0 is the plan;
+3. predicts their N-step outcomes with its model;
+4. scores them (``trajectory_cost``): vehicle position and velocity against the reference,
+   load position against its reference (vehicle reference minus l e3), load swing
+   (horizontal cable offset), yaw, tilt beyond ``max_tilt``, input effort about hover and
+   input rate;
+5. weights them by ``exp(-(c - c_min) / lambda)`` with lambda = ``temperature`` times the
+   spread ``mean(c) - c_min`` (a scale-free temperature) and applies the first input of the
+   weighted plan (receding horizon).
+
+Safe by construction: samples whose prediction is NaN or infinite are dropped; when none is
+left, the model raises, or the weighted plan is non-finite or outside the limits, the step
+falls back to the last safe plan (shifted), and after ``max_fallback_steps`` consecutive
+fallbacks to a hover command (hover thrust, body rates that level the vehicle at its yaw).
+Every event is counted in ``MPCStats`` by reason.
+
+numpy only (no torch): a test imports this module in a fresh interpreter and checks.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import NamedTuple, Protocol, runtime_checkable
+
+import numpy as np
+
+from .. import frames
+from ..config import VehicleParams
+from ..layout import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL
+from .history import History
+
+
+@dataclass(frozen=True)
+class InputLimits:
+    """Box on the commands: thrust N in [thrust_min, thrust_max], |body rate| <= rate_max."""
+
+    thrust_min: float  # N
+    thrust_max: float  # N
+    rate_max: float  # rad/s, each axis
+
+    @classmethod
+    def from_sim(cls, cfg) -> InputLimits:
+        """The simulator's limits (a ``sim.config.SimConfig``): thrust up to ``max_thrust``,
+        rates up to ``max_rate`` (the PID's own), and at least 30 % of hover thrust (the PID's
+        floor on the vertical force)."""
+        return cls(0.3 * cfg.total_mass * cfg.gravity, cfg.max_thrust, cfg.max_rate)
+
+    def lower(self) -> np.ndarray:
+        return np.array([self.thrust_min] + [-self.rate_max] * 3)
+
+    def upper(self) -> np.ndarray:
+        return np.array([self.thrust_max] + [self.rate_max] * 3)
+
+    def clamp(self, u: np.ndarray) -> np.ndarray:
+        """u (..., 4) clamped into the box."""
+        return np.minimum(np.maximum(u, self.lower()), self.upper())
+
+    def contains(self, u, tol: float = 1e-9) -> bool:
+        """Every row of u (..., 4) finite and inside the box."""
+        u = np.asarray(u, dtype=np.float64)
+        if not np.isfinite(u).all():
+            return False
+        return bool(((u >= self.lower() - tol) & (u <= self.upper() + tol)).all())
+
+    def at_limit(self, u: np.ndarray, rel: float = 1e-3) -> bool:
+        """Whether a command (4,) sits at a bound (within ``rel`` of the range)."""
+        thrust_tol = rel * (self.thrust_max - self.thrust_min)
+        thrust = u[0] <= self.thrust_min + thrust_tol or u[0] >= self.thrust_max - thrust_tol
+        return bool(thrust or (np.abs(u[1:]) >= self.rate_max * (1.0 - rel)).any())
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """The sampler, the cost weights (per step, SI units squared) and the safety settings."""
+
+    samples: int = 32  # K
+    horizon: int = 15  # N, steps of h (0.45 s)
+    knots: int = 5  # noise control points per channel over the horizon
+    thrust_std: float = 1.0  # N, sampling noise
+    rate_std: tuple[float, float, float] = (0.5, 0.5, 0.2)  # rad/s, sampling noise x y z
+    temperature: float = 0.3  # lambda / (mean(c) - min(c))
+    w_position: float = 20.0  # 1/m^2, vehicle position error
+    w_velocity: float = 1.0  # s^2/m^2, vehicle velocity error
+    w_load: float = 10.0  # 1/m^2, load position error (reference: vehicle reference - l e3)
+    w_swing: float = 10.0  # 1/m^2, horizontal offset of the load from the vehicle
+    w_yaw: float = 2.0  # 1/rad^2
+    w_tilt: float = 200.0  # 1/rad^2, tilt beyond max_tilt
+    max_tilt: float = 0.75  # rad, as the PID's tilt limit
+    w_thrust: float = 0.01  # 1/N^2, thrust minus hover thrust
+    w_rates: float = 0.05  # s^2/rad^2
+    w_thrust_rate: float = 0.05  # 1/N^2, change of thrust per step
+    w_rates_rate: float = 0.3  # s^2/rad^2, change of body rates per step
+    terminal: float = 5.0  # extra weight of the last step's state terms
+    max_fallback_steps: int = 10  # consecutive fallbacks on the last safe plan, then hover
+    hover_gain: float = 5.0  # 1/s, attitude error -> body rate of the hover command
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.samples < 2 or self.horizon < 2 or not 2 <= self.knots <= self.horizon:
+            raise ValueError(
+                f"MPCConfig: need samples >= 2, horizon >= 2 and 2 <= knots <= horizon; got "
+                f"{self.samples}, {self.horizon}, {self.knots}"
+            )
+        if not self.temperature > 0:
+            raise ValueError(f"MPCConfig.temperature must be > 0, got {self.temperature}")
+
+
+@dataclass
+class MPCStats:
+    """What happened over a flight: steps, fallbacks by reason, dropped samples, hover steps."""
+
+    steps: int = 0
+    fallbacks: Counter = field(default_factory=Counter)  # reason -> steps
+    nonfinite_steps: int = 0  # steps where some (not all) samples predicted NaN/inf
+    hover_steps: int = 0  # fallback steps that flew the hover command
+
+    @property
+    def fallback_steps(self) -> int:
+        return sum(self.fallbacks.values())
+
+
+class ReferenceAhead(NamedTuple):
+    """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up)."""
+
+    position: np.ndarray  # (N, 3) m
+    velocity: np.ndarray  # (N, 3) m/s
+    yaw: np.ndarray  # (N,) rad
+
+
+class Command(NamedTuple):
+    """What the controller sends: collective thrust and body rates (FLU body frame)."""
+
+    thrust: float  # N
+    rates: np.ndarray  # (3,) rad/s
+
+
+@runtime_checkable
+class CandidateModel(Protocol):
+    """A prediction model for the controller, numpy in and out (float64 arrays): the
+    ``models.prediction.PredictionModel`` contract's control entry point without torch."""
+
+    name: str
+    history: int  # M: measured states the model needs (>= 2)
+
+    def predict_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray: ...
+
+
+def yaw_of(q: np.ndarray) -> np.ndarray:
+    """Yaw (...,) rad of w-x-y-z quaternions (..., 4)."""
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def tilt_of(q: np.ndarray) -> np.ndarray:
+    """Angle (...,) rad between the body z axis and the world z axis."""
+    x, y = q[..., 1], q[..., 2]
+    return np.arccos(np.clip(1.0 - 2.0 * (x * x + y * y), -1.0, 1.0))
+
+
+def trajectory_cost(
+    states: np.ndarray,
+    plans: np.ndarray,
+    ref: ReferenceAhead,
+    u_prev: np.ndarray,
+    cfg: MPCConfig,
+    cable_length: float,
+    hover_thrust: float,
+) -> np.ndarray:
+    """Cost (K,) of predicted states (K, N, 13) under plans (K, N, 4); u_prev (4,) the input
+    applied at the previous step. A non-finite prediction gives a non-finite cost."""
+    n = states.shape[1]
+    step_w = np.ones(n)
+    step_w[-1] += cfg.terminal
+    p, v, q, pl = states[..., POS], states[..., VEL], states[..., QUAT], states[..., LOAD_POS]
+    load_ref = ref.position - np.array([0.0, 0.0, cable_length])
+    yaw_err = yaw_of(q) - ref.yaw
+    yaw_err = np.arctan2(np.sin(yaw_err), np.cos(yaw_err))
+    over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf predictions: dropped later
+        state_cost = (
+            cfg.w_position * np.square(p - ref.position).sum(-1)
+            + cfg.w_velocity * np.square(v - ref.velocity).sum(-1)
+            + cfg.w_load * np.square(pl - load_ref).sum(-1)
+            + cfg.w_swing * np.square((pl - p)[..., :2]).sum(-1)
+            + cfg.w_yaw * np.square(yaw_err)
+            + cfg.w_tilt * np.square(over_tilt)
+        )  # (K, N)
+    du = np.diff(plans, axis=1, prepend=np.broadcast_to(u_prev, (len(plans), 1, INPUT_DIM)))
+    input_cost = (
+        cfg.w_thrust * np.square(plans[..., 0] - hover_thrust)
+        + cfg.w_rates * np.square(plans[..., 1:]).sum(-1)
+        + cfg.w_thrust_rate * np.square(du[..., 0])
+        + cfg.w_rates_rate * np.square(du[..., 1:]).sum(-1)
+    )
+    return (state_cost * step_w).sum(-1) + input_cost.sum(-1)
+
+
+def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
+    """Weights (K,) summing to 1 over the finite costs (non-finite ones get 0); None when no
+    cost is finite."""
+    finite = np.isfinite(cost)
+    if not finite.any():
+        return None
+    c_min = cost[finite].min()
+    spread = max(cost[finite].mean() - c_min, 1e-9)
+    w = np.zeros_like(cost)
+    w[finite] = np.exp(-(cost[finite] - c_min) / (temperature * spread))
+    return w / w.sum()
+
+
+class MPPIController:
+    """The sampling MPC (see the module): ``step(state, reference) -> Command``, once per
+    measurement, in order; one controller per flight.
+
+    model: a ``CandidateModel``; limits: the input box; config: ``MPCConfig`` (default:
+    K = 32, N = 15); params: the vehicle constants for hover thrust and cable length (default
+    ``VehicleParams()``). ``stats`` counts steps and fallbacks; ``plan`` is the nominal plan
+    (N, 4) for the next step (the last safe plan, shifted).
+    """
+
+    def __init__(
+        self,
+        model: CandidateModel,
+        limits: InputLimits,
+        config: MPCConfig | None = None,
+        params: VehicleParams | None = None,
+    ) -> None:
+        self.model = model
+        self.limits = limits
+        self.cfg = cfg = config or MPCConfig()
+        params = params or VehicleParams()
+        self.cable_length = params.cable_length
+        self.hover_thrust = (params.mass_quad + params.mass_load) * params.gravity
+        self.history = History(max(2, model.history))
+        self.hover = limits.clamp(np.array([self.hover_thrust, 0.0, 0.0, 0.0]))
+        self.plan = np.tile(self.hover, (cfg.horizon, 1))  # the last safe plan, shifted
+        self.u_prev = self.hover.copy()
+        self.std = np.array([cfg.thrust_std, *cfg.rate_std])
+        self.interp = _interpolation(cfg.horizon, cfg.knots)  # (N, knots)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.stats = MPCStats()
+        self._fallback_run = 0
+
+    def step(
+        self, state: np.ndarray, reference: ReferenceAhead, *, rotation: np.ndarray | None = None
+    ) -> Command:
+        """One control step: the measured state x_k (13,) and the reference at the N steps
+        ahead -> the command to apply now. rotation: the attitude's (3, 3) rotation matrix if
+        the caller has it (the hover fallback uses it; default: from the state's quaternion)."""
+        state = np.asarray(state, dtype=np.float64)
+        reference = self.check_reference(reference)
+        if state.shape != (STATE_DIM,):
+            raise ValueError(f"step: state must be ({STATE_DIM},), got {state.shape}")
+        self.stats.steps += 1
+        self.history.push_state(state)
+        plan, reason = self._optimise(reference)
+        if reason is None:
+            self._fallback_run = 0
+        else:
+            plan = self._fallback(reason, state, reference, rotation)
+        u = plan[0].copy()
+        self.history.push_input(u)
+        self.u_prev = u
+        self.plan = np.concatenate([plan[1:], plan[-1:]])  # shifted: the next nominal plan
+        return Command(float(u[0]), u[1:].copy())
+
+    def check_reference(self, reference: ReferenceAhead) -> ReferenceAhead:
+        """The reference as float64 arrays of N rows (a longer one is cut), or ValueError."""
+        n = self.cfg.horizon
+        p, v, yaw = (np.asarray(a, dtype=np.float64) for a in reference)
+        if (
+            p.shape[1:] != (3,)
+            or v.shape[1:] != (3,)
+            or yaw.ndim != 1
+            or min(len(p), len(v), len(yaw)) < n
+        ):
+            raise ValueError(
+                f"reference: need position ({n}, 3), velocity ({n}, 3) and yaw ({n},) for the "
+                f"N = {n} steps ahead; got {p.shape}, {v.shape}, {yaw.shape}"
+            )
+        return ReferenceAhead(p[:n], v[:n], yaw[:n])
+
+    def sample(self) -> np.ndarray:
+        """K clamped input sequences (K, N, 4) around the nominal plan; row 0 is the plan."""
+        cfg = self.cfg
+        z = self.rng.standard_normal((cfg.samples, cfg.knots, INPUT_DIM))
+        noise = np.einsum("nj,kjd->knd", self.interp, z * self.std)
+        noise[0] = 0.0
+        return self.limits.clamp(self.plan + noise)
+
+    def _optimise(self, ref: ReferenceAhead) -> tuple[np.ndarray | None, str | None]:
+        samples = self.sample()
+        x_hist, u_past = self.history.window(self.plan[0])
+        try:
+            states = self.model.predict_candidates(x_hist, u_past, samples)
+        except (RuntimeError, ValueError, FloatingPointError) as exc:
+            return None, f"prediction error ({type(exc).__name__})"
+        if getattr(states, "shape", None) != (*samples.shape[:2], STATE_DIM):
+            return None, "prediction of the wrong shape"
+        states = np.asarray(states, dtype=np.float64)
+        cost = trajectory_cost(
+            states, samples, ref, self.u_prev, self.cfg, self.cable_length, self.hover_thrust
+        )
+        finite = np.isfinite(cost) & np.isfinite(states).reshape(len(states), -1).all(1)
+        weights = mppi_weights(np.where(finite, cost, math.inf), self.cfg.temperature)
+        if weights is None:
+            return None, "non-finite prediction"
+        if not finite.all():
+            self.stats.nonfinite_steps += 1
+        plan = np.einsum("k,knd->nd", weights, samples)
+        if not self.limits.contains(plan):
+            return None, "plan outside the limits"
+        return plan, None
+
+    def _fallback(self, reason: str, state, ref: ReferenceAhead, rotation) -> np.ndarray:
+        """The last safe plan (already shifted), or hover after too many fallbacks in a row."""
+        self.stats.fallbacks[reason] += 1
+        self._fallback_run += 1
+        if self._fallback_run <= self.cfg.max_fallback_steps and self.limits.contains(self.plan):
+            return self.plan
+        self.stats.hover_steps += 1
+        if rotation is None:
+            rotation = rotation_matrix(state[QUAT])
+        return self.hover_command(rotation, float(ref.yaw[0]))
+
+    def hover_command(self, rotation: np.ndarray, yaw: float) -> np.ndarray:
+        """(N, 4): hover thrust, body rates that level the vehicle (attitude ``rotation``
+        (3, 3), body -> world) at ``yaw``, clamped."""
+        rot = np.asarray(rotation, dtype=float)
+        if not np.isfinite(rot).all():
+            rates = np.zeros(3)
+        else:
+            c, s = math.cos(yaw), math.sin(yaw)
+            target = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            err = rot.T @ target  # body frame: rotation from the vehicle to the target
+            axis = np.array([err[2, 1] - err[1, 2], err[0, 2] - err[2, 0], err[1, 0] - err[0, 1]])
+            rates = 0.5 * self.cfg.hover_gain * axis  # small-angle rotation vector times gain
+        plan = np.tile(self.hover, (self.cfg.horizon, 1))
+        plan[0] = self.limits.clamp(np.array([self.hover_thrust, *rates]))
+        return plan
+
+
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
+    """(3, 3) body -> world rotation of a w-x-y-z quaternion (4,); its columns are the body
+    axes (``frames.rotate`` of each)."""
+    q = np.asarray(q, dtype=float)
+    return frames.rotate(q / np.linalg.norm(q), np.eye(3)).T
+
+
+def _interpolation(n: int, knots: int) -> np.ndarray:
+    """(n, knots) linear interpolation from knots evenly spread over steps 0 .. n-1."""
+    at = np.linspace(0.0, knots - 1.0, n)
+    return np.maximum(1.0 - np.abs(at[:, None] - np.arange(knots)), 0.0)

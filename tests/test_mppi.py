@@ -1,0 +1,104 @@
+"""The MPPI core in numpy (control/mppi.py): torch-free, the sampler inside the limits, the
+weights, the reference and state checks, the user-facing step on a numpy model."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from slungload.config import VehicleParams
+from slungload.control.mppi import (
+    Command,
+    InputLimits,
+    MPCConfig,
+    MPPIController,
+    ReferenceAhead,
+    mppi_weights,
+    rotation_matrix,
+)
+
+PARAMS = VehicleParams()
+HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity
+LIMITS = InputLimits(0.3 * HOVER_T, 30.0, 4.0)
+SMALL = MPCConfig(samples=16, horizon=6, knots=3)
+
+
+class HoldModel:
+    """Predicts that nothing moves (a numpy ``CandidateModel``)."""
+
+    name, history = "hold", 3
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        assert x_hist.shape == (3, 13) and u_past.shape == (2, 4)
+        return np.broadcast_to(x_hist[-1], (*plans.shape[:2], 13)).copy()
+
+
+def hover_state(p=(0.0, 0.0, 1.5)) -> np.ndarray:
+    p = np.asarray(p, dtype=float)
+    return np.concatenate([p, np.zeros(3), [1.0, 0, 0, 0], p - [0, 0, PARAMS.cable_length]])
+
+
+def hold(point, n: int) -> ReferenceAhead:
+    return ReferenceAhead(np.tile(point, (n, 1)), np.zeros((n, 3)), np.zeros(n))
+
+
+def test_the_onboard_modules_do_not_import_torch():
+    code = (
+        "import sys\n"
+        "import slungload.control.mppi, slungload.frames\n"
+        "bad = sorted(m for m in ('torch', 'lightning', 'mujoco', 'onnx') if m in sys.modules)\n"
+        "assert not bad, bad\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_samples_are_inside_the_limits_and_sample_zero_is_the_plan():
+    mpc = MPPIController(HoldModel(), LIMITS, MPCConfig(samples=64, thrust_std=20.0), PARAMS)
+    samples = mpc.sample()
+    assert samples.shape == (64, 15, 4) and samples.dtype == np.float64
+    np.testing.assert_array_equal(samples[0], mpc.plan)
+    assert LIMITS.contains(samples) and (samples[:, :, 0] == LIMITS.thrust_max).any()
+
+
+def test_weights_drop_non_finite_costs_and_sum_to_one():
+    w = mppi_weights(np.array([1.0, 2.0, math.nan, math.inf, 1.0]), 0.3)
+    assert w.sum() == pytest.approx(1.0) and w[2] == 0.0 and w[3] == 0.0
+    assert w[0] == w[4] > w[1] > 0
+    assert mppi_weights(np.array([math.nan, math.inf]), 0.3) is None
+
+
+def test_step_returns_a_command_inside_the_limits_and_keeps_the_history():
+    mpc = MPPIController(HoldModel(), LIMITS, SMALL, PARAMS)
+    x = hover_state()
+    for _ in range(4):
+        command = mpc.step(x, hold(x[:3] + [0.0, 0.0, 0.5], 10))  # a longer reference is cut
+        assert isinstance(command, Command) and LIMITS.contains([command.thrust, *command.rates])
+    assert len(mpc.history.states) == 3 and mpc.stats.steps == 4
+    assert mpc.stats.fallback_steps == 0
+
+
+def test_bad_states_and_references_are_refused():
+    mpc = MPPIController(HoldModel(), LIMITS, SMALL, PARAMS)
+    with pytest.raises(ValueError, match="need position"):
+        mpc.step(hover_state(), hold([0, 0, 1], 5))
+    with pytest.raises(ValueError, match="state must be"):
+        mpc.step(np.zeros(12), hold([0, 0, 1], 6))
+
+
+def test_the_same_seed_gives_the_same_commands():
+    runs = []
+    for _ in range(2):
+        mpc = MPPIController(HoldModel(), LIMITS, SMALL, PARAMS)
+        runs.append([mpc.step(hover_state(), hold([0.1, 0, 1.5], 6)).thrust for _ in range(3)])
+    assert runs[0] == runs[1]
+
+
+def test_rotation_matrix_of_a_yaw():
+    c, s = math.cos(0.3), math.sin(0.3)
+    q = np.array([math.cos(0.15), 0.0, 0.0, math.sin(0.15)])
+    np.testing.assert_allclose(rotation_matrix(q), [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-15)
