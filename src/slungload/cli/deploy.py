@@ -31,12 +31,29 @@ def add_export(sub: Any) -> None:
     )
     p.add_argument("--format", default="onnx", choices=("onnx",), help="(default: onnx)")
     p.add_argument(
-        "--horizon", type=int, help="predicted steps N fixed in the file (default: the run's)"
+        "--horizon",
+        type=int,
+        help="predicted steps N fixed in the file (default: the run's; with --for-mpc the "
+        "MPC's horizon)",
+    )
+    p.add_argument(
+        "--for-mpc",
+        action="store_true",
+        help="export the MPC's candidates graph instead (encoder once, decoder batched over K "
+        "candidates, package layout; <run name>-n<N>.mpc.onnx in a folder) for the onboard "
+        "controller on numpy + onnxruntime (docs/deployment.md)",
     )
     p.set_defaults(func=cmd_export)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    if args.for_mpc:
+        from ..control.mppi import MPCConfig
+        from ..deploy.candidates import export_for_mpc
+
+        horizon = MPCConfig().horizon if args.horizon is None else args.horizon
+        print(export_for_mpc(args.run, args.out, horizon=horizon).summary())
+        return 0
     from ..deploy.onnx import export
 
     result = export(args.run, args.out, format=args.format, horizon=args.horizon)

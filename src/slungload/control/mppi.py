@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
@@ -267,6 +267,25 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
+
+    @classmethod
+    def from_onnx(
+        cls,
+        path,
+        limits: InputLimits,
+        config: MPCConfig | None = None,
+        *,
+        threads: int = 1,
+        providers: list[str] | None = None,
+    ) -> MPPIController:
+        """The onboard controller: an exported network (``slungload export --for-mpc``) on ONNX
+        Runtime (``deploy.onboard.OnnxCandidateModel``; threads, providers: its session's),
+        N set to the file's horizon, the vehicle constants from its sidecar."""
+        from ..deploy.onboard import OnnxCandidateModel  # onnxruntime, only when asked
+
+        model = OnnxCandidateModel(path, threads=threads, providers=providers)
+        config = replace(config or MPCConfig(), horizon=model.horizon)
+        return cls(model, limits, config, model.params)
 
     def step(
         self, state: np.ndarray, reference: ReferenceAhead, *, rotation: np.ndarray | None = None

@@ -55,6 +55,8 @@ from ..state import (
     THRUST,
     with_unit_quaternion,
 )
+from .onboard import CPU as _CPU
+from .onboard import session_options
 from .predictor import (
     PARITY_TOLERANCE,
     FileLayoutNet,
@@ -352,25 +354,7 @@ def sample_inputs(
     return history.float().numpy(), u[:, m:].float().numpy()
 
 
-# --- runtime -----------------------------------------------------------------------------
-
-_CPU = ["CPUExecutionProvider"]
-
-
-def session_options(threads: int = 1) -> ort.SessionOptions:
-    """ONNX Runtime options for small, latency-bound graphs.
-
-    All graph optimisations (constant folding, GELU and Gemm fusions), ``threads`` intra-op
-    threads, sequential execution (the graph is a chain: parallel execution only adds
-    scheduling).
-    """
-    so = ort.SessionOptions()
-    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-    so.intra_op_num_threads = threads
-    so.inter_op_num_threads = 1
-    so.log_severity_level = 3  # errors only
-    return so
+# --- runtime (session options and providers: ``onboard``, their one home) ------------------
 
 
 class OnnxPredictor:

@@ -1,0 +1,182 @@
+"""Export of a network for the MPC: the encoder once, the decoder batched over K candidates.
+
+    result = export_for_mpc("runs/ps-exc", "ps-n15.mpc.onnx", horizon=15)  # + ps-n15.mpc.json
+    model = deploy.onboard.OnnxCandidateModel("ps-n15.mpc.onnx")          # no torch needed
+
+What is exported is ``CandidatesNet``: the network's ``forward_candidates`` (any registered
+architecture: the paper's network and the physics-step network, whose discrete model f is
+pure torch and traces with it) followed by the unit-quaternion projection, i.e. exactly what
+``models.prediction.NetworkModel.predict_candidates`` computes, in the package layout
+(``deploy.onboard`` describes the graph's inputs and outputs). The candidate count K is
+dynamic; the tracer unrolls the decoder's recursion, so N is fixed per file and recorded in
+the sidecar (export one file per horizon). Before the file is kept, ONNX Runtime's answer is
+compared with the eager network at two values of K, one of them not the traced K; a
+disagreement above ``predictor.PARITY_TOLERANCE`` raises ``OnnxModelError``.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import torch
+from torch import Tensor, nn
+
+from .._version import __version__
+from ..fileio import atomic_path, write_json
+from ..state import with_unit_quaternion
+from . import onboard
+from .onnx import OPSET, OnnxModelError, _check_model_path, _load, _version, export_name
+from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
+
+CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
+
+
+class CandidatesNet(nn.Module):
+    """``forward_candidates`` with unit quaternions: x_hist (M, 13), u_past (M-1, 4), plans
+    (K, N, 4) -> states (K, N, 13), physical units, package layout (q w-x-y-z)."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        return with_unit_quaternion(self.model.forward_candidates(x_hist, u_past, plans).states)
+
+
+@dataclass(frozen=True)
+class MPCExportResult:
+    """What ``export_for_mpc`` wrote."""
+
+    model: Path  # the .onnx file
+    sidecar: Path  # its JSON description
+    horizon: int  # N, fixed in the file
+    history: int  # M, the trained history
+    opset: int
+    max_abs_diff: float  # max |ONNX Runtime - eager torch| at the checked K
+    seconds: float  # wall-clock time of the export and check
+
+    def summary(self) -> str:
+        return (
+            f"{self.model} (+ {self.sidecar.name}): MPC candidates graph, N = {self.horizon}, "
+            f"M = {self.history}, K dynamic, opset {self.opset}, max |onnx - torch| = "
+            f"{self.max_abs_diff:.2e} at K = {', '.join(map(str, CHECK_CANDIDATES))}, "
+            f"{self.seconds:.1f} s"
+        )
+
+
+def export_for_mpc(
+    run_or_ckpt: str | Path | Predictor, out: str | Path, *, horizon: int, opset: int = OPSET
+) -> MPCExportResult:
+    """Write ``out`` (the candidates graph) and its sidecar (``onboard.sidecar_path``).
+
+    run_or_ckpt: a run folder, a ``.ckpt`` or a loaded ``Predictor``; out: the model file in
+    an existing folder, or an existing folder to write ``<run name>-n<N>.mpc.onnx`` into;
+    horizon: N fixed in the file (the MPC's horizon).
+    """
+    start = time.perf_counter()
+    out = Path(out)
+    if not out.is_dir():
+        _check_model_path(out)
+    if horizon < 2:
+        raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
+    predictor, configs, source = _load(run_or_ckpt)
+    if out.is_dir():
+        out = out / export_name(run_or_ckpt, horizon).replace(".onnx", onboard.SUFFIX)
+    net = CandidatesNet(predictor.model.cpu().eval()).eval()
+    m = predictor.window.history
+    with atomic_path(out) as tmp:
+        _trace(net, candidate_inputs(predictor, horizon, CHECK_CANDIDATES[0]), tmp, opset)
+        session = ort.InferenceSession(str(tmp), onboard.session_options(1), providers=onboard.CPU)
+        diff = max(_parity(net, session, predictor, horizon, k) for k in CHECK_CANDIDATES)
+        if not diff <= PARITY_TOLERANCE:
+            raise OnnxModelError(
+                f"{out}: exported candidates graph disagrees with the eager network by "
+                f"{diff:.3g} (> {PARITY_TOLERANCE}); not written"
+            )
+        digest = onboard.sha256(tmp)
+    sidecar = onboard.sidecar_path(out)
+    write_json(
+        sidecar,
+        {
+            "format": onboard.FORMAT,
+            "format_version": onboard.FORMAT_VERSION,
+            "package_version": __version__,
+            "model_file": out.name,
+            "model_sha256": digest,
+            "name": _name(run_or_ckpt),
+            "architecture": predictor.model.architecture,
+            "history": m,
+            "horizon": horizon,
+            **onboard.io_spec(m, horizon),
+            "layout": onboard.layout(),
+            "params": configs["params"],
+            "variant": predictor.variant,
+            "configs": configs,
+            "source": source,
+            "export": {
+                "opset": opset,
+                "torch": _version("torch"),
+                "onnx": _version("onnx"),
+                "onnxruntime": ort.__version__,
+                "max_abs_diff_vs_torch": diff,
+                "checked_candidates": list(CHECK_CANDIDATES),
+            },
+        },
+    )
+    return MPCExportResult(out, sidecar, horizon, m, opset, diff, time.perf_counter() - start)
+
+
+def candidate_inputs(
+    predictor: Predictor, horizon: int, k: int, *, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Plausible float32 inputs of the candidates graph: x_hist (M, 13), u_past (M-1, 4) and
+    plans (K, N, 4), a history from ``onnx.sample_inputs`` (package layout) and K plans
+    spread around its inputs by a fifth of the fitted input spread."""
+    from .onnx import sample_inputs
+
+    history, future = sample_inputs(predictor, batch=1, horizon=horizon, seed=seed)
+    x_hist = states_from_file(torch.from_numpy(history[0, :, :13]).double()).float().numpy()
+    u = np.concatenate([history[0, :, 13:], future[0]])  # (M + N, 4) u_0 ... u_{M+N-1}
+    m = x_hist.shape[0]
+    spread = 0.2 * predictor.model.input_std.cpu().numpy()
+    noise = np.random.default_rng(seed).standard_normal((k, horizon, 4)) * spread
+    plans = (u[m - 1 : m - 1 + horizon] + noise).astype(np.float32)
+    return x_hist, u[: m - 1].astype(np.float32), plans
+
+
+def _trace(net: CandidatesNet, inputs, path: Path, opset: int) -> None:
+    """TorchScript-based exporter (``dynamo=False``), K declared dynamic."""
+    args = tuple(torch.from_numpy(a) for a in inputs)
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # the tracer's shape-check and deprecation warnings
+        torch.onnx.export(
+            net,
+            args,
+            str(path),
+            dynamo=False,
+            opset_version=opset,
+            input_names=[onboard.X_HIST, onboard.U_PAST, onboard.PLANS],
+            output_names=[onboard.STATES],
+            dynamic_axes={onboard.PLANS: {0: "candidates"}, onboard.STATES: {0: "candidates"}},
+        )
+
+
+def _parity(net, session, predictor: Predictor, horizon: int, k: int) -> float:
+    x_hist, u_past, plans = candidate_inputs(predictor, horizon, k, seed=k)
+    feeds = {onboard.X_HIST: x_hist, onboard.U_PAST: u_past, onboard.PLANS: plans}
+    got = session.run(None, feeds)[0]
+    with torch.no_grad():
+        want = net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
+    return float(np.abs(got - want).max())
+
+
+def _name(source) -> str:
+    if isinstance(source, Predictor):
+        return "model"
+    path = Path(source).resolve()
+    return path.name if path.is_dir() else path.parent.name

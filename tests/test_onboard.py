@@ -1,0 +1,163 @@
+"""The onboard path: the MPC's candidates graph (encoder once, decoder batched over a dynamic K)
+equal to ``forward_candidates``, its sidecar checks, the onboard MPC's plans equal to the torch
+MPC's for the same samples, and a controller that runs with numpy + onnxruntime alone."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from flights import physics_flight
+
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.control.mpc import SamplingMPC
+from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+from slungload.data.windows import make_windows
+from slungload.deploy.candidates import candidate_inputs, export_for_mpc
+from slungload.deploy.onboard import OnboardModelError, OnnxCandidateModel, sidecar_path
+from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
+from slungload.models import build
+from slungload.models.prediction import NetworkModel
+
+torch.set_num_threads(1)
+PARAMS = VehicleParams()
+WINDOW = WindowConfig(history=8, horizon=6)
+HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity
+LIMITS = InputLimits(0.3 * HOVER_T, 30.0, 4.0)
+SMALL = dict(embed_sizes=(32, 48), hidden_size=12, num_layers=2, head_sizes=(32, 24, 16))
+ARCHITECTURES = ["lstm-attention", "physics-step"]
+
+
+def small_predictor(architecture: str, **options) -> Predictor:
+    """A small network of ``architecture``, random weights, normalisation fitted on windows of
+    physics flights."""
+    windows = make_windows([physics_flight(f"f{i}", i, 80) for i in range(2)], WINDOW)
+    torch.manual_seed(1)
+    net = build(ModelConfig(architecture=architecture, **SMALL, **options), PARAMS)
+    net.fit_normalization(windows.states, windows.inputs, origin_step=WINDOW.history - 1)
+    return Predictor(net.eval(), WINDOW, PARAMS, "no-physics")
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory) -> dict[str, tuple[Predictor, Path]]:
+    folder = tmp_path_factory.mktemp("mpc_onnx")
+    out = {}
+    for arch in ARCHITECTURES:
+        predictor = small_predictor(arch)
+        result = export_for_mpc(predictor, folder / f"{arch}.mpc.onnx", horizon=WINDOW.horizon)
+        assert result.max_abs_diff <= PARITY_TOLERANCE
+        out[arch] = (predictor, result.model)
+    return out
+
+
+@pytest.mark.parametrize("architecture", ARCHITECTURES)
+@pytest.mark.parametrize("k", [1, 5, 64])
+def test_the_candidates_graph_equals_forward_candidates(exported, architecture, k):
+    predictor, path = exported[architecture]
+    x_hist, u_past, plans = (a.astype(np.float64) for a in candidate_inputs(predictor, 6, k))
+    onboard = OnnxCandidateModel(path)
+    eager = NetworkModel(predictor.model, WINDOW.history)
+    want = eager.predict_candidates(*(torch.from_numpy(a) for a in (x_hist, u_past, plans)))
+    got = onboard.predict_candidates(x_hist, u_past, plans)
+    assert got.shape == (k, 6, 13) and got.dtype == np.float64
+    assert np.abs(got - want.numpy()).max() <= PARITY_TOLERANCE
+
+
+def test_the_smoothed_load_estimate_exports_too(tmp_path):
+    predictor = small_predictor("physics-step", load_estimate="smoothed")
+    result = export_for_mpc(predictor, tmp_path, horizon=4)
+    assert result.model.name == "model-n4.mpc.onnx" and result.max_abs_diff <= PARITY_TOLERANCE
+
+
+@pytest.mark.parametrize("architecture", ARCHITECTURES)
+def test_the_onboard_mpc_plans_as_the_torch_mpc(exported, architecture):
+    """Same seed, so the same samples: the plans differ only by the float32 rounding of the
+    two runtimes, through the weights."""
+    predictor, path = exported[architecture]
+    cfg = MPCConfig(samples=48, horizon=WINDOW.horizon, knots=3, seed=7)
+    torch_mpc = SamplingMPC(NetworkModel(predictor.model, WINDOW.history), LIMITS, cfg, PARAMS)
+    onboard = MPPIController.from_onnx(path, LIMITS, cfg)
+    x_hist, _, _ = candidate_inputs(predictor, WINDOW.horizon, 1)
+    ref = ReferenceAhead(
+        np.tile(x_hist[-1, :3] + [0.2, 0.0, 0.1], (6, 1)), np.zeros((6, 3)), np.zeros(6)
+    )
+    for x in x_hist.astype(np.float64):  # the history's states as successive measurements
+        a = torch_mpc.core.step(x, ref)
+        b = onboard.step(x, ref)
+        np.testing.assert_allclose(onboard.plan, torch_mpc.plan, rtol=0, atol=1e-5)
+        assert abs(a.thrust - b.thrust) <= 1e-5 and np.abs(a.rates - b.rates).max() <= 1e-5
+    assert onboard.stats.fallback_steps == torch_mpc.stats.fallback_steps == 0
+
+
+def test_sidecar_describes_the_graph_and_the_vehicle(exported):
+    _, path = exported["physics-step"]
+    meta = json.loads(sidecar_path(path).read_text())
+    assert meta["horizon"] == 6 and meta["history"] == 8
+    assert meta["inputs"][2] == {"name": "plans", "shape": ["candidates", 6, 4], "dtype": "float32"}
+    assert meta["layout"]["state_columns"][6:10] == ["qw", "qx", "qy", "qz"]
+    assert meta["params"]["cable_length"] == PARAMS.cable_length
+    assert meta["architecture"] == "physics-step"
+
+
+@pytest.mark.parametrize(
+    ("tamper", "message"),
+    [
+        (lambda p: p.write_bytes(p.read_bytes() + b"\0"), "checksum differs"),
+        (lambda p: sidecar_path(p).unlink(), "sidecar .* is missing"),
+        (lambda p: _edit(p, format_version=99), "format version 99"),
+        (lambda p: _edit(p, params=None), "vehicle constants"),
+    ],
+)
+def test_a_model_that_disagrees_with_its_sidecar_is_refused(exported, tmp_path, tamper, message):
+    _, source = exported["lstm-attention"]
+    path = tmp_path / source.name
+    path.write_bytes(source.read_bytes())
+    sidecar_path(path).write_bytes(sidecar_path(source).read_bytes())
+    tamper(path)
+    with pytest.raises(OnboardModelError, match=message):
+        OnnxCandidateModel(path)
+
+
+def _edit(path: Path, **changes) -> None:
+    side = sidecar_path(path)
+    side.write_text(json.dumps({**json.loads(side.read_text()), **changes}))
+
+
+def test_wrong_shapes_are_refused(exported):
+    model = OnnxCandidateModel(exported["lstm-attention"][1])
+    x, u = np.zeros((8, 13)), np.zeros((7, 4))
+    with pytest.raises(ValueError, match=r"plans \(K, 6, 4\)"):
+        model.predict_candidates(x, u, np.zeros((3, 5, 4)))
+    with pytest.raises(ValueError, match=r"x_hist \(8, 13\)"):
+        model.predict_candidates(x[1:], u, np.zeros((3, 6, 4)))
+
+
+def test_the_onboard_controller_runs_without_torch(exported):
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, "
+        "ReferenceAhead\n"
+        f"mpc = MPPIController.from_onnx({str(exported['physics-step'][1])!r}, "
+        "InputLimits(4.0, 30.0, 4.0), MPCConfig(samples=16, knots=3))\n"
+        "x = np.array([0, 0, 1.5, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0.8])\n"
+        "ref = ReferenceAhead(np.tile(x[:3], (6, 1)), np.zeros((6, 3)), np.zeros(6))\n"
+        "c = [mpc.step(x, ref) for _ in range(3)][-1]\n"
+        "assert np.isfinite(c.thrust) and mpc.stats.fallback_steps == 0, mpc.stats\n"
+        "assert 'torch' not in sys.modules and 'lightning' not in sys.modules\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_export_command_for_the_mpc(run_cli, tiny_run, tmp_path):
+    code, out, err = run_cli("export", tiny_run.out, "--for-mpc", "--out", tmp_path)
+    assert code == 0, err
+    (model,) = tmp_path.glob("*.mpc.onnx")
+    assert model.name.endswith("-n15.mpc.onnx") and "MPC candidates graph" in out
+    assert OnnxCandidateModel(model).horizon == 15
