@@ -110,18 +110,67 @@ LOAD_ESTIMATES: dict[str, str] = {
 
 
 @dataclass(frozen=True)
+class ModelSize:
+    """The widths of one named network size (``MODEL_SIZES``): what ``ModelConfig.sized`` sets."""
+
+    embed_sizes: tuple[int, ...]  # input embedding Linear widths
+    hidden_size: int  # LSTM hidden units
+    num_layers: int  # LSTM layers (encoder and decoder)
+    head_sizes: tuple[int, ...]  # decoder output head widths
+    description: str = ""
+
+    def summary(self) -> str:
+        """One line, e.g. "embedding 100-200-300, 3 x 20 LSTM, head 300-200-100" (a head without
+        hidden layers: "linear head")."""
+        head = "-".join(map(str, self.head_sizes))
+        return (
+            f"embedding {'-'.join(map(str, self.embed_sizes))}, "
+            f"{self.num_layers} x {self.hidden_size} LSTM, "
+            + (f"head {head}" if head else "linear head")
+        )
+
+
+# Named network sizes, torch-free so the command line lists them fast (``train --size``;
+# ``ModelConfig.sized``). "paper" is the paper's network (238,906 parameters with slack
+# outputs). The smaller ones come from the size study of the physics-step network
+# (``slungload study size``, docs/BENCHMARKS.md): that network does most of its work
+# through the discrete model f, so it needs far fewer weights; what each costs in the MPC's
+# batched rollout is measured there.
+DEFAULT_SIZE = "paper"
+MODEL_SIZES: dict[str, ModelSize] = {
+    "paper": ModelSize((100, 200, 300), 20, 3, (300, 200, 100), "the paper's network"),
+    "medium": ModelSize((64, 64), 32, 2, (64, 64), "a quarter of the paper's weights"),
+    "small": ModelSize((32, 32), 16, 2, (32,), "for the MPC's batched rollouts"),
+    "tiny": ModelSize((16,), 8, 1, (), "a few thousand weights: the floor of the study"),
+}
+
+
+def size_tag(config: ModelConfig) -> str:
+    """A network size's short name in run labels and folders: the name of ``MODEL_SIZES`` that
+    the widths match, "" for the paper's and for widths that match no name (so the folders
+    and labels of such runs are what they were before sizes had names)."""
+    name = config.size
+    return "" if name in (None, DEFAULT_SIZE) else name
+
+
+_PAPER = MODEL_SIZES[DEFAULT_SIZE]
+
+
+@dataclass(frozen=True)
 class ModelConfig:
     """Sizes of the LSTM encoder-decoder with Bahdanau attention.
 
-    The defaults give the paper's 238,906 parameters. ``architecture`` names the network in
-    ``models.MODELS``; a checkpoint written before it existed is the paper's network.
+    The defaults give the paper's 238,906 parameters; ``ModelConfig.sized(name)`` a named size
+    of ``MODEL_SIZES`` (``size`` names the one a config has). ``architecture`` names the network
+    in ``models.MODELS``; a checkpoint written before it existed is the paper's network.
     """
 
     architecture: str = DEFAULT_ARCHITECTURE  # a name in models.MODELS
-    embed_sizes: tuple[int, ...] = (100, 200, 300)  # input embedding Linear widths
-    hidden_size: int = 20  # LSTM hidden units
-    num_layers: int = 3  # LSTM layers (encoder and decoder)
-    head_sizes: tuple[int, ...] = (300, 200, 100)  # decoder output head widths
+    # The widths default to the paper's (MODEL_SIZES["paper"]); ``sized`` picks another size.
+    embed_sizes: tuple[int, ...] = _PAPER.embed_sizes  # input embedding Linear widths
+    hidden_size: int = _PAPER.hidden_size  # LSTM hidden units
+    num_layers: int = _PAPER.num_layers  # LSTM layers (encoder and decoder)
+    head_sizes: tuple[int, ...] = _PAPER.head_sizes  # decoder output head widths
     dropout: float = 0.1  # between embedding layers and LSTM layers
     slack: bool = True  # emit 13 slack variables per step besides the 13 states
     normalize: bool = True  # standardise inputs/outputs with training-split statistics
@@ -137,6 +186,15 @@ class ModelConfig:
     load_estimate: str = "difference"
 
     def __post_init__(self) -> None:
+        widths = (*self.embed_sizes, self.hidden_size, self.num_layers, *self.head_sizes)
+        bad = [w for w in widths if isinstance(w, bool) or not isinstance(w, int) or w < 1]
+        if not self.embed_sizes or bad:
+            raise ValueError(
+                "ModelConfig: the embedding needs at least one layer and every width and layer "
+                f"count must be a positive integer; got embed_sizes={self.embed_sizes}, "
+                f"hidden_size={self.hidden_size}, num_layers={self.num_layers}, "
+                f"head_sizes={self.head_sizes}"
+            )
         if self.load_estimate not in LOAD_ESTIMATES:
             raise ValueError(
                 f"unknown load estimate {self.load_estimate!r}; known: {sorted(LOAD_ESTIMATES)}"
@@ -150,6 +208,37 @@ class ModelConfig:
             raise ValueError(
                 f"unknown model architecture {self.architecture!r}; known: {sorted(ARCHITECTURES)}"
             )
+
+    @classmethod
+    def sized(cls, size: str, **options: Any) -> ModelConfig:
+        """The network of a named size (``MODEL_SIZES``) with any other field given:
+        ``ModelConfig.sized("small", architecture="physics-step")``. A checkpoint records the
+        widths themselves, so it rebuilds even if the registry changes."""
+        clash = sorted(set(_WIDTHS) & set(options))
+        if clash:
+            raise ValueError(f"ModelConfig.sized({size!r}) sets {clash}; give a size or widths")
+        return cls(**options).resized(size)
+
+    def resized(self, size: str) -> ModelConfig:
+        """The same config with the widths of a named size (``MODEL_SIZES``)."""
+        if size not in MODEL_SIZES:
+            known = "; ".join(f"{n} ({s.summary()})" for n, s in MODEL_SIZES.items())
+            raise ValueError(f"unknown network size {size!r}; known: {known}")
+        return dataclasses.replace(
+            self, **{name: getattr(MODEL_SIZES[size], name) for name in _WIDTHS}
+        )
+
+    @property
+    def size(self) -> str | None:
+        """The name of ``MODEL_SIZES`` whose widths these are, or None (custom widths)."""
+        mine = tuple(getattr(self, name) for name in _WIDTHS)
+        for name, size in MODEL_SIZES.items():
+            if tuple(getattr(size, w) for w in _WIDTHS) == mine:
+                return name
+        return None
+
+
+_WIDTHS = ("embed_sizes", "hidden_size", "num_layers", "head_sizes")  # what a size sets
 
 
 # How L_fit weighs the horizon steps (``LossWeights.steps``; ``loss.fit_loss``).

@@ -16,7 +16,9 @@ tables (``label``). It reads and writes itself as TOML (``read_toml``, ``write_t
     seed = 1
 
 A table or key left out takes its default; in ``[train]`` that is the named preset's value,
-so a file names a preset and overrides what it changes. TOML has no null: an option that is
+so a file names a preset and overrides what it changes. ``[model]`` may name a network size
+(``size = "small"``, a name of ``config.MODEL_SIZES``) in place of the widths; the file
+``train`` writes holds the widths themselves. TOML has no null: an option that is
 off (``max_time``, ``windows_per_epoch``, ``val_windows``) is written as ``"none"``.
 
 The named schedules (``PRESETS``) live here too: ``paper`` is the paper's schedule,
@@ -39,6 +41,7 @@ from .config import (
     TrainConfig,
     WindowConfig,
     from_dict,
+    size_tag,
     step_tag,
     to_dict,
 )
@@ -194,10 +197,12 @@ class RunConfig:
 
     def tags(self) -> list[str]:
         """What sets this run apart from the paper's setup, in folder-name form: the
-        architecture (unless the paper's), the variant, "fitted" constants, the step
-        weighting, "N<steps>" (a training horizon other than the default) and the load
-        estimate (unless the backward difference)."""
+        architecture (unless the paper's), the network's named size (unless the paper's:
+        ``config.size_tag``), the variant, "fitted" constants, the step weighting, "N<steps>"
+        (a training horizon other than the default) and the load estimate (unless the backward
+        difference)."""
         tags = [] if self.model.architecture == DEFAULT_ARCHITECTURE else [self.model.architecture]
+        tags += [size_tag(self.model)] if size_tag(self.model) else []
         tags.append(self.variant)
         tags += ["fitted"] if self.train.fit_constants else []
         tags += [step_tag(self.loss.steps)] if self.loss.steps != "paper" else []
@@ -209,7 +214,7 @@ class RunConfig:
 
     def folder(self) -> str:
         """Its run folder's name: the tags and the seed, e.g. "proposed-s0",
-        "physics-step-no-physics-mixed-N50-smoothed-s1"."""
+        "physics-step-no-physics-mixed-N50-smoothed-s1", "physics-step-small-no-physics-s0"."""
         return "-".join(self.tags()) + f"-s{self.seed}"
 
     def label(self, *, with_horizon: bool = False) -> str:
@@ -217,11 +222,12 @@ class RunConfig:
         architecture unless that is the paper's network, suffixed by "+fit" (fitted
         constants), "+relative" or "+mixed" (the step weighting), "+N<steps>" with
         ``with_horizon`` (when runs of a report differ in training horizon) and "+smoothed";
-        e.g. "proposed", "physics-step/no-physics+relative+N50"."""
-        architecture = self.model.architecture
-        label = self.variant if architecture == DEFAULT_ARCHITECTURE else (
-            f"{architecture}/{self.variant}"
-        )  # fmt: skip
+        a named network size other than the paper's joins the architecture; e.g. "proposed",
+        "physics-step/no-physics+relative+N50", "physics-step-small/no-physics"."""
+        architecture, size = self.model.architecture, size_tag(self.model)
+        network = [] if architecture == DEFAULT_ARCHITECTURE and not size else [architecture]
+        network += [size] if size else []
+        label = f"{'-'.join(network)}/{self.variant}" if network else self.variant
         label += "+fit" if self.train.fit_constants else ""
         tag = step_tag(self.loss.steps)
         label += f"+{tag}" if tag else ""
@@ -244,10 +250,10 @@ class RunConfig:
             raise ValueError(f"RunConfig: unknown keys {sorted(unknown)}")
         preset = str(data.get("preset", DEFAULT_PRESET))
         base = PRESETS[preset].config if preset in PRESETS else TrainConfig()
-        tables = {"model": ModelConfig, "loss": LossWeights, "window": WindowConfig}
         kwargs: dict[str, Any] = {"variant": data.get("variant", "proposed"), "preset": preset}
-        for name, cls_ in tables.items():
+        for name, cls_ in {"loss": LossWeights, "window": WindowConfig}.items():
             kwargs[name] = from_dict(cls_, _table(data, name))
+        kwargs["model"] = _model(_table(data, "model"))
         train = _table(data, "train")
         kwargs["train"] = from_dict(TrainConfig, {**to_dict(base), **train})
         return cls(**kwargs)
@@ -308,6 +314,18 @@ def _table(data: dict[str, Any], name: str) -> dict[str, Any]:
     if not isinstance(table, dict):
         raise ValueError(f"[{name}] must be a table of options, got {table!r}")
     return table
+
+
+def _model(table: dict[str, Any]) -> ModelConfig:
+    """``[model]``: the fields, or ``size = "small"`` (a name of ``config.MODEL_SIZES``) in
+    place of the widths."""
+    if "size" not in table:
+        return from_dict(ModelConfig, table)
+    rest = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items() if k != "size"}
+    unknown = set(rest) - {f.name for f in fields(ModelConfig)}
+    if unknown:
+        raise ValueError(f"ModelConfig: unknown keys {sorted(unknown)}")
+    return ModelConfig.sized(str(table["size"]), **rest)
 
 
 def _nones(data: dict[str, Any]) -> dict[str, Any]:

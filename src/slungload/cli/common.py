@@ -18,7 +18,8 @@ def new_command(sub: Any, name: str, summary: str, description: str) -> argparse
 
 
 def choices(kind: str) -> list[str]:
-    # Registries' names from modules that load neither torch nor MuJoCo: --help stays fast.
+    # Registries' names from modules that load neither torch nor MuJoCo: --help stays fast
+    # (sorted; the network sizes in the registry's order, largest first).
     if kind == "variants":
         from ..config import LOSS_VARIANTS as names
     elif kind == "models":
@@ -27,6 +28,10 @@ def choices(kind: str) -> list[str]:
         from ..config import STEP_WEIGHTINGS as names
     elif kind == "load-estimates":
         from ..config import LOAD_ESTIMATES as names
+    elif kind == "sizes":
+        from ..config import MODEL_SIZES as names
+
+        return list(names)
     else:
         from ..run_config import PRESETS as names
     return sorted(names)

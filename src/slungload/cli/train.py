@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..config import ARCHITECTURES, LOSS_VARIANTS
+from ..config import ARCHITECTURES, LOSS_VARIANTS, MODEL_SIZES
 from ..run_config import PRESETS, RunConfig
 from .common import add_vehicle_options, add_window_options, choices, new_command, resolve_params
 
@@ -37,6 +37,14 @@ def add_train(sub: Any) -> None:
         choices=choices("models"),
         help=f"network architecture (default {RUN.model.architecture}: "
         f"{ARCHITECTURES[RUN.model.architecture]})",
+    )
+    p.add_argument(
+        "--size",
+        default=RUN.model.size,
+        choices=choices("sizes"),
+        help="network size: "
+        + "; ".join(f"{n} ({s.summary()}: {s.description})" for n, s in MODEL_SIZES.items())
+        + f" (default {RUN.model.size})",
     )
     p.add_argument(
         "--preset",
@@ -98,7 +106,9 @@ def cmd_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         max_epochs=args.epochs,
         fit_constants=args.fit_constants,
-        model=ModelConfig(architecture=args.model, load_estimate=args.load_estimate),
+        model=ModelConfig.sized(
+            args.size, architecture=args.model, load_estimate=args.load_estimate
+        ),
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
     )

@@ -166,11 +166,10 @@ class SlungLoadNet(nn.Module):
         hidden, layers = cfg.hidden_size, cfg.num_layers
         embed = cfg.embed_sizes[-1]
         self.embed = InputEmbedding(cfg.embed_sizes, cfg.dropout)
-        self.encoder = nn.LSTM(embed, hidden, layers, dropout=cfg.dropout, batch_first=True)
+        between = cfg.dropout if layers > 1 else 0.0  # nn.LSTM drops out between its layers
+        self.encoder = nn.LSTM(embed, hidden, layers, dropout=between, batch_first=True)
         self.attention = BahdanauAttention(hidden)
-        self.decoder = nn.LSTM(
-            hidden + embed, hidden, layers, dropout=cfg.dropout, batch_first=True
-        )
+        self.decoder = nn.LSTM(hidden + embed, hidden, layers, dropout=between, batch_first=True)
         self.head = OutputHead(hidden, cfg.head_sizes, STATE_DIM * (2 if cfg.slack else 1))
         # Normalisation statistics, physical units; identity until ``fit_normalization``.
         self.register_buffer("state_mean", torch.zeros(STATE_DIM))
