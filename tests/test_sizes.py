@@ -159,7 +159,7 @@ def test_train_refuses_an_unknown_size_listing_the_known_ones(run_cli, tmp_path,
     assert "huge" in err and all(name in err for name in MODEL_SIZES)
 
 
-@pytest.mark.parametrize("argv", [("train", "--help")])
+@pytest.mark.parametrize("argv", [("train", "--help"), ("study", "size", "--help")])
 def test_the_help_lists_the_registry(argv, capsys):
     from slungload.cli import build_parser
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+from flights import SMALL
 
 from slungload.data.dataset import read_splits
 from slungload.sim import simulate_dataset
@@ -34,3 +35,52 @@ def test_study_trains_on_nested_subsets_and_writes_its_table(tmp_path):
     assert len(physics) == 1  # the same test flights for every subset
     for name in ("study.csv", "study.md", "study.png"):
         assert (tmp_path / "study" / name).is_file()
+
+
+# --- the size study ---------------------------------------------------------------------
+
+
+def test_the_front_keeps_the_sizes_no_other_beats_on_both_counts():
+    from slungload.study.size import RolloutTiming, SizeRow, pareto_front
+
+    def timing(size: str, ms: float) -> RolloutTiming:
+        return RolloutTiming(size, 1, ms, ms, 256, 15, 10, None)
+
+    rmse = {("paper", 0): 0.60, ("paper", 1): 0.70, ("medium", 0): 0.66, ("small", 0): 0.70,
+            ("tiny", 0): 0.80}  # fmt: skip
+    rows = [SizeRow(size, 1, seed, value) for (size, seed), value in rmse.items()]
+    times = [timing("paper", 30), timing("medium", 12), timing("small", 14), timing("tiny", 5)]
+    # small is slower than medium and less accurate: off the front, fastest first
+    assert pareto_front(rows, times) == ("tiny", "medium", "paper")
+    assert pareto_front(rows, [timing("paper", 30), timing("tiny", 40)]) == ("paper",)
+
+
+def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_path):
+    from slungload.config import ModelConfig
+    from slungload.run_config import RunConfig
+    from slungload.study import study_size
+
+    names = ["a", "b", "c", "d", "e"]
+    data = write_dataset(
+        tmp_path / "data",
+        dict.fromkeys(names, 40),
+        {"train": names[:3], "val": names[3:4], "test": names[4:]},
+        physics=True,
+    )
+    template = RunConfig("no-physics", model=ModelConfig(architecture="physics-step"), window=SMALL)
+    study = study_size(
+        data=data, out=tmp_path / "study", sizes=("small", "tiny"), seeds=(0,),
+        front_seeds=(1,), template=template, preset="quick", horizon=SMALL.horizon,
+        samples=8, steps=3, repeats=3, workers=1, progress=False,
+    )  # fmt: skip
+    assert {t.size for t in study.timings} == {"small", "tiny"}
+    assert all(t.median_ms > 0 and (t.samples, t.steps) == (8, 3) for t in study.timings)
+    seeds = {(r.size, r.seed) for r in study.rows}
+    assert ("physics", None) in seeds and {("small", 0), ("tiny", 0)} <= seeds
+    assert {s for s, k in seeds if k == 1} == set(study.front)  # more seeds on the front only
+    for name in ("size.csv", "timing.csv", "size.md", "size.png"):
+        assert (tmp_path / "study" / name).is_file()
+    table = (tmp_path / "study" / "size.md").read_text()
+    assert "| small |" in table and "| tiny |" in table and "physics model" in table
+    runs = sorted(p.name for p in (tmp_path / "study" / "runs").iterdir())
+    assert "physics-step-small-no-physics-N4-s0" in runs

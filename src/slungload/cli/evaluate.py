@@ -157,10 +157,12 @@ def add_study(sub: Any) -> None:
     p = new_command(
         sub,
         "study",
-        "studies beyond the paper (data: where physics-informed training helps)",
+        "studies beyond the paper (data: where physics-informed training helps; size: how "
+        "large the network must be for control)",
         "`study data`: train each loss variant on nested subsets of the training flights "
         "(validation and test flights fixed) and plot the RMSE at N = 50 against the number "
-        "of training flights.",
+        "of training flights. `study size`: train the physics-step network at each named size "
+        "and plot its validation RMSE at N = 50 against the MPC's batched rollout time.",
     )
     kinds = p.add_subparsers(dest="study", metavar="STUDY", required=True)
     d = kinds.add_parser("data", help="RMSE against the number of training flights")
@@ -194,10 +196,72 @@ def add_study(sub: Any) -> None:
     )
     d.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
     d.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_study_size(kinds)
     p.set_defaults(func=cmd_study)
 
 
+def _add_study_size(kinds: Any) -> None:
+    from ..config import MODEL_SIZES
+
+    s = kinds.add_parser(
+        "size",
+        help="validation RMSE at N = 50 against the MPC's batched rollout time, per network size",
+        description="Train reproduce's best configuration (physics-step, no-physics, mixed step "
+        "weighting, N = 50, smoothed load estimate) at each named network size, evaluate it on "
+        "the validation flights at N = 50, time one batched rollout in the MPC's shape "
+        "(K plans of N steps, one torch thread) and train the sizes on the Pareto front with "
+        "more seeds. Writes size.md, size.csv, timing.csv and size.png into OUT; finished runs "
+        "are kept, so an interrupted study can be re-run.",
+    )
+    s.add_argument(
+        "--data", required=True, type=Path, help="dataset folder (for control: excited flights)"
+    )
+    s.add_argument("--out", required=True, type=Path, help="output folder")
+    s.add_argument(
+        "--sizes",
+        type=comma_names,
+        default=list(MODEL_SIZES),
+        metavar="NAME,NAME",
+        help="network sizes: "
+        + "; ".join(f"{n} ({size.summary()})" for n, size in MODEL_SIZES.items())
+        + f" (default {','.join(MODEL_SIZES)})",
+    )
+    s.add_argument("--seeds", default="0", metavar="SEEDS", help="every size's seeds (default 0)")
+    s.add_argument(
+        "--front-seeds",
+        default="1,2",
+        metavar="SEEDS",
+        help="further seeds of the sizes on the Pareto front (default 1,2; 'none': no more)",
+    )
+    s.add_argument(
+        "--preset", default="default", choices=choices("presets"), help="default: default"
+    )
+    s.add_argument("--samples", type=int, default=256, metavar="K", help="plans (default 256)")
+    s.add_argument("--steps", type=int, default=15, metavar="N", help="plan steps (default 15)")
+    s.add_argument("--repeats", type=int, default=200, help="timed rollouts (default 200)")
+    s.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    s.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def cmd_study(args: argparse.Namespace) -> int:
+    if args.study == "size":
+        from ..study import study_size
+
+        study_size(
+            data=args.data,
+            out=args.out,
+            sizes=args.sizes,
+            seeds=seed_range(args.seeds),
+            front_seeds=() if args.front_seeds == "none" else seed_range(args.front_seeds),
+            preset=args.preset,
+            samples=args.samples,
+            steps=args.steps,
+            repeats=args.repeats,
+            workers=args.workers,
+            progress=not args.quiet,
+        )
+        print(args.out / "size.md")
+        return 0
     from ..study import study_data
 
     study_data(

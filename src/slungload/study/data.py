@@ -23,16 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import DEFAULT_ARCHITECTURE, VEHICLE_FILE, ModelConfig
-from .data.dataset import check_folder, read_splits
-from .data.split import SPLIT_FRACTIONS
-from .evaluation.evaluator import evaluate
-from .evaluation.metrics import COMBINED
-from .evaluation.results import PHYSICS
-from .experiment import PAPER_VARIANTS, TrainingJob, run_training_jobs
-from .fileio import write_splits, write_text
-from .run_config import RunConfig
-from .sim import simulate_dataset
+from ..config import DEFAULT_ARCHITECTURE, VEHICLE_FILE, ModelConfig
+from ..data.dataset import check_folder, read_splits
+from ..data.split import SPLIT_FRACTIONS
+from ..evaluation.evaluator import evaluate
+from ..evaluation.metrics import COMBINED
+from ..evaluation.results import PHYSICS
+from ..experiment import PAPER_VARIANTS, TrainingJob, run_training_jobs
+from ..fileio import write_splits, write_text
+from ..run_config import RunConfig
+from ..sim import simulate_dataset
 
 TRAIN_SHARE = SPLIT_FRACTIONS["train"]  # of a simulated dataset's windows in training
 
@@ -180,7 +180,7 @@ def _cell(value: tuple[float, float, int] | None) -> str:
 def _figure(table, labels: list[str], sizes: list[int], path: Path, horizon: int) -> None:
     from matplotlib.figure import Figure
 
-    from .fileio import atomic_path
+    from ..fileio import atomic_path
 
     fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
     ax = fig.add_subplot()

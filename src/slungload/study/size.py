@@ -1,0 +1,348 @@
+"""How large the network must be for control: the size study (``slungload study size``).
+
+The physics-step network does most of its work through the discrete model f, so it may not
+need the paper's 239k weights, and the MPC pays for every one of them K x N times per control
+step. For each named size (``config.MODEL_SIZES``) the study trains one template run (by
+default ``experiment.BEYOND_PAPER[0]``: physics-step, no-physics, mixed step weighting, N = 50,
+smoothed load estimate) on one dataset (for control: excited flights, docs/control.md) and
+measures, per size:
+
+- accuracy: combined RMSE at N = ``horizon`` on the **validation** flights (the split to choose
+  a configuration on; ``evaluate(..., split="val")``), per seed;
+- cost: one batched rollout in the MPC's shape, ``NetworkModel.predict_candidates`` on float64
+  tensors (as ``control.mpc`` calls it), K = ``samples`` plans of N = ``steps`` steps from the
+  first validation window, one torch thread, the median of ``repeats`` calls after a warm-up
+  (``deploy.timing.time_calls``), with the machine's 1-min load average.
+
+The sizes on the Pareto front (no other size both faster and, by the mean over the seeds,
+more accurate) are then trained with ``front_seeds`` too.
+
+Layout of ``out``: ``runs/<RunConfig.folder()>/``, ``size.csv`` (every run), ``timing.csv``
+(every size), ``size.md`` (the table) and ``size.png`` (the trade-off). Finished runs are
+kept, so an interrupted study goes on where it stopped; the rollouts are timed afresh.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..config import MODEL_SIZES, WindowConfig
+from ..data.dataset import load_dataset
+from ..deploy.timing import time_calls
+from ..evaluation.evaluator import evaluate, horizon_windows
+from ..evaluation.metrics import COMBINED
+from ..evaluation.results import PHYSICS
+from ..experiment import BEYOND_PAPER, TrainingJob, run_training_jobs
+from ..fileio import write_text
+from ..models.base import count_parameters
+from ..models.checkpoints import load_checkpoint
+from ..models.prediction import NetworkModel
+from ..run_config import RunConfig
+
+
+@dataclass(frozen=True)
+class SizeRow:
+    """Validation combined RMSE at the study's horizon of one trained run (or the physics
+    model: size ``"physics"``, seed None)."""
+
+    size: str
+    parameters: int
+    seed: int | None
+    rmse: float
+    epochs: int | None = None  # trained epochs (run.json), where known
+
+
+@dataclass(frozen=True)
+class RolloutTiming:
+    """One size's batched rollout: ``samples`` plans of ``steps`` steps, one torch thread."""
+
+    size: str
+    parameters: int
+    median_ms: float
+    p90_ms: float
+    samples: int
+    steps: int
+    repeats: int
+    load_average: float | None  # 1-min, when the timing ended
+
+
+@dataclass(frozen=True)
+class SizeStudy:
+    """What ``study_size`` measured: every run's RMSE, every size's rollout time, the front."""
+
+    rows: tuple[SizeRow, ...]
+    timings: tuple[RolloutTiming, ...]
+    front: tuple[str, ...]  # sizes on the Pareto front, fastest first
+    horizon: int
+
+
+def size_run(template: RunConfig, size: str, *, preset: str, seed: int) -> RunConfig:
+    """The template run with the widths of ``size`` (``MODEL_SIZES``), on a preset and seed."""
+    return replace(template, model=template.model.resized(size)).scheduled(preset, seed=seed)
+
+
+def study_size(
+    *,
+    data: str | Path,
+    out: str | Path,
+    sizes: Sequence[str] = tuple(MODEL_SIZES),
+    seeds: Sequence[int] = (0,),
+    front_seeds: Sequence[int] = (1, 2),
+    template: RunConfig = BEYOND_PAPER[0],
+    preset: str = "default",
+    horizon: int = 50,
+    samples: int = 256,
+    steps: int = 15,
+    repeats: int = 200,
+    workers: int = 2,
+    progress: bool = True,
+) -> SizeStudy:
+    """Train ``template`` at every size of ``sizes`` for every seed of ``seeds``, measure
+    validation RMSE at ``horizon`` and the batched rollout time, then train the sizes on the
+    Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``."""
+    unknown = [s for s in sizes if s not in MODEL_SIZES]
+    if unknown or not sizes:
+        raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
+    out, data = Path(out), Path(data)
+    _train(data, out, template, sizes, seeds, preset, workers, progress)
+    timings = tuple(
+        _time_size(
+            size,
+            out / "runs" / size_run(template, size, preset=preset, seed=seeds[0]).folder(),
+            data,
+            samples=samples,
+            steps=steps,
+            repeats=repeats,
+        )
+        for size in sizes
+    )
+    rows = _evaluate(data, out, template, {s: seeds for s in sizes}, preset, horizon)
+    front = pareto_front(rows, timings)
+    extra = {s: tuple(k for k in front_seeds if k not in seeds) for s in front}
+    if any(extra.values()):
+        _train(
+            data,
+            out,
+            template,
+            front,
+            sorted({k for v in extra.values() for k in v}),
+            preset,
+            workers,
+            progress,
+        )
+        chosen = {s: tuple(seeds) + (extra[s] if s in front else ()) for s in sizes}
+        rows = _evaluate(data, out, template, chosen, preset, horizon)
+    study = SizeStudy(tuple(rows), timings, pareto_front(rows, timings), horizon)
+    write_size_study(study, out)
+    return study
+
+
+def _train(data, out, template, sizes, seeds, preset, workers, progress) -> None:
+    """The runs of every size and seed not finished yet, seed by seed (so a study cut short
+    has every size at its first seed), the sizes in the order given within a seed (the
+    registry's: the largest, slowest to train, first)."""
+    jobs = []
+    for seed in seeds:
+        for size in sizes:
+            run = size_run(template, size, preset=preset, seed=seed)
+            run_dir = out / "runs" / run.folder()
+            if not (run_dir / "run.json").is_file():
+                jobs.append(TrainingJob(data, run_dir, run, (run_dir / "last.ckpt").is_file()))
+    run_training_jobs(jobs, workers=workers, progress=progress)
+
+
+def _evaluate(data, out, template, seeds, preset, horizon) -> list[SizeRow]:
+    """Validation combined RMSE at ``horizon`` of every run (size -> its seeds) and of the
+    physics model, in one evaluation (the same windows for all)."""
+    runs = {
+        size_run(template, size, preset=preset, seed=seed): size
+        for size, chosen in seeds.items()
+        for seed in chosen
+    }
+    folders = [out / "runs" / run.folder() for run in runs]
+    report = evaluate(folders, data=data, horizons=(horizon,), split="val", progress=False)
+    size_of = {run.label(): size for run, size in runs.items()}
+    info = {(m["label"], m["seed"]): m for m in report.models}
+    rows = []
+    for r in report.results:
+        if r.label == PHYSICS:
+            rows.append(SizeRow(PHYSICS, 0, None, r.metrics.rmse[COMBINED]))
+            continue
+        model = info[(r.label, r.seed)]
+        rows.append(
+            SizeRow(
+                size_of[r.label],
+                model["parameters"],
+                r.seed,
+                r.metrics.rmse[COMBINED],
+                model.get("epochs"),
+            )
+        )
+    return rows
+
+
+def _time_size(
+    size: str, run_dir: Path, data: Path, *, samples: int, steps: int, repeats: int
+) -> RolloutTiming:
+    """The batched rollout of one trained run (any seed: the weights do not change the
+    arithmetic) from the first validation window of ``data``, with ``samples`` noisy copies of
+    its inputs as the plans."""
+    loaded = load_checkpoint(run_dir)
+    m = loaded.window.history
+    dataset = load_dataset(data, window=WindowConfig(m, steps), params=loaded.params)
+    window = horizon_windows(dataset, history=m, horizons=(steps,), split="val")[steps][0]
+    x_hist = window.states[0, :m].double()  # (M, 13)
+    u_past = window.inputs[0, : m - 1].double()  # (M-1, 4)
+    plan = window.inputs[0, m - 1 : m - 1 + steps].double()  # (N, 4) u_k ... u_{k+N-1}
+    noise = torch.randn(samples, steps, plan.shape[-1], generator=torch.Generator().manual_seed(0))
+    plans = plan + 0.1 * noise.double()  # (K, N, 4)
+    model = NetworkModel(loaded.model, m)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        wall, _ = time_calls(
+            lambda i: model.predict_candidates(x_hist, u_past, plans),
+            repeats,
+            warmup=max(5, repeats // 20),
+        )
+    finally:
+        torch.set_num_threads(threads)
+    ms = 1e3 * np.asarray(wall)
+    return RolloutTiming(
+        size,
+        count_parameters(loaded.model),
+        float(np.median(ms)),
+        float(np.percentile(ms, 90)),
+        samples,
+        steps,
+        repeats,
+        os.getloadavg()[0],
+    )
+
+
+def pareto_front(rows: Sequence[SizeRow], timings: Sequence[RolloutTiming]) -> tuple[str, ...]:
+    """Sizes that no other size beats on both counts (faster rollout and lower mean RMSE over
+    its seeds), fastest first."""
+    mean = _means(rows)
+    front, best = [], float("inf")
+    for t in sorted(timings, key=lambda t: t.median_ms):
+        if t.size in mean and mean[t.size][0] < best:
+            front.append(t.size)
+            best = mean[t.size][0]
+    return tuple(front)
+
+
+def _means(rows: Sequence[SizeRow]) -> dict[str, tuple[float, float, int]]:
+    """size -> (mean, std, seeds) of the RMSE."""
+    groups: dict[str, list[float]] = {}
+    for r in rows:
+        groups.setdefault(r.size, []).append(r.rmse)
+    return {
+        size: (statistics.fmean(v), statistics.stdev(v) if len(v) > 1 else 0.0, len(v))
+        for size, v in groups.items()
+    }
+
+
+def write_size_study(study: SizeStudy, out: Path) -> None:
+    """size.csv (every run), timing.csv (every size), size.md (the table) and size.png."""
+    runs = ["size,parameters,seed,val_combined_rmse,epochs"]
+    runs += [
+        f"{r.size},{r.parameters},{'' if r.seed is None else r.seed},{r.rmse},"
+        f"{'' if r.epochs is None else r.epochs}"
+        for r in study.rows
+    ]
+    write_text(out / "size.csv", "\n".join(runs) + "\n")
+    times = ["size,parameters,median_ms,p90_ms,samples,steps,repeats,load_average"]
+    times += [
+        f"{t.size},{t.parameters},{t.median_ms},{t.p90_ms},{t.samples},{t.steps},{t.repeats},"
+        f"{'' if t.load_average is None else t.load_average}"
+        for t in study.timings
+    ]
+    write_text(out / "timing.csv", "\n".join(times) + "\n")
+    write_text(out / "size.md", size_table(study) + "\n")
+    _figure(study, out / "size.png")
+
+
+def size_table(study: SizeStudy) -> str:
+    """The Markdown table: one row per size (the physics model's RMSE below), largest first."""
+    mean = _means(study.rows)
+    seeds = sorted({r.seed for r in study.rows if r.seed is not None})
+    per_seed = {(r.size, r.seed): r.rmse for r in study.rows}
+    t = study.timings[0]
+    lines = [
+        f"Validation combined RMSE at N = {study.horizon} against one batched rollout "
+        f"(K = {t.samples}, N = {t.steps}, one torch thread, median of {t.repeats} calls)",
+        "",
+        "| size | widths | parameters | "
+        + " | ".join(f"seed {s}" for s in seeds)
+        + " | mean ± std | rollout median / p90 (ms) | load average | on the front |",
+        "|---|---|---|" + "---|" * len(seeds) + "---|---|---|---|",
+    ]
+    for t in sorted(study.timings, key=lambda t: -t.parameters):
+        m, s, n = mean.get(t.size, (float("nan"), 0.0, 0))
+        cells = [f"{per_seed[(t.size, k)]:.3f}" if (t.size, k) in per_seed else "-" for k in seeds]
+        load = "-" if t.load_average is None else f"{t.load_average:.2f}"
+        lines.append(
+            f"| {t.size} | {MODEL_SIZES[t.size].summary()} | {t.parameters:,} | "
+            + " | ".join(cells)
+            + f" | {m:.3f}"
+            + (f" ± {s:.3f}" if n > 1 else "")
+            + f" | {t.median_ms:.1f} / {t.p90_ms:.1f} | {load} | "
+            + ("yes" if t.size in study.front else "")
+            + " |"
+        )
+    if PHYSICS in mean:
+        blank = " | ".join("" for _ in seeds)
+        lines.append(f"| physics model | - | 0 | {blank} | {mean[PHYSICS][0]:.3f} | - | - | |")
+    return "\n".join(lines)
+
+
+def _figure(study: SizeStudy, path: Path) -> None:
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import NullLocator
+
+    from ..evaluation.plots import DPI
+    from ..fileio import atomic_path
+
+    mean = _means(study.rows)
+    fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
+    ax = fig.add_subplot()
+    timed = sorted((t for t in study.timings if t.size in mean), key=lambda t: t.median_ms)
+    for i, t in enumerate(timed):
+        m, s, n = mean[t.size]
+        colour = "C0" if t.size in study.front else "0.5"
+        ax.errorbar(t.median_ms, m, yerr=s if n > 1 else None, capsize=3, marker="o",
+                    color=colour, linestyle="none")  # fmt: skip
+        text = f"{t.size}\n{t.parameters:,} weights, {n} seed{'s' if n > 1 else ''}"
+        ax.annotate(text, (t.median_ms, m), textcoords="offset points", fontsize=8,
+                    xytext=(6, 6) if i % 2 == 0 else (6, -24))  # fmt: skip
+    front = [t for t in timed if t.size in study.front]
+    ax.plot([t.median_ms for t in front], [mean[t.size][0] for t in front], color="C0",
+            alpha=0.5, label="Pareto front")  # fmt: skip
+    if PHYSICS in mean:  # a line where it fits, else its value in the legend
+        physics = mean[PHYSICS][0]
+        label = f"physics model ({physics:.3f})"
+        if timed and physics > 1.5 * max(mean[t.size][0] for t in timed):
+            ax.plot([], [], color="0.3", linestyle=":", label=f"{label}, off the scale")
+        else:
+            ax.axhline(physics, color="0.3", linestyle=":", label=label)
+    ax.margins(y=0.12)
+    ax.set_xscale("log")
+    if timed:
+        t, ms = timed[0], [t.median_ms for t in timed]
+        ax.set_xlabel(f"batched rollout, K = {t.samples}, N = {t.steps}, one thread (ms, median)")
+        ax.set_xticks(ms, [f"{v:.1f}" for v in ms])  # each size's time, room for its name
+        ax.xaxis.set_minor_locator(NullLocator())
+        ax.set_xlim(min(ms) / 1.4, max(ms) * 2.2)
+    ax.set_ylabel(f"validation combined RMSE at N = {study.horizon}")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
