@@ -4,6 +4,7 @@ MPC's for the same samples, and a controller that runs with numpy + onnxruntime 
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -161,3 +162,24 @@ def test_export_command_for_the_mpc(run_cli, tiny_run, tmp_path):
     (model,) = tmp_path.glob("*.mpc.onnx")
     assert model.name.endswith("-n15.mpc.onnx") and "MPC candidates graph" in out
     assert OnnxCandidateModel(model).horizon == 15
+
+
+# --- the example loop (examples/onboard_loop.py), small configurations -----------------------
+
+EXAMPLE = Path(__file__).parents[1] / "examples" / "onboard_loop.py"
+
+
+def test_the_example_loop_runs_on_an_exported_model(exported):
+    model = exported["physics-step"][1]
+    command = [sys.executable, str(EXAMPLE), str(model), "--samples", "16", "--steps", "12"]
+    done = subprocess.run(command, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "12 steps, K = 16, N = 6: vehicle RMSE" in done.stdout
+
+
+def test_the_example_loop_tracks_with_the_physics_model():
+    spec = importlib.util.spec_from_file_location("onboard_loop", EXAMPLE)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    rmse = example.main(["--physics", "--samples", "32", "--horizon", "10", "--steps", "60"])
+    assert rmse < 0.1  # m: the frames round trip (NED/FRD and back) is right, or it would crash

@@ -1,0 +1,131 @@
+"""A vehicle's own control loop around the MPC: PX4-style measurements in, commands out.
+
+    slungload export runs/ps-exc --for-mpc --out ps.mpc.onnx   # once, where torch is
+    python examples/onboard_loop.py ps.mpc.onnx [--samples 256] [--steps 200]
+    python examples/onboard_loop.py --physics                        # the physics model (torch)
+
+Every control period h = 0.03 s (the data rate) the loop
+
+1. reads a measurement as PX4 reports it: position and velocity in NED, attitude body (FRD)
+   -> NED, and the load's position (motion capture or an estimator) in NED;
+2. converts it to the package's frames with ``slungload.frames`` (world z up, FLU body) and
+   packs the state x = (p, v, q w-x-y-z, pL) (``slungload.layout``);
+3. takes the reference at the next N steps (positions, velocities, yaw);
+4. calls ``controller.step(x, reference)``, which keeps the history itself and returns
+   thrust (N) and body rates (rad/s, FLU);
+5. converts the rates back to FRD and sends them with the thrust.
+
+The controller part imports numpy, onnxruntime and the package's torch-free modules only. The
+stand-in vehicle below (``SimulatedVehicle``: the package's discrete model, torch) is what a
+real loop replaces with the autopilot link (MAVLink / uORB / ROS 2 telemetry in, an attitude-
+rate setpoint out).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import numpy as np
+
+from slungload import frames
+from slungload.config import VehicleParams
+from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+from slungload.layout import LOAD_POS, POS, QUAT, VEL
+
+H = 0.03  # s, control period (the data rate)
+
+
+def reference_ahead(t: float, n: int) -> ReferenceAhead:
+    """A 0.6 m move in x over 2 s (smooth), at 1.5 m height, yaw 0: rows t + h ... t + N h."""
+    times = t + H * np.arange(1, n + 1)
+    s = np.clip(times / 2.0, 0.0, 1.0)
+    shape, rate = 10 * s**3 - 15 * s**4 + 6 * s**5, (30 * s**2 - 60 * s**3 + 30 * s**4) / 2.0
+    position = np.stack([0.6 * shape, np.zeros(n), np.full(n, 1.5)], axis=-1)
+    velocity = np.stack([0.6 * rate, np.zeros(n), np.zeros(n)], axis=-1)
+    return ReferenceAhead(position, velocity, np.zeros(n))
+
+
+def state_from_px4(p_ned, v_ned, q_ned_frd, p_load_ned) -> np.ndarray:
+    """The package's state (13,) from PX4's NED / FRD measurements."""
+    return np.concatenate(
+        [
+            frames.world_vectors(p_ned, "ned"),
+            frames.world_vectors(v_ned, "ned"),
+            frames.attitudes(q_ned_frd, "ned", "frd"),
+            frames.world_vectors(p_load_ned, "ned"),
+        ]
+    )
+
+
+class SimulatedVehicle:
+    """Stand-in for the autopilot link: the discrete model (torch) reporting in NED / FRD."""
+
+    def __init__(self, params: VehicleParams) -> None:
+        import torch
+
+        from slungload import physics
+
+        self.torch, self.physics, self.params = torch, physics, params
+        p = np.array([0.0, 0.0, 1.5])
+        x = np.concatenate([p, np.zeros(3), [1.0, 0, 0, 0], p - [0, 0, params.cable_length]])
+        self.x = torch.from_numpy(x)
+        self.aux = torch.zeros(6, dtype=torch.float64)
+
+    def measure(self):
+        """(p NED, v NED, q FRD -> NED w-x-y-z, load position NED), as PX4 would report."""
+        x = self.x.numpy()
+        q_ned = frames.quat_multiply(frames.quat_conjugate(frames.Q_ENU_FROM_NED), x[QUAT])
+        q_ned_frd = frames.quat_multiply(q_ned, frames.Q_FLU_FROM_FRD)
+        to_ned = frames.world_vectors  # (x, y, z) -> (y, x, -z) is its own inverse
+        return to_ned(x[POS], "ned"), to_ned(x[VEL], "ned"), q_ned_frd, to_ned(x[LOAD_POS], "ned")
+
+    def send(self, thrust: float, rates_frd: np.ndarray) -> None:
+        rates = frames.body_vectors(rates_frd, "frd")  # FRD -> FLU is its own inverse too
+        u = self.torch.tensor([thrust, *rates], dtype=self.torch.float64)
+        self.x, self.aux = self.physics.step(self.x, u, self.aux, self.params)
+
+
+def controller(args: argparse.Namespace, limits: InputLimits) -> MPPIController:
+    config = MPCConfig(samples=args.samples, horizon=args.horizon, knots=min(5, args.horizon))
+    if args.model:
+        return MPPIController.from_onnx(args.model, limits, config)  # numpy + onnxruntime
+    from slungload.control.mpc import TorchCandidates  # the physics model runs in torch
+    from slungload.models.prediction import PhysicsModel
+
+    return MPPIController(TorchCandidates(PhysicsModel(VehicleParams())), limits, config)
+
+
+def main(argv: list[str] | None = None) -> float:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", nargs="?", help="an exported MPC model (.mpc.onnx)")
+    parser.add_argument("--physics", action="store_true", help="the physics model instead")
+    parser.add_argument("--samples", type=int, default=256, help="K (default 256)")
+    parser.add_argument("--horizon", type=int, default=15, help="N without a model file")
+    parser.add_argument("--steps", type=int, default=200, help="control steps (default 200)")
+    args = parser.parse_args(argv)
+    if bool(args.model) == args.physics:
+        parser.error("give an exported model file or --physics")
+    params = VehicleParams()
+    hover = (params.mass_quad + params.mass_load) * params.gravity
+    limits = InputLimits(0.3 * hover, 2.0 * hover, 4.0)  # N, N, rad/s: the vehicle's box
+    mpc = controller(args, limits)
+    vehicle = SimulatedVehicle(params)
+    errors = []
+    for k in range(args.steps):
+        x = state_from_px4(*vehicle.measure())  # 1-2
+        reference = reference_ahead(k * H, mpc.cfg.horizon)  # 3
+        command = mpc.step(x, reference)  # 4
+        vehicle.send(command.thrust, frames.body_vectors(command.rates, "frd"))  # 5
+        errors.append(np.linalg.norm(x[POS] - reference_ahead((k - 1) * H, 1).position[0]))
+    rmse = math.sqrt(np.mean(np.square(errors)))
+    stats = mpc.stats
+    print(
+        f"{args.steps} steps, K = {mpc.cfg.samples}, N = {mpc.cfg.horizon}: vehicle RMSE "
+        f"{rmse:.3f} m, fallbacks {stats.fallback_steps}, hover {stats.hover_steps}"
+    )
+    return rmse
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""Time one control step of the MPC: torch (the simulator's ``SamplingMPC``) beside onboard
+(numpy + ONNX Runtime, ``MPPIController.from_onnx``), the same network, interleaved.
+
+    python examples/time_onboard_mpc.py [--run RUN_DIR] [--samples 256] [--horizon 15]
+
+Without ``--run`` the network is a paper-size physics-step network with random weights and
+normalisation fitted on synthetic physics windows (speed does not depend on the weights). One
+thread for torch and for ONNX Runtime. Each round times ``--calls`` control steps of one
+controller, then of the other (the order alternates between rounds); the measurements are
+the states of a synthetic flight, replayed. Prints median and p99 wall-clock ms per step, the
+calling thread's CPU ms, and the load average before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.control.mpc import SamplingMPC
+from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+from slungload.deploy.benchmarks import physics_windows
+from slungload.deploy.candidates import export_for_mpc
+from slungload.deploy.predictor import Predictor
+from slungload.deploy.timing import time_calls
+from slungload.models import build
+from slungload.models.prediction import NetworkModel
+
+
+def predictor(run: Path | None) -> Predictor:
+    if run is not None:
+        return Predictor.from_checkpoint(run, threads=None)
+    torch.manual_seed(0)
+    window = WindowConfig(history=50, horizon=15)
+    model = build(ModelConfig(architecture="physics-step"), VehicleParams())
+    fit = physics_windows(64, window)
+    model.fit_normalization(fit.states, fit.inputs, origin_step=window.history - 1)
+    return Predictor(model.eval(), window, VehicleParams(), "no-physics", threads=None)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--run", type=Path)
+    parser.add_argument("--samples", type=int, default=256)
+    parser.add_argument("--horizon", type=int, default=15)
+    parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--calls", type=int, default=30)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    pred = predictor(args.run)
+    cfg = MPCConfig(samples=args.samples, horizon=args.horizon)
+    limits = InputLimits(4.0, 30.0, 4.0)
+    with tempfile.TemporaryDirectory() as folder:
+        exported = export_for_mpc(pred, Path(folder) / "m.mpc.onnx", horizon=args.horizon)
+        controllers = {
+            "torch MPC": SamplingMPC(NetworkModel(pred.model, pred.window.history), limits, cfg),
+            "onboard MPC (onnxruntime)": MPPIController.from_onnx(exported.model, limits, cfg),
+        }
+    flight = physics_windows(1, WindowConfig(history=100, horizon=args.horizon)).states[0]
+    states = flight.double().numpy()
+    n = args.horizon
+    ref = ReferenceAhead(np.tile(states[0, :3], (n, 1)), np.zeros((n, 3)), np.zeros(n))
+    steppers = {
+        "torch MPC": lambda i: controllers["torch MPC"].core.step(states[i % len(states)], ref),
+        "onboard MPC (onnxruntime)": lambda i: controllers["onboard MPC (onnxruntime)"].step(
+            states[i % len(states)], ref
+        ),
+    }
+    wall = {name: [] for name in steppers}
+    cpu = {name: [] for name in steppers}
+    load = [os.getloadavg()[0]]
+    for r in range(args.rounds):
+        names = list(steppers) if r % 2 == 0 else list(reversed(steppers))
+        for name in names:
+            w, c = time_calls(steppers[name], args.calls, warmup=3)
+            wall[name] += w
+            cpu[name] += c
+    load.append(os.getloadavg()[0])
+    print(f"K = {args.samples}, N = {n}, M = {pred.window.history}, one thread, "
+          f"{args.rounds} x {args.calls} steps each, interleaved; load average (1 min) "
+          f"{load[0]:.2f} before, {load[1]:.2f} after, {os.cpu_count()} cores")  # fmt: skip
+    for name in steppers:
+        ms = np.array(wall[name]) * 1e3
+        print(f"{name}: median {np.median(ms):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms, "
+              f"CPU median {statistics.median(cpu[name]) * 1e3:.1f} ms")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
