@@ -68,11 +68,12 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
         physics=True,
     )
     template = RunConfig("no-physics", model=ModelConfig(architecture="physics-step"), window=SMALL)
-    study = study_size(
+    options = dict(
         data=data, out=tmp_path / "study", sizes=("small", "tiny"), seeds=(0,),
         front_seeds=(1,), template=template, preset="quick", horizon=SMALL.horizon,
         samples=8, steps=3, repeats=3, workers=1, progress=False,
     )  # fmt: skip
+    study = study_size(**options)
     assert {t.size for t in study.timings} == {"small", "tiny"}
     assert all(t.median_ms > 0 and (t.samples, t.steps) == (8, 3) for t in study.timings)
     seeds = {(r.size, r.seed) for r in study.rows}
@@ -82,5 +83,9 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
         assert (tmp_path / "study" / name).is_file()
     table = (tmp_path / "study" / "size.md").read_text()
     assert "| small |" in table and "| tiny |" in table and "physics model" in table
-    runs = sorted(p.name for p in (tmp_path / "study" / "runs").iterdir())
+    runs_dir = tmp_path / "study" / "runs"
+    runs = sorted(p.name for p in runs_dir.iterdir())
     assert "physics-step-small-no-physics-N4-s0" in runs
+    # Without training, the finished runs are evaluated again (and timed afresh).
+    again = study_size(**{**options, "train": False})
+    assert again.rows == study.rows and sorted(p.name for p in runs_dir.iterdir()) == runs

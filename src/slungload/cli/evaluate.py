@@ -240,6 +240,12 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument("--steps", type=int, default=15, metavar="N", help="plan steps (default 15)")
     s.add_argument("--repeats", type=int, default=200, help="timed rollouts (default 200)")
     s.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    s.add_argument(
+        "--no-train",
+        action="store_true",
+        help="train nothing: evaluate and time the finished runs (re-time on a quiet machine, "
+        "or report a study cut short)",
+    )
     s.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -258,6 +264,7 @@ def cmd_study(args: argparse.Namespace) -> int:
             steps=args.steps,
             repeats=args.repeats,
             workers=args.workers,
+            train=not args.no_train,
             progress=not args.quiet,
         )
         print(args.out / "size.md")

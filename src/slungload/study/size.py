@@ -102,41 +102,36 @@ def study_size(
     steps: int = 15,
     repeats: int = 200,
     workers: int = 2,
+    train: bool = True,
     progress: bool = True,
 ) -> SizeStudy:
     """Train ``template`` at every size of ``sizes`` for every seed of ``seeds``, measure
     validation RMSE at ``horizon`` and the batched rollout time, then train the sizes on the
-    Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``."""
+    Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``.
+    With ``train=False`` nothing is trained: the finished runs among those named are
+    evaluated and timed (to re-time on a quiet machine, or to report a study cut short)."""
     unknown = [s for s in sizes if s not in MODEL_SIZES]
     if unknown or not sizes:
         raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
     out, data = Path(out), Path(data)
-    _train(data, out, template, sizes, seeds, preset, workers, progress)
+    if train:
+        _train(data, out, template, sizes, seeds, preset, workers, progress)
+    every = tuple(dict.fromkeys((*seeds, *front_seeds)))
+    finished = {s: _finished(out, template, s, every, preset) for s in sizes}
+    missing = [s for s, runs in finished.items() if not runs]
+    if missing:
+        raise FileNotFoundError(f"no finished run of the sizes {missing} under {out / 'runs'}")
     timings = tuple(
-        _time_size(
-            size,
-            out / "runs" / size_run(template, size, preset=preset, seed=seeds[0]).folder(),
-            data,
-            samples=samples,
-            steps=steps,
-            repeats=repeats,
-        )
-        for size in sizes
+        _time_size(s, finished[s][0], data, samples=samples, steps=steps, repeats=repeats)
+        for s in sizes
     )
     rows = _evaluate(data, out, template, {s: seeds for s in sizes}, preset, horizon)
     front = pareto_front(rows, timings)
     extra = {s: tuple(k for k in front_seeds if k not in seeds) for s in front}
     if any(extra.values()):
-        _train(
-            data,
-            out,
-            template,
-            front,
-            sorted({k for v in extra.values() for k in v}),
-            preset,
-            workers,
-            progress,
-        )
+        if train:
+            later = sorted({k for v in extra.values() for k in v})
+            _train(data, out, template, front, later, preset, workers, progress)
         chosen = {s: tuple(seeds) + (extra[s] if s in front else ()) for s in sizes}
         rows = _evaluate(data, out, template, chosen, preset, horizon)
     study = SizeStudy(tuple(rows), timings, pareto_front(rows, timings), horizon)
@@ -158,15 +153,24 @@ def _train(data, out, template, sizes, seeds, preset, workers, progress) -> None
     run_training_jobs(jobs, workers=workers, progress=progress)
 
 
+def _finished(out, template, size, seeds, preset) -> list[Path]:
+    """The run folders of ``size`` for ``seeds`` whose training finished (run.json)."""
+    folders = [
+        out / "runs" / size_run(template, size, preset=preset, seed=k).folder() for k in seeds
+    ]
+    return [f for f in folders if (f / "run.json").is_file()]
+
+
 def _evaluate(data, out, template, seeds, preset, horizon) -> list[SizeRow]:
-    """Validation combined RMSE at ``horizon`` of every run (size -> its seeds) and of the
-    physics model, in one evaluation (the same windows for all)."""
+    """Validation combined RMSE at ``horizon`` of every finished run (size -> its seeds) and
+    of the physics model, in one evaluation (the same windows for all)."""
     runs = {
         size_run(template, size, preset=preset, seed=seed): size
         for size, chosen in seeds.items()
         for seed in chosen
     }
     folders = [out / "runs" / run.folder() for run in runs]
+    folders = [f for f in folders if (f / "run.json").is_file()]
     report = evaluate(folders, data=data, horizons=(horizon,), split="val", progress=False)
     size_of = {run.label(): size for run, size in runs.items()}
     info = {(m["label"], m["seed"]): m for m in report.models}
