@@ -1,0 +1,405 @@
+"""Fast batched rollouts for a sampling controller: ``PredictionModel``s on compiled kernels.
+
+    model = load_model("runs/ps-exc", backend="compiled")   # or "physics"
+    states = model.predict_candidates(x_hist, u_past, plans)  # (K, N, 13), as the eager model
+
+What a model-predictive controller asks for at every step is one history and K candidate
+input sequences (``models.prediction``, ``predict_candidates``). The eager paths answer it with
+torch operators: the network's decoder is ~60 of them per horizon step, the physics model's
+step ~50 float64 ones, and at K = 256-4096 their element-wise work (attention tanh over K x M x
+H, GELUs, gates, quaternions) and allocations cost as much as the matrix products. Here:
+
+- ``CompiledPhysicsModel``: the discrete model rolled out for the K candidates in one compiled
+  loop (``kernels.physics_rollout``: ``compiled._physics_step``, the compiled copy of
+  ``physics.step``, per candidate and step), float64 as ``PhysicsModel``.
+- ``CompiledNetworkModel``: the network's candidates in float32 on the folded weights of the
+  batch-1 predictor (``compiled.fold``: standardisation folded into the first layer, physical
+  units relative to the last position, the head's Linears joined, the residual gain in the last
+  layer). The matrix products go to torch's BLAS with preallocated outputs, everything between
+  them to one ``deploy.kernels`` call each. As in the eager ``forward_candidates`` the encoder
+  runs once over the M - 1 shared rows (batch 1) and only its last step at batch K; the
+  attention works on the shared rows' keys and context projections once (no K copies of the
+  encoder outputs); the last encoder step's embedding is the first decoder step's.
+
+Both equal the eager model to float32 rounding for the network (tests: both architectures,
+every model mode) and to round-off for the physics (float64); ``predict_windows`` is the eager
+model's. ``load_model(spec, params, backend=...)`` picks one of ``BACKENDS``; a model a
+backend cannot run is a ``ValueError`` naming why, never a silent fallback.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..config import VehicleParams
+from ..data.windows import Windows
+from ..models.lstm_attention import SlungLoadNet
+from ..models.physics_step import PhysicsStepNet
+from ..models.prediction import (
+    PHYSICS,
+    NetworkModel,
+    PhysicsModel,
+    PredictionModel,
+    check_candidates,
+    load_prediction_model,
+)
+from ..physics import VehicleConstants
+from ..state import INPUT_DIM, POS, STATE_DIM
+from . import kernels
+from .compiled import (
+    COMPILED_ARCHITECTURES,
+    _estimate_load_state,
+    _fit_load_state,
+    _load_filters,
+)
+
+BACKENDS = ("eager", "compiled")  # ``load_model``'s choices; eager is models.prediction's
+_RESIDUAL, _ABSOLUTE, _PHYSICS_STEP = 0, 1, 2  # ``kernels.next_rows``' modes
+
+
+@dataclass
+class CompiledPhysicsModel:
+    """``PhysicsModel``'s candidates in one compiled float64 loop (same constants, same
+    causal load-state estimate from the last two measured states)."""
+
+    params: VehicleParams
+    name: str = PHYSICS
+    history: int = 2
+
+    def __post_init__(self) -> None:
+        self._eager = PhysicsModel(self.params, self.name)
+        self._vehicle = VehicleConstants.of(self.params)
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        return self._eager.predict_windows(windows)
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        check_candidates(x_hist, u_past, plans)
+        x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
+        aux = np.empty(6, np.float64)
+        _estimate_load_state(x[0], x[1], self._vehicle, aux)
+        u = np.ascontiguousarray(plans.detach().cpu().numpy(), np.float64)
+        out = np.empty((*u.shape[:2], STATE_DIM), np.float64)
+        kernels.physics_rollout(x[1], aux, u, self._vehicle, out)
+        return torch.from_numpy(out).to(plans.device, plans.dtype)
+
+
+class _Buffers:
+    """Float32 work arrays for K candidates in columns (numpy ``a``, torch views ``t``)."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.a: dict[str, np.ndarray] = {}
+        self.t: dict[str, Tensor] = {}
+
+    def add(self, name: str, *shape: int) -> None:
+        self.a[name] = array = np.zeros(shape, np.float32)
+        self.t[name] = torch.from_numpy(array)
+
+
+class CompiledNetworkModel:
+    """A network's candidates on compiled kernels and torch's BLAS, float32 (see the module).
+
+    net: a ``SlungLoadNet`` or ``PhysicsStepNet`` (``compiled.COMPILED_ARCHITECTURES``, any
+    widths and layer counts; another architecture is a ``ValueError`` naming it); history: its
+    M. ``predict_windows`` is ``NetworkModel``'s.
+
+    The K candidates are the columns of every work array (features x K), so that each kernel's
+    inner loop runs over the candidates and each product is W (out, in) @ X (in, K).
+    """
+
+    def __init__(self, net: torch.nn.Module, history: int, name: str = "network") -> None:
+        self.w = fold_columns(net)  # raises, naming why, for what it cannot run
+        self.name, self.history = name, history
+        self._eager = NetworkModel(net, history, name=name)
+        self._buffers: _Buffers | None = None
+        # The encoder's batch-1 pass takes (in, out) matrices and (L, 4H) biases.
+        rows = lambda t: np.ascontiguousarray(t.numpy().transpose(0, 2, 1))  # noqa: E731
+        w = self.w
+        self._encoder_rows = (rows(w.enc_ih), rows(w.enc_hh), w.enc_b[:, :, 0].numpy())
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        return self._eager.predict_windows(windows)
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        check_candidates(x_hist, u_past, plans)
+        w = self.w
+        x = x_hist.detach().cpu().numpy().astype(np.float64)
+        origin = x[-1, POS] @ w.origin_shift  # (13,)
+        x_rel = x - origin
+        u_cols = np.ascontiguousarray(  # (N, 4, K)
+            plans.detach().cpu().numpy().transpose(1, 2, 0), np.float32
+        )
+        n, _, k = u_cols.shape
+        b = self._buffers_for(k)
+        aux = self._load_state(x_rel, b.a["aux"])
+        b.a["xu"][:STATE_DIM] = x_rel[-1, :, None]
+        b.a["xu"][STATE_DIM:] = u_cols[0]
+        shared = self._encode(x_rel, u_past.detach().cpu().numpy(), b)
+        out = np.empty((k, n, STATE_DIM), np.float64)
+        no_input = np.empty((INPUT_DIM, 0), np.float32)
+        for step in range(n):
+            if step > 0:  # step 0's embedding is the last encoder step's
+                self._embed(b.t["xu"], b)
+            self._decoder_step(b, shared)
+            u_next = u_cols[step + 1] if step + 1 < n else no_input
+            kernels.next_cols(
+                b.a["xu"], self._head(b), aux, w.mode, w.add_mean, w.vehicle, u_next, origin,
+                out, step,
+            )  # fmt: skip
+        return torch.from_numpy(out).to(plans.device, plans.dtype)
+
+    # --- the pieces ---------------------------------------------------------------------------
+
+    def _buffers_for(self, k: int) -> _Buffers:
+        if self._buffers is not None and self._buffers.k == k:
+            return self._buffers
+        w, b = self.w, _Buffers(k)
+        layers, gates, hidden = w.dec_hh.shape
+        b.add("xu", STATE_DIM + INPUT_DIM, k)
+        for i, (weight, _) in enumerate(w.embed):
+            b.add(f"e{i}", weight.shape[0], k)
+        for i, (weight, _) in enumerate(w.head):
+            b.add(f"y{i}", weight.shape[0], k)
+        for name, rows in (("gates", gates), ("query", hidden), ("keys_last", hidden)):
+            b.add(name, rows, k)
+        b.add("ctx_last", gates, k)
+        b.add("h", layers, hidden, k)
+        b.add("c", layers, hidden, k)
+        b.add("aux", 6, k)
+        self._buffers = b
+        return b
+
+    def _load_state(self, x_rel: np.ndarray, aux: np.ndarray) -> np.ndarray:
+        """The physics-step network's a_{M-1} (shared by the candidates) into aux (6, K)."""
+        w = self.w
+        if w.mode != _PHYSICS_STEP:
+            return aux
+        one = np.zeros(6, np.float64)
+        m = x_rel.shape[0]
+        if w.load_filters.shape[0] > 0:
+            if m < 3:
+                raise ValueError(
+                    f"the smoothed load estimate needs M >= 3 history steps; got M = {m}"
+                )
+            _fit_load_state(x_rel, m, w.load_filters, w.vehicle, one)
+        else:
+            _estimate_load_state(x_rel[-2], x_rel[-1], w.vehicle, one)
+        aux[:] = one[:, None]
+        return aux
+
+    def _embed(self, cols: Tensor, b: _Buffers | None) -> Tensor:
+        """The input embedding of columns (17, R) into b's buffers (new arrays when b is None);
+        returns the last layer's output (E, R)."""
+        h = cols
+        for i, (weight, bias) in enumerate(self.w.embed):
+            if b is None:
+                h = torch.addmm(bias, weight, h)
+            else:
+                h = torch.addmm(bias, weight, h, out=b.t[f"e{i}"])
+            kernels.gelu(h.numpy())
+        return h
+
+    def _encode(self, x_rel: np.ndarray, u_past: np.ndarray, b: _Buffers) -> dict:
+        """The encoder: the M - 1 shared rows at batch 1, the last step at batch K (its input
+        b.xu); leaves the decoder's starting state in b.h, b.c, the last embedding (the first
+        decoder step's) in the last e buffer, the candidates' last keys and context
+        projections in b.keys_last, b.ctx_last. Returns what the attention shares."""
+        w, t = self.w, torch.from_numpy
+        layers, _, hidden = w.enc_hh.shape
+        rows = np.concatenate([x_rel[:-1], u_past], axis=1).astype(np.float32).T  # (17, M-1)
+        emb = self._embed(t(np.ascontiguousarray(rows)), None)  # (E, M-1)
+        pre = torch.addmm(w.enc_b[0].t(), emb.t(), w.enc_emb.t()).numpy()  # (M-1, 4H)
+        h1 = np.zeros((layers, hidden), np.float32)
+        c1 = np.zeros((layers, hidden), np.float32)
+        enc = np.empty((rows.shape[1], hidden), np.float32)  # top layer's outputs
+        kernels.encode_rows(pre, *self._encoder_rows, h1, c1, enc)
+
+        gates, h, c = b.t["gates"], b.t["h"], b.t["c"]
+        e = self._embed(b.t["xu"], b)
+        for i in range(layers):  # the last step: shared state, each candidate's input
+            base = torch.addmm(w.enc_b[i], w.enc_hh[i], t(h1[i][:, None]))  # (4H, 1)
+            w_in, x_in = (w.enc_emb, e) if i == 0 else (w.enc_ih[i], h[i - 1])
+            torch.addmm(base, w_in, x_in, out=gates)
+            c[i] = t(c1[i][:, None])
+            kernels.lstm_cols(b.a["gates"], b.a["c"][i], b.a["h"][i])
+        torch.mm(w.att_w, h[layers - 1], out=b.t["keys_last"])
+        torch.mm(w.dec_ctx, h[layers - 1], out=b.t["ctx_last"])
+        enc_cols = t(np.ascontiguousarray(enc.T))  # (H, M-1)
+        weights = np.empty((enc.shape[0], b.k), np.float32)  # softmax over the shared rows
+        return {
+            "keys": (w.att_w @ enc_cols).numpy(),  # (H, M-1)
+            "ctx": w.dec_ctx @ enc_cols,  # (4H, M-1)
+            "weights": weights,
+            "weights_t": t(weights),
+        }
+
+    def _decoder_step(self, b: _Buffers, shared: dict) -> None:
+        """Attention and the stacked LSTM cell for one step of the K candidates (the last e
+        buffer holds this step's embedding): b.h and b.c advance in place."""
+        w = self.w
+        layers = w.dec_hh.shape[0]
+        h, c, gates = b.a["h"], b.a["c"], b.a["gates"]
+        tg, th = b.t["gates"], b.t["h"]
+        torch.mm(w.att_u, th[layers - 1], out=b.t["query"])
+        kernels.attention_cols(
+            b.a["query"], w.att_v, shared["keys"], b.a["keys_last"], b.a["ctx_last"],
+            self._bias0, shared["weights"], gates,
+        )  # fmt: skip
+        tg.addmm_(shared["ctx"], shared["weights_t"])
+        tg.addmm_(w.dec_emb, b.t[f"e{len(w.embed) - 1}"])
+        tg.addmm_(w.dec_hh[0], th[0])
+        kernels.lstm_cols(gates, c[0], h[0])
+        for i in range(1, layers):
+            torch.addmm(w.dec_b[i], w.dec_ih[i], th[i - 1], out=tg)
+            tg.addmm_(w.dec_hh[i], th[i])
+            kernels.lstm_cols(gates, c[i], h[i])
+
+    @property
+    def _bias0(self) -> np.ndarray:
+        return self.w.dec_b[0, :, 0].numpy()
+
+    def _head(self, b: _Buffers) -> np.ndarray:
+        """The head on the top hidden state: the state rows (13, K), residual gain folded."""
+        h = b.t["h"][-1]
+        head = self.w.head
+        for i, (weight, bias) in enumerate(head):
+            h = torch.addmm(bias, weight, h, out=b.t[f"y{i}"])
+            if i < len(head) - 1:
+                kernels.gelu(b.a[f"y{i}"])
+        return b.a[f"y{len(head) - 1}"]
+
+
+class ColumnWeights(NamedTuple):
+    """A network's weights for products on columns (``CompiledNetworkModel``): matrices (out,
+    in), biases (out, 1), float32 torch tensors; the kernels' vectors as numpy float32.
+
+    The arithmetic is the network's, rearranged exactly as ``compiled.fold`` does for batch 1,
+    for any number of embedding and head layers: the standardisation folded into the first
+    embedding layer (which takes (x - origin, u) in physical units), the head's first two
+    Linears joined (``OutputHead.joined``; a head of two Linears without an activation is their
+    product), the residual gain (or the output's standard deviation) folded into its last
+    layer, whose slack rows are dropped. G = 4H gates in PyTorch's order (i, f, g, o).
+    """
+
+    embed: list[tuple[Tensor, Tensor]]  # GELU after each
+    head: list[tuple[Tensor, Tensor]]  # GELU after each but the last; the last (13, .)
+    enc_emb: Tensor  # (G, E) encoder layer 0 on the embedding
+    enc_ih: Tensor  # (L, G, H) encoder input weights of layers >= 1 (layer 0 unused)
+    enc_hh: Tensor  # (L, G, H)
+    enc_b: Tensor  # (L, G, 1)
+    att_w: Tensor  # (H, H) keys W enc
+    att_u: Tensor  # (H, H) query U h
+    att_v: np.ndarray  # (H,)
+    dec_ctx: Tensor  # (G, H) decoder layer 0 on the context
+    dec_emb: Tensor  # (G, E) decoder layer 0 on the embedding
+    dec_ih: Tensor  # (L, G, H)
+    dec_hh: Tensor  # (L, G, H)
+    dec_b: Tensor  # (L, G, 1)
+    add_mean: np.ndarray  # (13,) added to an absolute head's output (zero otherwise)
+    mode: int  # the decoder's state update: _RESIDUAL, _ABSOLUTE or _PHYSICS_STEP
+    origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (``net.origin``)
+    vehicle: VehicleConstants  # f's constants as floats (the physics-step network's)
+    load_filters: np.ndarray  # ``compiled.FoldedWeights.load_filters``
+
+
+def fold_columns(net: torch.nn.Module) -> ColumnWeights:
+    """``net``'s weights for ``CompiledNetworkModel`` (see ``ColumnWeights``); an architecture
+    it cannot run is a ``ValueError`` naming it."""
+    name = getattr(net, "architecture", type(net).__name__)
+    if name not in COMPILED_ARCHITECTURES or not isinstance(net, SlungLoadNet):
+        raise ValueError(
+            f"the compiled backend does not support the {name!r} architecture (it supports "
+            f"{list(COMPILED_ARCHITECTURES)})"
+        )
+    cfg = net.config
+    with torch.no_grad():
+        d = {k: v.detach().double().cpu() for k, v in net.state_dict().items()}
+        head = [(w.double().cpu(), b.double().cpu()) for w, b in net.head.joined()]
+    f32 = lambda t: t.float().contiguous()  # noqa: E731
+    ms, ss, mu, su = d["state_mean"], d["state_std"], d["input_mean"], d["input_std"]
+    w0, b0 = d["embed.layers.0.weight"], d["embed.layers.0.bias"]  # (E0, 17) on (z, v)
+    first = torch.cat([w0[:, :STATE_DIM] / ss, w0[:, STATE_DIM:] / su], 1)  # on (x - o, u)
+    embed = [(first, b0 - first[:, :STATE_DIM] @ ms - first[:, STATE_DIM:] @ mu)]
+    embed += [(d[f"embed.layers.{i}.weight"], d[f"embed.layers.{i}.bias"])
+              for i in range(1, len(cfg.embed_sizes))]  # fmt: skip
+    if len(net.head.layers) == 2:  # Linear -> Linear, no activation: their product
+        (wa, ba), (wb, bb) = head
+        head = [(wb @ wa, wb @ ba + bb)]
+    gain, add_mean, mode = _output_gain(net, ms, ss)
+    wl, bl = head[-1]
+    head[-1] = (wl[:STATE_DIM] * gain[:, None], bl[:STATE_DIM] * gain)
+    h = cfg.hidden_size
+
+    def lstm(prefix: str) -> tuple[Tensor, Tensor, Tensor]:
+        ih = [d[f"{prefix}.weight_ih_l{i}"] for i in range(cfg.num_layers)]
+        hh = torch.stack([d[f"{prefix}.weight_hh_l{i}"] for i in range(cfg.num_layers)])
+        b = torch.stack([d[f"{prefix}.bias_ih_l{i}"] + d[f"{prefix}.bias_hh_l{i}"]
+                         for i in range(cfg.num_layers)])  # fmt: skip
+        upper = torch.stack([torch.zeros_like(hh[0])] + ih[1:])  # layer 0's input unused
+        return ih[0], upper, hh, b.unsqueeze(-1)
+
+    enc0, enc_ih, enc_hh, enc_b = lstm("encoder")
+    dec0, dec_ih, dec_hh, dec_b = lstm("decoder")
+    return ColumnWeights(
+        embed=[(f32(w), f32(b.unsqueeze(1))) for w, b in embed],
+        head=[(f32(w), f32(b.unsqueeze(1))) for w, b in head],
+        enc_emb=f32(enc0), enc_ih=f32(enc_ih), enc_hh=f32(enc_hh), enc_b=f32(enc_b),
+        att_w=f32(d["attention.W.weight"]), att_u=f32(d["attention.U.weight"]),
+        att_v=d["attention.v.weight"][0].float().numpy(),
+        dec_ctx=f32(dec0[:, :h]), dec_emb=f32(dec0[:, h:]), dec_ih=f32(dec_ih),
+        dec_hh=f32(dec_hh), dec_b=f32(dec_b),
+        add_mean=add_mean.float().numpy(), mode=mode,
+        origin_shift=net.position_shift.double().cpu().numpy(),
+        vehicle=VehicleConstants.of(getattr(net, "params", None) or VehicleParams()),
+        load_filters=_load_filters(cfg.load_estimate, net),
+    )  # fmt: skip
+
+
+def _output_gain(net: SlungLoadNet, ms: Tensor, ss: Tensor) -> tuple[Tensor, Tensor, int]:
+    """What scales the head's state rows into a physical update, what is added to them, and
+    the update's mode: the residual gain delta_std (one without normalisation) for residual
+    heads and the physics step, the state's spread and mean for an absolute head."""
+    cfg = net.config
+    mode = _PHYSICS_STEP if isinstance(net, PhysicsStepNet) else _RESIDUAL
+    if not cfg.residual:
+        return ss, ms, _ABSOLUTE
+    gain = net.delta_std.detach().double().cpu() if cfg.normalize else torch.ones_like(ms)
+    return gain, torch.zeros_like(ms), mode
+
+
+def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
+    """``model`` on ``backend`` (one of ``BACKENDS``): itself for "eager"; for "compiled" a
+    ``CompiledPhysicsModel`` of a ``PhysicsModel`` or a ``CompiledNetworkModel`` of a
+    ``NetworkModel`` on the CPU. Anything else is a ``ValueError`` naming why."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
+    if backend == "eager":
+        return model
+    if isinstance(model, PhysicsModel):
+        return CompiledPhysicsModel(model.params, model.name, model.history)
+    if isinstance(model, NetworkModel):
+        if torch.device(model.device).type != "cpu":
+            raise ValueError(
+                f"the compiled backend runs on the CPU; {model.name!r} is on {model.device}"
+            )
+        return CompiledNetworkModel(model.net, model.history, model.name)
+    raise ValueError(
+        f"the compiled backend runs a PhysicsModel or a NetworkModel, not a {type(model).__name__}"
+    )
+
+
+def load_model(
+    spec: str | Path, params: VehicleParams | None = None, *, backend: str = "eager"
+) -> PredictionModel:
+    """``models.prediction.load_prediction_model(spec, params)`` on ``backend`` (``BACKENDS``;
+    see ``with_backend``)."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
+    return with_backend(load_prediction_model(spec, params), backend)

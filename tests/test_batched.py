@@ -1,0 +1,246 @@
+"""Batched rollouts for the MPC (deploy/batched.py, deploy/kernels.py): the vectorised kernels
+against exact references, the compiled physics rollout against ``PhysicsModel`` (float64), the
+compiled network against the eager ``NetworkModel`` (float32) for both architectures and every
+model mode, and the backend choice. Nothing is timed here (``slungload benchmark --mpc``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+from flights import TINY
+from test_prediction import candidate_windows, random_history, random_plans
+
+from slungload.config import ModelConfig, VehicleParams
+from slungload.deploy import kernels
+from slungload.deploy.batched import (
+    BACKENDS,
+    CompiledNetworkModel,
+    CompiledPhysicsModel,
+    load_model,
+    with_backend,
+)
+from slungload.deploy.predictor import PARITY_TOLERANCE
+from slungload.models import MODELS, PhysicsStepNet, build
+from slungload.models.prediction import NetworkModel, PhysicsModel, PredictionModel
+from slungload.state import QUAT
+
+torch.set_num_threads(1)
+
+PARAMS = VehicleParams()
+OTHER_PARAMS = VehicleParams(
+    mass_quad=1.5, mass_load=0.15, cable_length=0.85, load_damping=0.05, dt=0.025,
+    gravity=9.8, thrust_gain=1.12,
+)  # fmt: skip
+PHYSICS_STEP = PhysicsStepNet.architecture
+M, N, K = 9, 6, 11
+
+
+# --- kernels --------------------------------------------------------------------------------
+
+
+def test_exp_tanh_sigmoid_match_float64_references():
+    x = np.linspace(-80.0, 80.0, 20_001).astype(np.float32)
+    ref = x.astype(np.float64)
+    exp = np.array([kernels.fexp(v) for v in x[::7]])
+    assert (np.abs(exp - np.exp(ref[::7])) / np.exp(ref[::7])).max() < 2e-7
+    tanh = np.array([kernels.ftanh(v) for v in x[::7]])
+    assert np.abs(tanh - np.tanh(ref[::7])).max() < 2e-7
+    small = np.linspace(-9.0, 9.0, 1001).astype(np.float32)
+    sig = np.array([kernels.fsigmoid(v) for v in small])
+    assert np.abs(sig - 1.0 / (1.0 + np.exp(-small.astype(np.float64)))).max() < 2e-7
+
+
+def test_gelu_matches_torch_exact_gelu():
+    x = (np.random.default_rng(0).standard_normal((37, 53)) * 4).astype(np.float32)
+    want = F.gelu(torch.from_numpy(x).double()).numpy()
+    got = x.copy()
+    kernels.gelu(got)
+    assert np.abs(got - want).max() < 1e-6 * max(1.0, np.abs(x).max())
+
+
+def test_lstm_columns_match_torch_cell():
+    gen = torch.Generator().manual_seed(0)
+    hidden, k = 5, 9
+    cell = torch.nn.LSTMCell(3, hidden)
+    x, h, c = (torch.randn(k, n, generator=gen) for n in (3, hidden, hidden))
+    with torch.no_grad():
+        h_want, c_want = cell(x, (h, c))
+        gates = x @ cell.weight_ih.T + h @ cell.weight_hh.T + cell.bias_ih + cell.bias_hh
+    g, hc, cc = (np.ascontiguousarray(t.T.numpy()) for t in (gates, h, c))
+    kernels.lstm_cols(g, cc, hc)
+    np.testing.assert_allclose(hc.T, h_want.numpy(), atol=1e-6)
+    np.testing.assert_allclose(cc.T, c_want.numpy(), atol=1e-6)
+
+
+# --- the physics model ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
+def test_compiled_physics_candidates_are_the_physics_model(params):
+    gen = torch.Generator().manual_seed(0)
+    x_hist, u_past = random_history(4, gen)
+    x_hist[-1, 3:6] = torch.tensor([0.4, -0.3, 0.2])  # moving, with a swinging load
+    x_hist[-1, 10:13] += torch.tensor([0.05, -0.04, 0.0])
+    plans = random_plans(K, 40, gen, scale=2.0)
+    want = PhysicsModel(params).predict_candidates(x_hist, u_past, plans)
+    got = CompiledPhysicsModel(params).predict_candidates(x_hist, u_past, plans)
+    assert got.shape == (K, 40, 13) and got.dtype == torch.float64
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+    # float32 plans: float32 out (the plans' dtype), computed in float64 inside
+    got32 = CompiledPhysicsModel(params).predict_candidates(x_hist, u_past, plans.float())
+    assert got32.dtype == torch.float32
+    torch.testing.assert_close(got32, want.float(), rtol=1e-6, atol=1e-6)
+
+
+def test_windows_are_the_eager_models():
+    gen = torch.Generator().manual_seed(5)
+    x_hist, u_past = random_history(M, gen)
+    windows = candidate_windows(x_hist, u_past, random_plans(K, N, gen))
+    got = CompiledPhysicsModel(PARAMS).predict_windows(windows)
+    torch.testing.assert_close(got, PhysicsModel(PARAMS).predict_windows(windows))
+    net = random_network(replace(TINY, architecture=PHYSICS_STEP), PARAMS).double()
+    got = CompiledNetworkModel(net, M).predict_windows(windows)
+    torch.testing.assert_close(got, NetworkModel(net, M).predict_windows(windows))
+
+
+# --- networks -------------------------------------------------------------------------------
+
+MODES = [
+    {},
+    {"slack": False, "relative_positions": False},
+    {"normalize": False},
+    {"num_layers": 3, "embed_sizes": (12, 10, 9), "head_sizes": (11, 7, 6)},  # the paper's shape
+    {"num_layers": 2, "embed_sizes": (12,), "head_sizes": (10, 9)},
+]
+
+
+def random_network(config: ModelConfig, params: VehicleParams, seed: int = 0) -> torch.nn.Module:
+    """A float32 network in eval mode with random weights and a non-trivial normalisation."""
+    torch.manual_seed(seed)
+    net = build(config, params).eval()
+    if config.normalize:
+        with torch.no_grad():
+            net.state_mean.normal_(0.0, 0.3)
+            net.state_std.uniform_(0.5, 2.0)
+            net.delta_std.uniform_(0.01, 0.1)
+            net.input_mean.copy_(torch.tensor([14.0, 0.0, 0.0, 0.0]))
+            net.input_std.uniform_(0.5, 2.0)
+    return net
+
+
+def assert_parity(net: torch.nn.Module, m: int = M, n: int = N, k: int = K, seed: int = 1):
+    gen = torch.Generator().manual_seed(seed)
+    x_hist, u_past = random_history(m, gen)
+    x_hist[:, :3] += torch.tensor([1.0, -2.0, 0.5])  # away from the origin
+    x_hist[:, 10:13] += torch.tensor([1.0, -2.0, 0.5])
+    plans = random_plans(k, n, gen, scale=1.0)
+    want = NetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
+    got = CompiledNetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
+    assert got.shape == want.shape == (k, n, 13) and got.dtype == torch.float64
+    diff = (got - want).abs().max().item()
+    assert diff <= PARITY_TOLERANCE, diff
+    torch.testing.assert_close(got[:, :, QUAT].norm(dim=-1), torch.ones(k, n, dtype=got.dtype))
+    return diff
+
+
+@pytest.mark.parametrize("architecture", sorted(MODELS))
+@pytest.mark.parametrize("change", MODES)
+def test_compiled_network_matches_the_eager_network(architecture, change):
+    config = replace(TINY, architecture=architecture, **change)
+    assert_parity(random_network(config, PARAMS))
+
+
+def test_compiled_network_with_absolute_head_matches_the_eager_network():
+    assert_parity(random_network(replace(TINY, residual=False), PARAMS))
+
+
+@pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
+@pytest.mark.parametrize("load_estimate", ["difference", "smoothed"])
+def test_compiled_physics_step_network_with_constants_and_load_estimates(params, load_estimate):
+    config = replace(TINY, architecture=PHYSICS_STEP, load_estimate=load_estimate)
+    assert_parity(random_network(config, params), m=12, n=20)
+
+
+@pytest.mark.parametrize("architecture", sorted(MODELS))
+def test_compiled_network_at_the_paper_size(architecture):
+    assert_parity(random_network(ModelConfig(architecture=architecture), PARAMS), m=50, n=15)
+
+
+def test_zero_head_physics_step_network_is_the_physics_model():
+    net = random_network(replace(TINY, architecture=PHYSICS_STEP), PARAMS)
+    with torch.no_grad():
+        net.head.layers[-1].weight.zero_()
+        net.head.layers[-1].bias.zero_()
+    gen = torch.Generator().manual_seed(2)
+    x_hist, u_past = random_history(M, gen)
+    plans = random_plans(K, N, gen)
+    got = CompiledNetworkModel(net, M).predict_candidates(x_hist, u_past, plans)
+    want = PhysicsModel(PARAMS).predict_candidates(x_hist, u_past, plans)
+    torch.testing.assert_close(got, want, rtol=0, atol=2e-5)
+
+
+def test_compiled_network_reuses_and_resizes_its_buffers():
+    net = random_network(replace(TINY, architecture=PHYSICS_STEP), PARAMS)
+    model = CompiledNetworkModel(net, M)
+    eager = NetworkModel(net, M)
+    gen = torch.Generator().manual_seed(3)
+    for m, k, n in [(M, 5, 4), (M, 5, 7), (M, 13, 4), (4, 13, 4), (M, 5, 4)]:
+        x_hist, u_past = random_history(m, gen)
+        plans = random_plans(k, n, gen).float()
+        got = model.predict_candidates(x_hist, u_past, plans)
+        assert got.dtype == torch.float32  # the plans' dtype
+        want = eager.predict_candidates(x_hist, u_past, plans)
+        torch.testing.assert_close(got, want, rtol=0, atol=PARITY_TOLERANCE)
+    first = model.predict_candidates(x_hist, u_past, plans)
+    again = model.predict_candidates(x_hist, u_past, plans)
+    torch.testing.assert_close(first, again, rtol=0, atol=0)  # a fresh result, not a buffer
+
+
+def test_compiled_network_refuses_bad_inputs_and_what_it_cannot_run():
+    net = random_network(replace(TINY, architecture=PHYSICS_STEP, load_estimate="smoothed"), PARAMS)
+    model = CompiledNetworkModel(net, M)
+    gen = torch.Generator().manual_seed(4)
+    x_hist, u_past = random_history(2, gen)
+    with pytest.raises(ValueError, match="M >= 3"):
+        model.predict_candidates(x_hist, u_past, random_plans(3, 4, gen))
+    with pytest.raises(ValueError, match="predict_candidates"):
+        model.predict_candidates(x_hist, u_past[:0], random_plans(3, 4, gen))
+
+    class Other(torch.nn.Module):
+        architecture = "my-net"
+
+    with pytest.raises(ValueError, match="'my-net'"):
+        CompiledNetworkModel(Other(), M)
+
+
+# --- the backend choice ---------------------------------------------------------------------
+
+
+def test_backends_wrap_the_models_and_refuse_the_unknown(tiny_run):
+    assert BACKENDS[0] == "eager"
+    physics = load_model("physics", PARAMS, backend="compiled")
+    assert isinstance(physics, CompiledPhysicsModel) and isinstance(physics, PredictionModel)
+    assert isinstance(load_model("physics", PARAMS), PhysicsModel)  # the default is eager
+    network = load_model(tiny_run.out, backend="compiled")
+    assert isinstance(network, CompiledNetworkModel) and isinstance(network, PredictionModel)
+    eager = load_model(tiny_run.out)
+    assert isinstance(eager, NetworkModel) and network.name == eager.name
+    assert network.history == eager.history
+    with pytest.raises(ValueError, match="unknown prediction backend 'fast'"):
+        load_model("physics", backend="fast")
+    with pytest.raises(ValueError, match="PhysicsModel or a NetworkModel"):
+        with_backend(object(), "compiled")
+    assert math.isfinite(
+        network.predict_candidates(
+            *random_history(network.history, torch.Generator().manual_seed(0)),
+            random_plans(3, 4, torch.Generator().manual_seed(0)),
+        )
+        .abs()
+        .max()
+        .item()
+    )
