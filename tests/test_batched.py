@@ -5,6 +5,7 @@ model mode, and the backend choice. Nothing is timed here (``slungload benchmark
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
 
@@ -15,7 +16,7 @@ import torch.nn.functional as F
 from flights import TINY
 from test_prediction import candidate_windows, random_history, random_plans
 
-from slungload.config import ModelConfig, VehicleParams
+from slungload.config import PREDICTION_BACKENDS, ModelConfig, VehicleParams
 from slungload.deploy import kernels
 from slungload.deploy.batched import (
     BACKENDS,
@@ -222,7 +223,7 @@ def test_compiled_network_refuses_bad_inputs_and_what_it_cannot_run():
 
 
 def test_backends_wrap_the_models_and_refuse_the_unknown(tiny_run):
-    assert BACKENDS[0] == "eager"
+    assert BACKENDS == tuple(PREDICTION_BACKENDS) and BACKENDS[0] == "eager"
     physics = load_model("physics", PARAMS, backend="compiled")
     assert isinstance(physics, CompiledPhysicsModel) and isinstance(physics, PredictionModel)
     assert isinstance(load_model("physics", PARAMS), PhysicsModel)  # the default is eager
@@ -244,3 +245,18 @@ def test_backends_wrap_the_models_and_refuse_the_unknown(tiny_run):
         .max()
         .item()
     )
+
+
+def test_control_flies_on_the_compiled_backend(run_cli, tmp_path):
+    out = tmp_path / "ctl"
+    code, _, err = run_cli(
+        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "4",
+        "--horizon", "5", "--steps", "8", "--out", out, "--quiet", "--backend", "compiled",
+    )  # fmt: skip
+    assert code == 0, err
+    results = json.loads((out / "results.json").read_text())
+    assert results["settings"]["backend"] == "compiled"
+    assert all(r["completed"] for r in results["rows"])
+    assert "prediction backend compiled" in (out / "report.md").read_text()
+    with pytest.raises(SystemExit):  # argparse: invalid choice
+        run_cli("control", "--backend", "fast", "--out", tmp_path / "x")

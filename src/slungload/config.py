@@ -102,6 +102,14 @@ ARCHITECTURES: dict[str, str] = {
 }
 
 
+# What a prediction model runs on in the MPC (``deploy.batched``, ``control --backend``), first
+# the default; the names live here so the command line lists them without loading torch.
+PREDICTION_BACKENDS: dict[str, str] = {
+    "eager": "torch operators (models.prediction)",
+    "compiled": "compiled kernels: the physics in one float64 loop, a network in float32",
+}
+
+
 # The physics-step network's estimate of the load state at the last history step.
 LOAD_ESTIMATES: dict[str, str] = {
     "difference": "backward differences of the last two positions (the data's estimate)",

@@ -32,6 +32,10 @@ def choices(kind: str) -> list[str]:
         from ..config import MODEL_SIZES as names
 
         return list(names)
+    elif kind == "backends":  # the default first
+        from ..config import PREDICTION_BACKENDS as names
+
+        return list(names)
     else:
         from ..run_config import PRESETS as names
     return sorted(names)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import comma_ints, comma_names, new_command, seed_range
+from .common import choices, comma_ints, comma_names, new_command, seed_range
 
 
 def add_control(sub: Any) -> None:
@@ -52,6 +52,14 @@ def add_control(sub: Any) -> None:
     p.add_argument("--horizon", type=int, help="MPC horizon N, steps of 0.03 s (default 15)")
     p.add_argument("--steps", type=int, help="cut every flight to this many steps (smoke runs)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    p.add_argument(
+        "--backend",
+        choices=choices("backends"),
+        default="eager",
+        help="what the prediction models run on: eager torch, or compiled kernels (the physics "
+        "model in one compiled float64 loop, a network in float32 on compiled kernels and "
+        "torch's BLAS; equal to eager to float32 rounding; docs/deployment.md) (default eager)",
+    )
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no line per flight")
     p.set_defaults(func=cmd_control)
@@ -69,6 +77,7 @@ def cmd_control(args: argparse.Namespace) -> int:
         horizon=args.horizon,
         steps=args.steps,
         threads=args.threads,
+        backend=args.backend,
         progress=None if args.quiet else print,
     )
     print(result.out / "report.md")

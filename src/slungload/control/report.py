@@ -26,9 +26,10 @@ import torch
 from matplotlib.figure import Figure
 
 from ..config import VehicleParams
+from ..deploy.batched import load_model
 from ..evaluation.machine import cpu_model
 from ..fileio import atomic_path, write_json, write_npz, write_text
-from ..models.prediction import PHYSICS, PredictionModel, load_prediction_model
+from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
@@ -68,13 +69,15 @@ def compare(
     steps: int | None = None,
     config: SimConfig | None = None,
     threads: int = 1,
+    backend: str = "eager",
     progress: Callable[[str], None] | None = print,
 ) -> ControlComparison:
     """Fly the PID, MPC + physics and MPC + each network (run folders) and write the report.
 
     samples: K values; each prediction model runs once per K. horizon: the MPC's N (default
     ``MPCConfig.horizon``). steps: cut every flight to this many recorded steps (smoke runs).
-    threads: torch threads while flying (restored after).
+    threads: torch threads while flying (restored after). backend: what the prediction models
+    run on (``deploy.batched.BACKENDS``: "eager" torch, or "compiled" kernels).
     """
     unknown = [m for m in maneuvers if m not in MANEUVERS]
     if unknown:
@@ -82,8 +85,8 @@ def compare(
     cfg = config or SimConfig()
     params = vehicle_params(cfg)
     limits = InputLimits.from_sim(cfg)
-    predictors: list[PredictionModel] = [load_prediction_model(PHYSICS, params)]
-    predictors += [load_prediction_model(m) for m in models]
+    predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=backend)]
+    predictors += [load_model(m, backend=backend) for m in models]
     base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon)
     out_dir = Path(out) if out is not None else None
     if out_dir is not None:
@@ -96,6 +99,7 @@ def compare(
     finally:
         torch.set_num_threads(previous)
     settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
+    settings["backend"] = backend
     result = ControlComparison(rows, settings, out_dir)
     if out_dir is not None:
         write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
@@ -322,7 +326,8 @@ def report_markdown(result: ControlComparison) -> str:
         f"{s['date']}; maneuvers {', '.join(s['maneuvers'])}; sim seeds "
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
         f"{mpc['horizon']} ({mpc['horizon'] * 0.03:.2f} s), K = "
-        f"{', '.join(map(str, s['samples']))}; torch threads {s['threads']}; "
+        f"{', '.join(map(str, s['samples']))}; torch threads {s['threads']}; prediction "
+        f"backend {s.get('backend', 'eager')}; "
         f"{s['machine']['cpu']} ({s['machine']['cores']} cores, load average at the end "
         f"{', '.join(f'{x:.1f}' for x in load) if load else 'unknown'}).",
         "",

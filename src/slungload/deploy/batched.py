@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import VehicleParams
+from ..config import PREDICTION_BACKENDS, VehicleParams
 from ..data.windows import Windows
 from ..models.lstm_attention import SlungLoadNet
 from ..models.physics_step import PhysicsStepNet
@@ -59,7 +59,7 @@ from .compiled import (
     _load_filters,
 )
 
-BACKENDS = ("eager", "compiled")  # ``load_model``'s choices; eager is models.prediction's
+BACKENDS = tuple(PREDICTION_BACKENDS)  # ``load_model``'s choices; eager: models.prediction
 _RESIDUAL, _ABSOLUTE, _PHYSICS_STEP = 0, 1, 2  # ``kernels.next_rows``' modes
 
 
