@@ -16,7 +16,7 @@ import torch.nn.functional as F
 from flights import TINY
 from test_prediction import candidate_windows, random_history, random_plans
 
-from slungload.config import PREDICTION_BACKENDS, ModelConfig, VehicleParams
+from slungload.config import MODEL_SIZES, PREDICTION_BACKENDS, ModelConfig, VehicleParams
 from slungload.deploy import kernels
 from slungload.deploy.batched import (
     BACKENDS,
@@ -172,6 +172,12 @@ def test_compiled_network_at_the_paper_size(architecture):
     assert_parity(random_network(ModelConfig(architecture=architecture), PARAMS), m=50, n=15)
 
 
+@pytest.mark.parametrize("size", [s for s in MODEL_SIZES if s != "paper"])
+def test_compiled_network_at_every_named_size(size):
+    config = ModelConfig.sized(size, architecture=PHYSICS_STEP)
+    assert_parity(random_network(config, PARAMS), m=20, n=15)
+
+
 def test_zero_head_physics_step_network_is_the_physics_model():
     net = random_network(replace(TINY, architecture=PHYSICS_STEP), PARAMS)
     with torch.no_grad():
@@ -260,3 +266,36 @@ def test_control_flies_on_the_compiled_backend(run_cli, tmp_path):
     assert "prediction backend compiled" in (out / "report.md").read_text()
     with pytest.raises(SystemExit):  # argparse: invalid choice
         run_cli("control", "--backend", "fast", "--out", tmp_path / "x")
+
+
+def test_mpc_benchmark_times_every_backend_on_the_same_calls():
+    from slungload.deploy.mpc_benchmark import MIN_CALLS, benchmark_mpc
+
+    config = replace(TINY, architecture=PHYSICS_STEP)
+    result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config)
+    rows = {(r.model, r.backend): r for r in result.rows}
+    assert set(rows) == {
+        ("physics", "eager"), ("physics", "compiled"), ("physics-step network", "eager"),
+        ("physics-step network", "compiled"), ("physics-step network", "onnxruntime"),
+    }  # fmt: skip
+    for (model, _), row in rows.items():
+        assert (row.samples, row.horizon, row.calls) == (3, 4, MIN_CALLS)
+        assert row.median_ms > 0 and row.p99_ms >= row.median_ms
+        assert row.max_abs_diff <= (1e-9 if model == "physics" else PARITY_TOLERANCE)
+    assert rows[("physics", "eager")].speedup == 1.0
+    table = result.markdown()
+    assert "| physics-step network | compiled | 4 | 3 | 5 |" in table
+    assert "load average (1 min)" in table and "custom-size" in table
+
+
+def test_benchmark_mpc_command(run_cli, tmp_path):
+    out = tmp_path / "mpc.md"
+    code, stdout, err = run_cli(
+        "benchmark", "--mpc", "--quick", "--samples", "3", "--horizons", "4", "--size", "tiny",
+        "--out", out,
+    )  # fmt: skip
+    assert code == 0, err
+    assert "random tiny-size physics-step network" in out.read_text()
+    assert "| physics | compiled | 4 | 3 |" in stdout
+    code, _, err = run_cli("benchmark", "--size", "tiny")
+    assert code != 0 and "--size is for --mpc" in err

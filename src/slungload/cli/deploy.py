@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import choices, new_command
+from .common import choices, comma_ints, new_command
 
 
 def add_export(sub: Any) -> None:
@@ -87,6 +87,26 @@ def add_benchmark(sub: Any) -> None:
     p.add_argument("--threads", type=int, default=1, help="inference threads (default 1)")
     p.add_argument("--no-train", action="store_true", help="skip the training throughput")
     p.add_argument("--out", type=Path, help="also write the markdown table here")
+    mpc = p.add_argument_group(
+        "MPC rollouts",
+        "--mpc times the sampling controller's call instead: predict_candidates of K plans of N "
+        "steps from one history, per backend (eager, compiled, onnxruntime), for the physics "
+        "model and the network (without RUN_DIR: a random physics-step network), one thread, "
+        "median and p99 ms",
+    )
+    mpc.add_argument("--mpc", action="store_true", help="time MPC-shaped rollouts")
+    mpc.add_argument(
+        "--samples", type=comma_ints, default=[256, 1024, 4096], metavar="K,K",
+        help="candidates K (default 256,1024,4096)",
+    )  # fmt: skip
+    mpc.add_argument(
+        "--horizons", type=comma_ints, default=[15, 50], metavar="N,N",
+        help="horizons N (default 15,50)",
+    )  # fmt: skip
+    mpc.add_argument(
+        "--size", choices=choices("sizes"),
+        help="without RUN_DIR: a random network of this named size (default the paper's)",
+    )  # fmt: skip
     p.set_defaults(func=cmd_benchmark)
 
 
@@ -95,11 +115,34 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
     from ..deploy.benchmarks import benchmark
     from ..fileio import write_text
 
+    if args.mpc:
+        return _benchmark_mpc(args)
+    if args.size is not None:
+        raise ValueError("--size is for --mpc")
     config = None if args.model is None else ModelConfig(architecture=args.model)
     if config is not None and args.run is not None:
         raise ValueError("--model builds a random network; a RUN_DIR brings its own")
     result = benchmark(
         args.run, quick=args.quick, threads=args.threads, train=not args.no_train,
+        model_config=config,
+    )  # fmt: skip
+    table = result.markdown()
+    if args.out:
+        write_text(args.out, table)
+    print(table)
+    return 0
+
+
+def _benchmark_mpc(args: argparse.Namespace) -> int:
+    from ..config import ModelConfig
+    from ..deploy.mpc_benchmark import benchmark_mpc
+    from ..fileio import write_text
+
+    if args.run is not None and (args.model or args.size):
+        raise ValueError("--model and --size build a random network; a RUN_DIR brings its own")
+    config = ModelConfig.sized(args.size or "paper", architecture=args.model or "physics-step")
+    result = benchmark_mpc(
+        args.run, samples=args.samples, horizons=args.horizons, quick=args.quick,
         model_config=config,
     )  # fmt: skip
     table = result.markdown()
