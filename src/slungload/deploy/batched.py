@@ -10,8 +10,8 @@ step ~50 float64 ones, and at K = 256-4096 their element-wise work (attention ta
 H, GELUs, gates, quaternions) and allocations cost as much as the matrix products. Here:
 
 - ``CompiledPhysicsModel``: the discrete model rolled out for the K candidates in one compiled
-  loop (``kernels.physics_rollout``: ``compiled._physics_step``, the compiled copy of
-  ``physics.step``, per candidate and step), float64 as ``PhysicsModel``.
+  call (``kernels.physics_rollout``: ``kernels.physics_step_cols``, the compiled copy of
+  ``physics.step`` over candidates in columns, per step), float64 as ``PhysicsModel``.
 - ``CompiledNetworkModel``: the network's candidates in float32 on the folded weights of the
   batch-1 predictor (``compiled.fold``: standardisation folded into the first layer, physical
   units relative to the last position, the head's Linears joined, the residual gain in the last

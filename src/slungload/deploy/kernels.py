@@ -16,8 +16,13 @@ against 1.5 ns for ``torch.exp`` and 4.5 ns for ``torch.tanh``. tanh, the sigmoi
 erf (Abramowitz and Stegun 7.1.26, absolute error < 1.5e-7) are built on it, as
 ``compiled.py`` does for batch 1.
 
-The physics step is ``compiled._physics_step`` (the compiled copy of ``physics.step`` that
-``tests/test_compiled.py`` holds to it), called per row: float64 inside.
+The physics step: the network's decoder calls ``compiled._physics_step`` (the compiled copy of
+``physics.step`` that ``tests/test_compiled.py`` holds to it) per candidate, float64 inside. The
+physics model's rollout over thousands of candidates uses ``physics_step_cols``, the same
+formulas laid out over candidates in columns (float64), with sin x / x and cos x of the half
+rotation angle as polynomials in x^2 (the C library's beyond 1 rad), so that its loop has no
+call; ``tests/test_batched.py`` holds it to ``physics.step`` to 1e-12, so a change to the model
+in ``physics.py`` fails there as well as in ``test_compiled.py``.
 """
 
 from __future__ import annotations
@@ -34,6 +39,10 @@ from .compiled import _physics_step
 
 # FMA contraction only (no reassociation); NumPy's error model: a division is not a branch.
 _jit = numba.njit(cache=True, fastmath={"contract"}, nogil=True, error_model="numpy")
+# Inlined into the caller in Numba's IR (the pieces of one loop body).
+_inline = numba.njit(
+    cache=True, fastmath={"contract"}, nogil=True, error_model="numpy", inline="always"
+)
 
 _F = np.float32
 _LOG2E = _F(1.4426950408889634)
@@ -252,20 +261,116 @@ def _accumulate(x, w, out):
             out[j] += xk * wk[j]
 
 
+# --- the discrete model over K candidates in columns ------------------------------------------
+
+# sin(x) / x and cos(x) as polynomials in x^2 (Taylor, to x^22 / 23!): below 1e-17 relative for
+# |x| <= 1 rad (a half rotation angle h |omega| / 2 up to 1 rad, i.e. |omega| <= 66 rad/s at
+# h = 0.03 s); larger angles take the C library's sin and cos (``_rotation_cols``).
+_SINC = tuple((-1.0) ** n / math.factorial(2 * n + 1) for n in range(12))
+_COS = tuple((-1.0) ** n / math.factorial(2 * n) for n in range(12))
+
+
+@_jit
+def _poly(coeffs, x2):
+    p = coeffs[11]
+    for n in range(10, -1, -1):
+        p = p * x2 + coeffs[n]
+    return p
+
+
+@_inline
+def _rotation_cols(u, h, dq):
+    """dq (4, K) = exp(h omega / 2) (w-x-y-z) of the body rates u[1:4] (4, K): roma's
+    ``rotvec_to_unitquat`` as ``compiled._rotation_step`` takes it (cos of the half angle,
+    sinc / 2 times the rotation vector), vectorised over the candidates."""
+    k = u.shape[1]
+    for r in range(k):
+        r0, r1, r2 = h * u[1, r], h * u[2, r], h * u[3, r]
+        x2 = 0.25 * (r0 * r0 + r1 * r1 + r2 * r2)  # (half angle)^2
+        s = 0.5 * _poly(_SINC, x2)
+        dq[0, r] = _poly(_COS, x2)
+        dq[1, r], dq[2, r], dq[3, r] = s * r0, s * r1, s * r2
+    for r in range(k):  # rare: half angles beyond 1 rad
+        r0, r1, r2 = h * u[1, r], h * u[2, r], h * u[3, r]
+        half = 0.5 * math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+        if half > 1.0:
+            s = 0.5 * math.sin(half) / half
+            dq[0, r] = math.cos(half)
+            dq[1, r], dq[2, r], dq[3, r] = s * r0, s * r1, s * r2
+
+
+@_jit
+def physics_step_cols(x, u, aux, c, dq, x_next, aux_next):
+    """``physics.step`` for K candidates in columns, float64: x (13, K), u (4, K), aux (6, K)
+    -> x_next (13, K), aux_next (6, K); dq (4, K) scratch; c ``VehicleConstants``. The same
+    formulas as ``compiled._physics_step`` (held equal to ``physics.step`` by
+    ``tests/test_compiled.py``; this one by ``tests/test_batched.py``), laid out so that every
+    loop runs over the candidates and vectorises."""
+    h, g, mq, ml, length = c.dt, c.gravity, c.mass_quad, c.mass_load, c.cable_length
+    _rotation_cols(u, h, dq)
+    m_sum = mq + ml
+    for r in range(x.shape[1]):
+        qw, qx, qy, qz = x[6, r], x[7, r], x[8, r], x[9, r]
+        inv = 1.0 / max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-12)
+        nw, nx, ny, nz = qw * inv, qx * inv, qy * inv, qz * inv
+        thrust = c.thrust_gain * u[0, r]
+        tw0 = 2.0 * (nx * nz + ny * nw) * thrust
+        tw1 = 2.0 * (ny * nz - nx * nw) * thrust
+        tw2 = (-nx * nx - ny * ny + nz * nz + nw * nw) * thrust
+        xi0 = (x[10, r] - x[0, r]) / length
+        xi1 = (x[11, r] - x[1, r]) / length
+        xi2 = (x[12, r] - x[2, r]) / length
+        rate_sq = aux[3, r] * aux[3, r] + aux[4, r] * aux[4, r] + aux[5, r] * aux[5, r]
+        along = xi0 * tw0 + xi1 * tw1 + xi2 * tw2
+        t_load = -(ml / m_sum) * along + (ml * mq / m_sum) * length * rate_sq
+        _axis(x, aux, x_next, aux_next, r, 0, tw0, xi0, xi1 * tw2 - xi2 * tw1, 0.0, t_load, c)
+        _axis(x, aux, x_next, aux_next, r, 1, tw1, xi1, xi2 * tw0 - xi0 * tw2, 0.0, t_load, c)
+        _axis(x, aux, x_next, aux_next, r, 2, tw2, xi2, xi0 * tw1 - xi1 * tw0, g, t_load, c)
+        dw, dx, dy, dz = dq[0, r], dq[1, r], dq[2, r], dq[3, r]
+        w = qw * dw - (qx * dx + qy * dy + qz * dz)  # Hamilton product of the unnormalised q
+        a = qw * dx + dw * qx + (qy * dz - qz * dy)
+        b = qw * dy + dw * qy + (qz * dx - qx * dz)
+        d = qw * dz + dw * qz + (qx * dy - qy * dx)
+        inv = 1.0 / max(math.sqrt(w * w + a * a + b * b + d * d), 1e-12)
+        x_next[6, r], x_next[7, r], x_next[8, r], x_next[9, r] = w * inv, a * inv, b * inv, d * inv
+
+
+@_inline
+def _axis(x, aux, x_next, aux_next, r, i, tw, xi, cross, down, t_load, c):
+    """One axis of the translational and load-rate updates of ``physics_step_cols``."""
+    h, mq, ml = c.dt, c.mass_quad, c.mass_load
+    acc = tw / mq - down + (t_load / mq) * xi
+    acc_load = -(t_load / ml) * xi - down
+    x_next[i, r] = x[i, r] + h * x[3 + i, r] + 0.5 * h * h * acc
+    x_next[3 + i, r] = x[3 + i, r] + h * acc
+    x_next[10 + i, r] = x[10 + i, r] + h * aux[i, r] + 0.5 * h * h * acc_load
+    aux_next[i, r] = aux[i, r] + h * acc_load
+    aux_next[3 + i, r] = (1.0 - c.load_damping) * aux[3 + i, r] + h * (
+        -cross / (mq * c.cable_length)
+    )
+
+
 @_jit
 def physics_rollout(x0, aux0, plans, vehicle, out):
     """``physics.rollout`` of K candidates from one state, float64: x0 (13,), aux0 (6,) =
-    (vL, Omega_L), plans (K, N, 4) -> out (K, N, 13), each step ``compiled._physics_step``."""
-    xu = np.empty(17, np.float64)
-    aux = np.empty(6, np.float64)
-    x_next = np.empty(13, np.float64)
-    aux_next = np.empty(6, np.float64)
-    for r in range(plans.shape[0]):
-        xu[:13] = x0
-        aux[:] = aux0
-        for k in range(plans.shape[1]):
-            xu[13:] = plans[r, k]
-            _physics_step(xu, aux, vehicle, x_next, aux_next)
-            xu[:13] = x_next
-            aux[:] = aux_next
-            out[r, k] = x_next
+    (vL, Omega_L), plans (K, N, 4) -> out (K, N, 13), each step ``physics_step_cols``."""
+    k, n = plans.shape[0], plans.shape[1]
+    x = np.empty((13, k))
+    aux = np.empty((6, k))
+    for j in range(13):
+        x[j] = x0[j]
+    for j in range(6):
+        aux[j] = aux0[j]
+    x_next, aux_next = np.empty((13, k)), np.empty((6, k))
+    u, dq = np.empty((4, k)), np.empty((4, k))
+    for step in range(n):
+        for r in range(k):
+            for j in range(4):
+                u[j, r] = plans[r, step, j]
+        physics_step_cols(x, u, aux, vehicle, dq, x_next, aux_next)
+        x[:] = x_next
+        aux[:] = aux_next
+        for j in range(13):
+            row = x[j]
+            for r in range(k):
+                out[r, step, j] = row[r]
