@@ -200,26 +200,30 @@ def trajectory_cost(
     step_w[-1] += cfg.terminal
     p, v, q, pl = states[..., POS], states[..., VEL], states[..., QUAT], states[..., LOAD_POS]
     load_ref = ref.position - np.array([0.0, 0.0, cable_length])
-    yaw_err = yaw_of(q) - ref.yaw
-    yaw_err = np.arctan2(np.sin(yaw_err), np.cos(yaw_err))
-    over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
     with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf predictions: dropped later
+        yaw_err = np.remainder(yaw_of(q) - ref.yaw + math.pi, 2.0 * math.pi) - math.pi
+        over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
         state_cost = (
-            cfg.w_position * np.square(p - ref.position).sum(-1)
-            + cfg.w_velocity * np.square(v - ref.velocity).sum(-1)
-            + cfg.w_load * np.square(pl - load_ref).sum(-1)
-            + cfg.w_swing * np.square((pl - p)[..., :2]).sum(-1)
+            cfg.w_position * _square_norm(p - ref.position)
+            + cfg.w_velocity * _square_norm(v - ref.velocity)
+            + cfg.w_load * _square_norm(pl - load_ref)
+            + cfg.w_swing * _square_norm((pl - p)[..., :2])
             + cfg.w_yaw * np.square(yaw_err)
             + cfg.w_tilt * np.square(over_tilt)
         )  # (K, N)
     du = np.diff(plans, axis=1, prepend=np.broadcast_to(u_prev, (len(plans), 1, INPUT_DIM)))
     input_cost = (
         cfg.w_thrust * np.square(plans[..., 0] - hover_thrust)
-        + cfg.w_rates * np.square(plans[..., 1:]).sum(-1)
+        + cfg.w_rates * _square_norm(plans[..., 1:])
         + cfg.w_thrust_rate * np.square(du[..., 0])
-        + cfg.w_rates_rate * np.square(du[..., 1:]).sum(-1)
+        + cfg.w_rates_rate * _square_norm(du[..., 1:])
     )
-    return (state_cost * step_w).sum(-1) + input_cost.sum(-1)
+    return state_cost @ step_w + input_cost.sum(-1)
+
+
+def _square_norm(a: np.ndarray) -> np.ndarray:
+    """|a|^2 over the last axis (einsum: faster than square-then-sum for 2-3 columns)."""
+    return np.einsum("...d,...d->...", a, a)
 
 
 def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
@@ -330,7 +334,7 @@ class MPPIController:
         """K clamped input sequences (K, N, 4) around the nominal plan; row 0 is the plan."""
         cfg = self.cfg
         z = self.rng.standard_normal((cfg.samples, cfg.knots, INPUT_DIM))
-        noise = np.einsum("nj,kjd->knd", self.interp, z * self.std)
+        noise = self.interp @ (z * self.std)  # (N, knots) @ (K, knots, 4) -> (K, N, 4)
         noise[0] = 0.0
         return self.limits.clamp(self.plan + noise)
 
