@@ -128,15 +128,16 @@ def benchmark_mpc(
     net = NetworkModel(predictor.model, m, name=f"{predictor.model.architecture} network")
     models: list[PredictionModel] = ([PhysicsModel(predictor.params)] if physics else []) + [net]
     rows: list[RolloutTiming] = []
+    notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="slungload-mpc-") as tmp, torch_threads(1):
         for n in horizons:
-            onnx_model = _onnx_model(predictor, n, Path(tmp)) if onnx else None
+            onnx_model = _onnx_model(predictor, n, Path(tmp), notes) if onnx else None
             for model in models:
                 for k in samples:
                     fns = _backends(model, onnx_model if model is net else None)
                     args = _inputs(m, k, n, seed)
                     rows += _time_group(model.name, fns, args, k, n, calls, seconds)
-    notes = [
+    notes += [
         "eager and compiled: PredictionModel.predict_candidates on float64 tensors (the "
         "torch MPC's call); onnxruntime: OnnxCandidateModel.predict_candidates on float64 "
         "arrays (the onboard MPC's call), an export of the same network per N.",
@@ -167,11 +168,18 @@ def _backends(model: PredictionModel, onnx_model: Any | None) -> dict[str, Call]
     return fns
 
 
-def _onnx_model(predictor: Predictor, horizon: int, folder: Path) -> Any:
+def _onnx_model(predictor: Predictor, horizon: int, folder: Path, notes: list[str]) -> Any:
+    """The exported candidates graph at this N on ONNX Runtime, or None (with a note saying
+    why) when the exporter refuses it: its own parity check against eager."""
     from .candidates import export_for_mpc
     from .onboard import OnnxCandidateModel
+    from .onnx import OnnxModelError
 
-    result = export_for_mpc(predictor, folder / f"n{horizon}.mpc.onnx", horizon=horizon)
+    try:
+        result = export_for_mpc(predictor, folder / f"n{horizon}.mpc.onnx", horizon=horizon)
+    except OnnxModelError as exc:
+        notes.append(f"No onnxruntime row at N = {horizon}: the export refused: {exc}")
+        return None
     return OnnxCandidateModel(result.model, threads=1)
 
 
