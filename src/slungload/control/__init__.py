@@ -1,11 +1,15 @@
-"""Model-predictive control of the vehicle and its slung load, flown in the simulator.
+"""Model-predictive control of the vehicle and its slung load, in the simulator and onboard.
 
-``history``: the measured states and applied inputs the controller keeps for its prediction
-model (``models.prediction``: the physics model or any trained network of ``models.MODELS``,
-through ``predict_candidates``); ``mpc``: the sampling (MPPI) controller that meets
-``sim.controller.Controller``; ``closed_loop``: guarded flights and their metrics;
-``report``: ``slungload control``'s comparison, report.md and figures (docs/control.md).
+``mppi``: the sampling (MPPI) controller written once in numpy, ``MPPIController.step(state,
+reference) -> Command``, the API a vehicle's own loop calls (numpy only; ``from_onnx`` runs it
+over an exported network on ONNX Runtime, ``deploy.onboard``); ``history``: the measured states
+and applied inputs it keeps for its prediction model (numpy); ``mpc``: ``SamplingMPC``, the same
+controller over any torch prediction model (``models.prediction``: the physics model or any
+trained network of ``models.MODELS``, through ``predict_candidates``), meeting
+``sim.controller.Controller``; ``closed_loop``: guarded flights and their metrics; ``report``:
+``slungload control``'s comparison, report.md and figures (docs/control.md).
 
-Like ``training/``, ``evaluation/`` and ``deploy/``, this package imports nothing here: its
-modules load torch, MuJoCo and matplotlib.
+Like ``training/``, ``evaluation/`` and ``deploy/``, this package imports nothing here: ``mpc``,
+``closed_loop`` and ``report`` load torch, MuJoCo and matplotlib, and the onboard controller
+must not.
 """
