@@ -236,6 +236,9 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument(
         "--preset", default="default", choices=choices("presets"), help="default: default"
     )
+    s.add_argument(
+        "--epochs", type=int, help="epochs in place of the preset's (its schedule fitted to them)"
+    )
     s.add_argument("--samples", type=int, default=256, metavar="K", help="plans (default 256)")
     s.add_argument("--steps", type=int, default=15, metavar="N", help="plan steps (default 15)")
     s.add_argument("--repeats", type=int, default=200, help="timed rollouts (default 200)")
@@ -263,6 +266,7 @@ def cmd_study(args: argparse.Namespace) -> int:
             samples=args.samples,
             steps=args.steps,
             repeats=args.repeats,
+            epochs=args.epochs,
             workers=args.workers,
             train=not args.no_train,
             progress=not args.quiet,

@@ -83,9 +83,13 @@ class SizeStudy:
     horizon: int
 
 
-def size_run(template: RunConfig, size: str, *, preset: str, seed: int) -> RunConfig:
-    """The template run with the widths of ``size`` (``MODEL_SIZES``), on a preset and seed."""
-    return replace(template, model=template.model.resized(size)).scheduled(preset, seed=seed)
+def size_run(
+    template: RunConfig, size: str, *, preset: str, seed: int, epochs: int | None = None
+) -> RunConfig:
+    """The template run with the widths of ``size`` (``MODEL_SIZES``), on a preset and seed
+    (and ``epochs`` in place of the preset's, where given)."""
+    run = replace(template, model=template.model.resized(size)).scheduled(preset, seed=seed)
+    return run if epochs is None else replace(run, train=replace(run.train, max_epochs=epochs))
 
 
 def study_size(
@@ -101,6 +105,7 @@ def study_size(
     samples: int = 256,
     steps: int = 15,
     repeats: int = 200,
+    epochs: int | None = None,
     workers: int = 2,
     train: bool = True,
     progress: bool = True,
@@ -109,15 +114,20 @@ def study_size(
     validation RMSE at ``horizon`` and the batched rollout time, then train the sizes on the
     Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``.
     With ``train=False`` nothing is trained: the finished runs among those named are
-    evaluated and timed (to re-time on a quiet machine, or to report a study cut short)."""
+    evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
+    ``epochs`` replaces the preset's epoch budget (its schedule fitted to it)."""
     unknown = [s for s in sizes if s not in MODEL_SIZES]
     if unknown or not sizes:
         raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
     out, data = Path(out), Path(data)
+
+    def run_of(size: str, seed: int) -> RunConfig:
+        return size_run(template, size, preset=preset, seed=seed, epochs=epochs)
+
     if train:
-        _train(data, out, template, sizes, seeds, preset, workers, progress)
+        _train(data, out, run_of, sizes, seeds, workers, progress)
     every = tuple(dict.fromkeys((*seeds, *front_seeds)))
-    finished = {s: _finished(out, template, s, every, preset) for s in sizes}
+    finished = {s: _finished(out, run_of, s, every) for s in sizes}
     missing = [s for s, runs in finished.items() if not runs]
     if missing:
         raise FileNotFoundError(f"no finished run of the sizes {missing} under {out / 'runs'}")
@@ -125,50 +135,44 @@ def study_size(
         _time_size(s, finished[s][0], data, samples=samples, steps=steps, repeats=repeats)
         for s in sizes
     )
-    rows = _evaluate(data, out, template, {s: seeds for s in sizes}, preset, horizon)
+    rows = _evaluate(data, out, run_of, {s: seeds for s in sizes}, horizon)
     front = pareto_front(rows, timings)
     extra = {s: tuple(k for k in front_seeds if k not in seeds) for s in front}
     if any(extra.values()):
         if train:
             later = sorted({k for v in extra.values() for k in v})
-            _train(data, out, template, front, later, preset, workers, progress)
+            _train(data, out, run_of, front, later, workers, progress)
         chosen = {s: tuple(seeds) + (extra[s] if s in front else ()) for s in sizes}
-        rows = _evaluate(data, out, template, chosen, preset, horizon)
+        rows = _evaluate(data, out, run_of, chosen, horizon)
     study = SizeStudy(tuple(rows), timings, pareto_front(rows, timings), horizon)
     write_size_study(study, out)
     return study
 
 
-def _train(data, out, template, sizes, seeds, preset, workers, progress) -> None:
+def _train(data, out, run_of, sizes, seeds, workers, progress) -> None:
     """The runs of every size and seed not finished yet, seed by seed (so a study cut short
     has every size at its first seed), the sizes in the order given within a seed (the
     registry's: the largest, slowest to train, first)."""
     jobs = []
     for seed in seeds:
         for size in sizes:
-            run = size_run(template, size, preset=preset, seed=seed)
+            run = run_of(size, seed)
             run_dir = out / "runs" / run.folder()
             if not (run_dir / "run.json").is_file():
                 jobs.append(TrainingJob(data, run_dir, run, (run_dir / "last.ckpt").is_file()))
     run_training_jobs(jobs, workers=workers, progress=progress)
 
 
-def _finished(out, template, size, seeds, preset) -> list[Path]:
+def _finished(out, run_of, size, seeds) -> list[Path]:
     """The run folders of ``size`` for ``seeds`` whose training finished (run.json)."""
-    folders = [
-        out / "runs" / size_run(template, size, preset=preset, seed=k).folder() for k in seeds
-    ]
+    folders = [out / "runs" / run_of(size, k).folder() for k in seeds]
     return [f for f in folders if (f / "run.json").is_file()]
 
 
-def _evaluate(data, out, template, seeds, preset, horizon) -> list[SizeRow]:
+def _evaluate(data, out, run_of, seeds, horizon) -> list[SizeRow]:
     """Validation combined RMSE at ``horizon`` of every finished run (size -> its seeds) and
     of the physics model, in one evaluation (the same windows for all)."""
-    runs = {
-        size_run(template, size, preset=preset, seed=seed): size
-        for size, chosen in seeds.items()
-        for seed in chosen
-    }
+    runs = {run_of(size, seed): size for size, chosen in seeds.items() for seed in chosen}
     folders = [out / "runs" / run.folder() for run in runs]
     folders = [f for f in folders if (f / "run.json").is_file()]
     report = evaluate(folders, data=data, horizons=(horizon,), split="val", progress=False)
