@@ -19,11 +19,11 @@ from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.control.mpc import SamplingMPC
 from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
 from slungload.data.windows import make_windows
-from slungload.deploy.candidates import candidate_inputs, export_for_mpc
+from slungload.deploy.candidates import candidate_inputs, export_for_mpc, hover_inputs
 from slungload.deploy.onboard import OnboardModelError, OnnxCandidateModel, sidecar_path
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
 from slungload.models import build
-from slungload.models.prediction import NetworkModel
+from slungload.models.prediction import NetworkModel, PhysicsModel
 
 torch.set_num_threads(1)
 PARAMS = VehicleParams()
@@ -183,3 +183,25 @@ def test_the_example_loop_tracks_with_the_physics_model():
     spec.loader.exec_module(example)
     rmse = example.main(["--physics", "--samples", "32", "--horizon", "10", "--steps", "60"])
     assert rmse < 0.1  # m: the frames round trip (NED/FRD and back) is right, or it would crash
+
+
+def test_the_physics_model_exports_too_and_flies_onboard(tmp_path):
+    """The discrete model (M = 2) as a candidates graph: equal to PhysicsModel (float64) to
+    float32 rounding, and the onboard MPC over it plans as the torch MPC over PhysicsModel."""
+    result = export_for_mpc("physics", tmp_path, horizon=5, params=PARAMS)
+    assert result.model.name == "physics-n5.mpc.onnx" and result.history == 2
+    onboard = OnnxCandidateModel(result.model)
+    x_hist, u_past, plans = (a.astype(np.float64) for a in hover_inputs(PARAMS, 5, 32))
+    want = PhysicsModel(PARAMS).predict_candidates(
+        *(torch.from_numpy(a) for a in (x_hist, u_past, plans))
+    )
+    assert np.abs(onboard.predict_candidates(x_hist, u_past, plans) - want.numpy()).max() < 1e-4
+    cfg = MPCConfig(samples=32, horizon=5, knots=3, seed=3)
+    torch_mpc = SamplingMPC(PhysicsModel(PARAMS), LIMITS, cfg, PARAMS)
+    onboard_mpc = MPPIController.from_onnx(result.model, LIMITS, cfg)
+    target = np.tile(x_hist[-1, :3] + [0.2, 0, 0], (5, 1))
+    ref = ReferenceAhead(target, np.zeros((5, 3)), np.zeros(5))
+    for x in (x_hist[0], x_hist[1], x_hist[1]):
+        torch_mpc.core.step(x, ref)
+        onboard_mpc.step(x, ref)
+        np.testing.assert_allclose(onboard_mpc.plan, torch_mpc.plan, rtol=0, atol=1e-5)

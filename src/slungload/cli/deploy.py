@@ -41,7 +41,8 @@ def add_export(sub: Any) -> None:
         action="store_true",
         help="export the MPC's candidates graph instead (encoder once, decoder batched over K "
         "candidates, package layout; <run name>-n<N>.mpc.onnx in a folder) for the onboard "
-        "controller on numpy + onnxruntime (docs/deployment.md)",
+        "controller on numpy + onnxruntime (docs/deployment.md); RUN_DIR 'physics' exports the "
+        "discrete model with the default vehicle constants",
     )
     p.set_defaults(func=cmd_export)
 

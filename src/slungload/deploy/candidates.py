@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 import onnxruntime as ort
@@ -27,13 +29,30 @@ import torch
 from torch import Tensor, nn
 
 from .._version import __version__
+from ..config import VehicleParams, to_dict
 from ..fileio import atomic_path, write_json
+from ..models.prediction import PHYSICS, PhysicsModel
 from ..state import with_unit_quaternion
 from . import onboard
 from .onnx import OPSET, OnnxModelError, _check_model_path, _load, _version, export_name
 from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
 
 CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
+
+
+class PhysicsCandidatesNet(nn.Module):
+    """``models.prediction.PhysicsModel.predict_candidates`` as a module (M = 2): the discrete
+    model rolled out from the last state with the load state estimated from the last two."""
+
+    def __init__(self, params: VehicleParams) -> None:
+        super().__init__()
+        self.physics = PhysicsModel(params)
+
+    def forward(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        states = self.physics.predict_candidates(x_hist, u_past, plans)
+        # The discrete model does not read u_past; a zero term keeps it an input of the graph,
+        # so every exported model has the contract's three inputs (finite inputs: exact).
+        return states + 0.0 * u_past.sum()
 
 
 class CandidatesNet(nn.Module):
@@ -69,14 +88,34 @@ class MPCExportResult:
         )
 
 
+class _Source(NamedTuple):
+    """What is exported and how to describe it."""
+
+    net: nn.Module  # x_hist, u_past, plans -> states
+    history: int  # M
+    name: str
+    architecture: str
+    variant: str | None
+    configs: dict[str, Any]
+    source: str
+    inputs: Callable[[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]  # (K, seed)
+
+
 def export_for_mpc(
-    run_or_ckpt: str | Path | Predictor, out: str | Path, *, horizon: int, opset: int = OPSET
+    run_or_ckpt: str | Path | Predictor,
+    out: str | Path,
+    *,
+    horizon: int,
+    params: VehicleParams | None = None,
+    opset: int = OPSET,
 ) -> MPCExportResult:
     """Write ``out`` (the candidates graph) and its sidecar (``onboard.sidecar_path``).
 
-    run_or_ckpt: a run folder, a ``.ckpt`` or a loaded ``Predictor``; out: the model file in
-    an existing folder, or an existing folder to write ``<run name>-n<N>.mpc.onnx`` into;
-    horizon: N fixed in the file (the MPC's horizon).
+    run_or_ckpt: a run folder, a ``.ckpt`` or a loaded ``Predictor``; or ``"physics"``, the
+    discrete model (``models.prediction.PhysicsModel``, M = 2) with the constants ``params``
+    (default ``VehicleParams()``; ignored otherwise); out: the model file in an existing
+    folder, or an existing folder to write ``<run name>-n<N>.mpc.onnx`` into; horizon: N fixed
+    in the file (the MPC's horizon).
     """
     start = time.perf_counter()
     out = Path(out)
@@ -84,21 +123,20 @@ def export_for_mpc(
         _check_model_path(out)
     if horizon < 2:
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
-    predictor, configs, source = _load(run_or_ckpt)
+    src = _source(run_or_ckpt, horizon, params)
     if out.is_dir():
-        out = out / export_name(run_or_ckpt, horizon).replace(".onnx", onboard.SUFFIX)
-    net = CandidatesNet(predictor.model.cpu().eval()).eval()
-    m = predictor.window.history
+        out = out / f"{src.name}-n{horizon}{onboard.SUFFIX}"
     with atomic_path(out) as tmp:
-        _trace(net, candidate_inputs(predictor, horizon, CHECK_CANDIDATES[0]), tmp, opset)
+        _trace(src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset)
         session = ort.InferenceSession(str(tmp), onboard.session_options(1), providers=onboard.CPU)
-        diff = max(_parity(net, session, predictor, horizon, k) for k in CHECK_CANDIDATES)
+        diff = max(_parity(src, session, k) for k in CHECK_CANDIDATES)
         if not diff <= PARITY_TOLERANCE:
             raise OnnxModelError(
-                f"{out}: exported candidates graph disagrees with the eager network by "
+                f"{out}: exported candidates graph disagrees with the eager model by "
                 f"{diff:.3g} (> {PARITY_TOLERANCE}); not written"
             )
         digest = onboard.sha256(tmp)
+    m = src.history
     sidecar = onboard.sidecar_path(out)
     write_json(
         sidecar,
@@ -108,16 +146,16 @@ def export_for_mpc(
             "package_version": __version__,
             "model_file": out.name,
             "model_sha256": digest,
-            "name": _name(run_or_ckpt),
-            "architecture": predictor.model.architecture,
+            "name": src.name,
+            "architecture": src.architecture,
             "history": m,
             "horizon": horizon,
             **onboard.io_spec(m, horizon),
             "layout": onboard.layout(),
-            "params": configs["params"],
-            "variant": predictor.variant,
-            "configs": configs,
-            "source": source,
+            "params": src.configs["params"],
+            "variant": src.variant,
+            "configs": src.configs,
+            "source": src.source,
             "export": {
                 "opset": opset,
                 "torch": _version("torch"),
@@ -129,6 +167,30 @@ def export_for_mpc(
         },
     )
     return MPCExportResult(out, sidecar, horizon, m, opset, diff, time.perf_counter() - start)
+
+
+def _source(run_or_ckpt, horizon: int, params: VehicleParams | None) -> _Source:
+    if not isinstance(run_or_ckpt, Predictor) and str(run_or_ckpt) == PHYSICS:
+        params = params or VehicleParams()
+        net = PhysicsCandidatesNet(params).eval()
+        configs = {"params": to_dict(params)}
+
+        def physics_inputs(k: int, seed: int):
+            return hover_inputs(params, horizon, k, seed=seed)
+
+        return _Source(net, 2, PHYSICS, PHYSICS, None, configs, "physics model", physics_inputs)
+    predictor, configs, source = _load(run_or_ckpt)
+    name = export_name(run_or_ckpt, horizon).removesuffix(f"-n{horizon}.onnx")
+
+    def network_inputs(k: int, seed: int):
+        return candidate_inputs(predictor, horizon, k, seed=seed)
+
+    net = CandidatesNet(predictor.model.cpu().eval()).eval()
+    arch = predictor.model.architecture
+    return _Source(
+        net, predictor.window.history, name, arch, predictor.variant, configs, source,
+        network_inputs,
+    )  # fmt: skip
 
 
 def candidate_inputs(
@@ -149,7 +211,25 @@ def candidate_inputs(
     return x_hist, u[: m - 1].astype(np.float32), plans
 
 
-def _trace(net: CandidatesNet, inputs, path: Path, opset: int) -> None:
+def hover_inputs(
+    params: VehicleParams, horizon: int, k: int, *, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Float32 inputs of the physics model's graph: two history rows of a vehicle drifting
+    near hover with its load a little off the vertical, and K plans around hover thrust."""
+    rng = np.random.default_rng(seed)
+    p = np.array([0.3, -0.2, 1.5]) + 0.1 * rng.standard_normal(3)
+    v = 0.3 * rng.standard_normal(3)
+    cable = np.array([0.05, -0.03, -1.0])
+    load = p + params.cable_length * cable / np.linalg.norm(cable)
+    x1 = np.concatenate([p, v, [1.0, 0.0, 0.0, 0.0], load])
+    x0 = x1 - params.dt * np.concatenate([v, np.zeros(7), v + [0.02, 0.0, 0.0]])
+    hover = np.array([(params.mass_quad + params.mass_load) * params.gravity, 0.0, 0.0, 0.0])
+    plans = hover + rng.standard_normal((k, horizon, 4)) * np.array([1.0, 0.5, 0.5, 0.2])
+    arrays = (np.stack([x0, x1]), hover[None], plans)
+    return tuple(a.astype(np.float32) for a in arrays)
+
+
+def _trace(net: nn.Module, inputs, path: Path, opset: int) -> None:
     """TorchScript-based exporter (``dynamo=False``), K declared dynamic."""
     args = tuple(torch.from_numpy(a) for a in inputs)
     with warnings.catch_warnings(), torch.no_grad():
@@ -166,17 +246,10 @@ def _trace(net: CandidatesNet, inputs, path: Path, opset: int) -> None:
         )
 
 
-def _parity(net, session, predictor: Predictor, horizon: int, k: int) -> float:
-    x_hist, u_past, plans = candidate_inputs(predictor, horizon, k, seed=k)
+def _parity(src: _Source, session, k: int) -> float:
+    x_hist, u_past, plans = src.inputs(k, k)
     feeds = {onboard.X_HIST: x_hist, onboard.U_PAST: u_past, onboard.PLANS: plans}
     got = session.run(None, feeds)[0]
     with torch.no_grad():
-        want = net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
+        want = src.net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
     return float(np.abs(got - want).max())
-
-
-def _name(source) -> str:
-    if isinstance(source, Predictor):
-        return "model"
-    path = Path(source).resolve()
-    return path.name if path.is_dir() else path.parent.name
