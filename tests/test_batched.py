@@ -301,7 +301,7 @@ def test_mpc_benchmark_times_every_backend_on_the_same_calls():
     }  # fmt: skip
     for (model, _), row in rows.items():
         assert (row.samples, row.horizon, row.calls) == (3, 4, MIN_CALLS)
-        assert row.median_ms > 0 and row.p99_ms >= row.median_ms
+        assert row.median_ms > 0 and row.p99_ms >= row.median_ms and row.cpu_median_ms > 0
         assert row.max_abs_diff <= (1e-9 if model == "physics" else PARITY_TOLERANCE)
     assert rows[("physics", "eager")].speedup == 1.0
     table = result.markdown()

@@ -11,8 +11,9 @@ it), for the physics model and a network, on every backend of ``deploy.batched.B
 ONNX Runtime's). The backends of one (model, K, N) are timed interleaved, one call each in
 turn, so a change in the machine's load hits them alike; each gets ``calls`` calls or what fits
 in ``seconds`` (at least ``MIN_CALLS``), after two warm-up calls. Median and p99 of the wall
-clock per call, the speed-up against eager in the same run, and the largest difference from
-eager's prediction; the load average is stamped at the start and the end.
+clock per call, the calling thread's median CPU time (what other processes inflate least), the
+speed-up against eager in the same run and the largest difference from eager's prediction; the
+load average is stamped at the start and the end.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class RolloutTiming:
     calls: int
     median_ms: float
     p99_ms: float  # the largest of fewer than 100 calls is at least the p99
+    cpu_median_ms: float  # the calling thread's CPU time: what a busy machine inflates least
     speedup: float  # eager's median / this median, same run
     max_abs_diff: float  # largest |this - eager| over the K x N x 13 predictions
 
@@ -83,14 +85,16 @@ class MPCBenchmark:
             f"{self.load_average[1]:.2f} at the end; backends of a row group timed "
             "interleaved; speed-up against eager in the same run:",
             "",
-            "| model | backend | N | K | calls | median ms | p99 ms | speed-up | max abs diff |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| model | backend | N | K | calls | median ms | p99 ms | CPU median ms | speed-up "
+            "| max abs diff |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in self.rows:
             diff = "-" if r.backend == "eager" else f"{r.max_abs_diff:.1e}"
             lines.append(
                 f"| {r.model} | {r.backend} | {r.horizon} | {r.samples} | {r.calls} | "
-                f"{r.median_ms:.1f} | {r.p99_ms:.1f} | {r.speedup:.2f}x | {diff} |"
+                f"{r.median_ms:.1f} | {r.p99_ms:.1f} | {r.cpu_median_ms:.1f} | "
+                f"{r.speedup:.2f}x | {diff} |"
             )
         lines += [""] + [f"Note: {n}" for n in self.notes]
         return "\n".join(lines) + "\n"
@@ -201,7 +205,7 @@ def _time_group(
 ) -> list[RolloutTiming]:  # fmt: skip
     """The backends of one (model, K, N), interleaved call by call."""
     outputs = {name: (fn(args), fn(args))[1] for name, fn in fns.items()}  # two warm-up calls
-    wanted, times = {}, {name: [] for name in fns}
+    wanted, times, cpu = {}, {name: [] for name in fns}, {name: [] for name in fns}
     for name, fn in fns.items():
         start = time.perf_counter()
         fn(args)
@@ -210,9 +214,10 @@ def _time_group(
     while any(len(times[name]) < wanted[name] for name in fns):
         for name, fn in fns.items():
             if len(times[name]) < wanted[name]:
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.thread_time()
                 fn(args)
                 times[name].append(time.perf_counter() - start)
+                cpu[name].append(time.thread_time() - start_cpu)
     eager_ms = float(np.median(times["eager"])) * 1e3
     rows = []
     for name in fns:
@@ -226,6 +231,7 @@ def _time_group(
                 len(ms),
                 float(np.median(ms)),
                 float(np.percentile(ms, 99)),
+                float(np.median(cpu[name])) * 1e3,
                 eager_ms / float(np.median(ms)),
                 float(np.abs(outputs[name] - outputs["eager"]).max()),
             )  # fmt: skip
