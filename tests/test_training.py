@@ -203,9 +203,7 @@ def test_resume_continues_the_epoch_count_and_matches_one_long_run(
     first = train_tiny(dataset, tmp_path / "split", max_epochs=1, model=config)
     assert first.epochs == 1
     one_epoch = torch.load(first.last_checkpoint, weights_only=True)["global_step"]
-    resumed = train_tiny(
-        dataset, tmp_path / "split", max_epochs=3, resume=True, model=config
-    )
+    resumed = train_tiny(dataset, tmp_path / "split", max_epochs=3, resume=True, model=config)
     assert resumed.epochs == 3
     rows = read_metrics(tmp_path / "split")
     assert epoch_values(rows, "epoch")[-1] == 2
