@@ -149,7 +149,7 @@ MODEL_SIZES: dict[str, ModelSize] = {
     "paper": ModelSize((100, 200, 300), 20, 3, (300, 200, 100), "the paper's network"),
     "medium": ModelSize((64, 64), 32, 2, (64, 64), "the most accurate in the size study"),
     "small": ModelSize((32, 32), 16, 2, (32,), "the paper's accuracy, 1.7x faster MPC rollouts"),
-    "tiny": ModelSize((16,), 8, 1, (), "2.6x faster MPC rollouts, 23 % less accurate"),
+    "tiny": ModelSize((16,), 8, 1, (), "2.6x faster MPC rollouts, 1.23x the error"),
 }
 
 
