@@ -161,51 +161,86 @@ class OnnxCandidateModel:
         return states.astype(np.float64)
 
 
-def read_sidecar(model_path: str | Path) -> dict[str, Any]:
-    """The sidecar of ``model_path``, checked for format, version, checksum and layout."""
+def check_sidecar(
+    model_path: str | Path,
+    *,
+    what: str,
+    format: str,
+    format_version: int,
+    columns: dict[str, Any],
+    min_history: int,
+    error: type[ValueError],
+) -> dict[str, Any]:
+    """The sidecar of an exported model, checked for its format and version, the model
+    file's checksum, its layout's entries against ``columns`` (this package's column names)
+    and positive integer history (at least ``min_history``) and horizon. Shared by the MPC's
+    export and the whole-window export (``deploy.onnx``); ``what`` names the sidecar in
+    messages, ``error`` is the exception raised."""
     model_path = Path(model_path)
     path = sidecar_path(model_path)
     if not path.is_file():
-        raise OnboardModelError(f"{model_path}: its sidecar {path.name} is missing")
+        raise error(f"{model_path}: its sidecar {path.name} is missing")
     try:
         meta = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise OnboardModelError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise OnboardModelError(f"{path}: not a slungload MPC sidecar (format != {FORMAT!r})")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise OnboardModelError(
+        raise error(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != format:
+        raise error(f"{path}: not a slungload {what} sidecar (format != {format!r})")
+    if meta.get("format_version") != format_version:
+        raise error(
             f"{path}: sidecar format version {meta.get('format_version')}, this package reads "
-            f"{FORMAT_VERSION}; re-export the model"
+            f"{format_version}; re-export the model"
         )
     if meta.get("model_sha256") != sha256(model_path):
-        raise OnboardModelError(
+        raise error(
             f"{model_path}: the file does not match its sidecar {path.name} (checksum differs); "
             "was it replaced or damaged?"
         )
-    want = layout()
-    for key in ("state_columns", "input_columns"):
-        if meta.get("layout", {}).get(key) != want[key]:
-            raise OnboardModelError(
-                f"{path}: {key} {meta.get('layout', {}).get(key)} differ from this package's "
-                f"{want[key]}"
-            )
+    got = meta.get("layout", {})
+    for key, want in columns.items():
+        if got.get(key) != want:
+            raise error(f"{path}: {key} {got.get(key)} differ from this package's {want}")
     for key in ("history", "horizon"):
-        if not isinstance(meta.get(key), int) or meta[key] < (2 if key == "history" else 1):
-            raise OnboardModelError(f"{path}: '{key}' must be a positive integer")
+        if not isinstance(meta.get(key), int) or meta[key] < (
+            min_history if key == "history" else 1
+        ):
+            raise error(f"{path}: '{key}' must be a positive integer")
+    return meta
+
+
+def read_sidecar(model_path: str | Path) -> dict[str, Any]:
+    """The sidecar of an exported MPC model, checked (``check_sidecar``), with its vehicle
+    constants."""
+    meta = check_sidecar(
+        model_path,
+        what="MPC",
+        format=FORMAT,
+        format_version=FORMAT_VERSION,
+        columns={k: layout()[k] for k in ("state_columns", "input_columns")},
+        min_history=2,
+        error=OnboardModelError,
+    )
     if not isinstance(meta.get("params"), dict):
+        path = sidecar_path(model_path)
         raise OnboardModelError(f"{path}: the vehicle constants ('params') are missing")
     return meta
 
 
-def check_session(path: Path, session: ort.InferenceSession, meta: dict[str, Any]) -> None:
-    """The graph's inputs and outputs must be the ones the sidecar describes."""
-    spec = io_spec(meta["history"], meta["horizon"])
+def check_session(
+    path: Path,
+    session: ort.InferenceSession,
+    meta: dict[str, Any],
+    spec: dict[str, Any] | None = None,
+    error: type[ValueError] = OnboardModelError,
+) -> None:
+    """The graph's inputs and outputs must be the ones the sidecar describes: ``spec``
+    (default: the MPC graph's, ``io_spec``)."""
+    spec = spec if spec is not None else io_spec(meta["history"], meta["horizon"])
     for kind, actual in (("inputs", session.get_inputs()), ("outputs", session.get_outputs())):
         want = [(s["name"], s["shape"]) for s in spec[kind]]
         declared = [(s.get("name"), s.get("shape")) for s in meta.get(kind, [])]
         got = [(a.name, list(a.shape)) for a in actual]
         if declared != want or got != want:
-            raise OnboardModelError(
+            raise error(
                 f"{path}: graph {kind} {got} and sidecar {kind} {declared} must both be {want}"
             )

@@ -27,8 +27,6 @@ it never imports Lightning or ``training`` (checkpoints are read with torch alon
 from __future__ import annotations
 
 import copy
-import hashlib
-import json
 import time
 import warnings
 from dataclasses import dataclass
@@ -56,7 +54,7 @@ from ..state import (
     with_unit_quaternion,
 )
 from .onboard import CPU as _CPU
-from .onboard import session_options
+from .onboard import check_session, check_sidecar, session_options, sha256
 from .predictor import (
     PARITY_TOLERANCE,
     FileLayoutNet,
@@ -201,7 +199,7 @@ def export(
                 f"{out}: exported model disagrees with the eager network by {diff:.3g} "
                 f"(> {PARITY_TOLERANCE}); not written"
             )
-        digest = _sha256(tmp)
+        digest = sha256(tmp)
     sidecar = sidecar_path(out)
     write_json(
         sidecar,
@@ -378,7 +376,10 @@ class OnnxPredictor:
             )
         except Exception as exc:  # ORT raises its own exception types for unreadable files
             raise OnnxModelError(f"{self.path}: not a loadable ONNX model ({exc})") from exc
-        _check_session(self.path, self.session, self.meta)
+        check_session(
+            self.path, self.session, self.meta, _io_spec("history", self.meta["horizon"]),
+            OnnxModelError,
+        )  # fmt: skip
         self.horizon: int = self.meta["horizon"]
         self.history: int = self.meta["history"]  # M it was trained with
 
@@ -408,55 +409,17 @@ class OnnxPredictor:
 
 
 def read_sidecar(model_path: str | Path) -> dict[str, Any]:
-    """The sidecar of ``model_path``, checked for format, version, checksum and layout."""
-    model_path = Path(model_path)
-    path = sidecar_path(model_path)
-    if not path.is_file():
-        raise OnnxModelError(f"{model_path}: its sidecar {path.name} is missing")
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise OnnxModelError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise OnnxModelError(f"{path}: not a slungload ONNX sidecar (format != {FORMAT!r})")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise OnnxModelError(
-            f"{path}: sidecar format version {meta.get('format_version')}, this package reads "
-            f"{FORMAT_VERSION}; re-export the model"
-        )
-    if meta.get("model_sha256") != _sha256(model_path):
-        raise OnnxModelError(
-            f"{model_path}: the file does not match its sidecar {path.name} (checksum differs); "
-            "was it replaced or damaged?"
-        )
-    layout = meta.get("layout", {})
-    expected = _layout()
-    for key in ("state_columns", "input_columns", "history_columns"):
-        if layout.get(key) != expected[key]:
-            raise OnnxModelError(
-                f"{path}: {key} {layout.get(key)} differ from this package's {expected[key]}"
-            )
-    for key in ("history", "horizon"):
-        if not isinstance(meta.get(key), int) or meta[key] < 1:
-            raise OnnxModelError(f"{path}: '{key}' must be a positive integer")
-    return meta
-
-
-def _check_session(path: Path, session: ort.InferenceSession, meta: dict[str, Any]) -> None:
-    """The graph's inputs and outputs must be the ones the sidecar describes."""
-    spec = _io_spec("history", meta["horizon"])
-    for kind, actual in (("inputs", session.get_inputs()), ("outputs", session.get_outputs())):
-        want = [(s["name"], s["shape"]) for s in spec[kind]]
-        declared = [(s.get("name"), s.get("shape")) for s in meta.get(kind, [])]
-        got = [(a.name, list(a.shape)) for a in actual]
-        if declared != want or got != want:
-            raise OnnxModelError(
-                f"{path}: graph {kind} {got} and sidecar {kind} {declared} must both be {want}"
-            )
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    """The sidecar of ``model_path``, checked for format, version, checksum and layout
+    (``onboard.check_sidecar``)."""
+    return check_sidecar(
+        model_path,
+        what="ONNX",
+        format=FORMAT,
+        format_version=FORMAT_VERSION,
+        columns={k: _layout()[k] for k in ("state_columns", "input_columns", "history_columns")},
+        min_history=1,
+        error=OnnxModelError,
+    )
 
 
 def _package_version() -> str:
