@@ -4,9 +4,9 @@
 and seed (every unmodelled effect on), one MPC per prediction model and K in ``samples``, and
 writes into ``out``: ``results.json`` (one row of ``closed_loop.flight_metrics`` per flight,
 the settings and the machine), ``flights/*.npz`` (each flight's log), ``report.md`` (the
-tables, the issue's target check, the timing), and the figures ``paths_3d.png`` (reference
-vs flown vehicle paths, first seed of each maneuver), ``swing.png`` (load swing angle over
-time, same flights) and ``table.png`` (the tracking-error table as bars).
+tables, each network against the physics model, the timing), and the figures ``paths_3d.png``
+(reference vs flown vehicle paths, first seed of each maneuver), ``swing.png`` (load swing
+angle over time, same flights) and ``table.png`` (the tracking-error table as bars).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from ..sim.maneuvers import MANEUVERS
 from .closed_loop import Arena, FlightLog, flight_metrics, fly, swing_angle
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 
-AGGRESSIVE = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")  # the issue's aggressive maneuvers
+AGGRESSIVE = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")  # the default aggressive maneuvers
 DEFAULT_MANEUVERS = AGGRESSIVE
 PID = "pid"
 COLUMNS = (  # (key, header, format)
@@ -267,11 +267,12 @@ def markdown_table(entries: list[dict[str, Any]], first: tuple[str, ...]) -> str
 
 
 def target_check(rows: list[dict[str, Any]]) -> list[str]:
-    """The issue's target per network and K: >= 25 % lower load RMSE, or >= 25 % lower swing
-    RMS at equal vehicle tracking (within 10 %), than MPC + physics at the same K, on the
-    aggressive maneuvers flown, means over seeds. A network flight that ended early fails the
-    target; the means are over the flights both controllers flew to the end (paired by
-    maneuver and seed), and physics flights that ended early are counted beside them."""
+    """Whether each network, per K, beats the physics model in the same MPC: >= 25 % lower load
+    RMSE, or >= 25 % lower swing RMS at equal vehicle tracking (within 10 %), than MPC + physics
+    at the same K, on the aggressive maneuvers flown, means over seeds. A network flight that
+    ended early fails the target; the means are over the flights both controllers flew to the
+    end (paired by maneuver and seed), and physics flights that ended early are counted beside
+    them."""
     lines = []
     aggressive = [r for r in rows if r["maneuver"] in AGGRESSIVE and r["K"] is not None]
     for k in sorted({r["K"] for r in aggressive}):
@@ -344,7 +345,7 @@ def report_markdown(result: ControlComparison) -> str:
         "",
         markdown_table(per_man, ("maneuver", "controller")),
         "",
-        "## Target (issue 14): a network vs the physics model in the same MPC",
+        "## A network vs the physics model in the same MPC",
         "",
         *target_check(rows),
         "",
