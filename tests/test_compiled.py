@@ -16,7 +16,6 @@ from flights import predict_args
 
 from slungload import physics
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.data.flight import estimate_load_state, fit_load_state
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import (
     COMPILED_ARCHITECTURES,
@@ -33,6 +32,7 @@ from slungload.deploy.compiled import (
     unsupported,
 )
 from slungload.deploy.predictor import Predictor
+from slungload.load_state import estimate_load_state, fit_load_state
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.lstm_attention import SlungLoadNet
 from slungload.physics import VehicleConstants

@@ -20,11 +20,12 @@ from flights import flight_arrays
 from slungload._version import __version__
 from slungload.config import VehicleParams, WindowConfig, to_dict
 from slungload.data.dataset import load_dataset, read_splits
-from slungload.data.flight import DataWarning, FlightFormatError, estimate_load_state
+from slungload.data.flight import DataWarning, FlightFormatError
 from slungload.data.readers import read_flight
 from slungload.data.summary import summarize
 from slungload.data.writer import DatasetWriter
 from slungload.fileio import write_npz, write_splits
+from slungload.load_state import estimate_load_state
 from slungload.state import LOAD_RATE, LOAD_VEL, QUAT
 
 PARAMS = VehicleParams()

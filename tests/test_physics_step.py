@@ -14,16 +14,16 @@ from flights import SMALL, TINY, predict_args
 
 from slungload.config import LossWeights, ModelConfig, VehicleParams, WindowConfig, to_dict
 from slungload.data.dataset import load_dataset
-from slungload.data.flight import (
+from slungload.data.windows import make_windows
+from slungload.deploy.compiled import CompiledPredictor, unsupported
+from slungload.deploy.onnx import OnnxPredictor, export
+from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
+from slungload.load_state import (
     LOAD_FIT_STEPS,
     estimate_load_state,
     fit_load_state,
     load_fit_coefficients,
 )
-from slungload.data.windows import make_windows
-from slungload.deploy.compiled import CompiledPredictor, unsupported
-from slungload.deploy.onnx import OnnxPredictor, export
-from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
 from slungload.loss import LOSS_VARIANTS, compute_loss, model_config_for
 from slungload.models import (
     MODELS,

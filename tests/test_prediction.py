@@ -15,8 +15,8 @@ from flights import TINY
 import slungload
 from slungload import physics
 from slungload.config import VehicleParams, WindowConfig
-from slungload.data.flight import estimate_load_state
 from slungload.data.windows import Windows, physics_rollout
+from slungload.load_state import estimate_load_state
 from slungload.models import MODELS, build
 from slungload.models.prediction import (
     PHYSICS,

@@ -12,7 +12,7 @@ Input ``u`` (4 numbers, the paper's u_k)::
     T      [0:1]  total thrust, N (the commanded value in the data files)
     omega  [1:4]  body angular rates, body frame, rad/s
 
-Auxiliary load state ``a`` (6 numbers, not measured, estimated from data; see ``data.flight``)::
+Auxiliary load state ``a`` (6 numbers, not measured, estimated from data; see ``load_state``)::
 
     vL       [0:3]  load velocity, world frame, m/s
     OmegaL   [3:6]  load angular velocity about the vehicle, world frame, rad/s

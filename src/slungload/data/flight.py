@@ -1,9 +1,6 @@
-"""One flight, whatever file it came from: the ``Flight`` record, the checks every reader applies
-(time steps, quaternions, finite numbers), and the causal load-state estimate.
-
-The load velocity vL and load angular velocity Omega_L are not measured; they are estimated
-causally from the positions (``estimate_load_state``) so that a prediction made at step k
-never uses a sample after k. See ``docs/data.md``.
+"""One flight, whatever file it came from: the ``Flight`` record and the checks every reader
+applies (time steps, quaternions, finite numbers). The unmeasured load state is estimated in
+``load_state``. See ``docs/data.md``.
 """
 
 from __future__ import annotations
@@ -12,16 +9,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
-from torch import Tensor
-
-from ..config import VehicleParams
-from ..state import (
-    AUX_DIM,
-    LOAD_RATE,
-    LOAD_VEL,
-    split_state,
-)
 
 DT_TOLERANCE = 0.2  # each time step must be within this fraction of params.dt
 QUAT_NORM_TOLERANCE = 0.1  # | |q| - 1 | allowed before renormalising
@@ -112,68 +99,3 @@ def _unit_quaternions(q: np.ndarray, path: Path) -> np.ndarray:
             f"{path}: attitude at step {i} has norm {norms[i]:.4g}, expected a unit quaternion"
         )
     return q / norms[:, None]
-
-
-def estimate_load_state(states: np.ndarray | Tensor, params: VehicleParams) -> np.ndarray | Tensor:
-    """Causal estimate of the unmeasured load state from positions, (..., T, 13) -> (..., T, 6).
-
-    vL_k = (pL_k - pL_{k-1}) / h. With r = pL - p and xi_k = r_k / |r_k|,
-    Omega_L,k = xi_k x (r_k - r_{k-1}) / (h l): the pendulum kinematics xi_dot = Omega_L x xi
-    with Omega_L perpendicular to the cable. The relative velocity is the backward difference of
-    r (not vL minus the measured v) so both positions carry the same half-step lag. Only
-    samples k and k-1 are used; step 0 repeats step 1's difference (a forward difference).
-    Returns numpy for numpy input, torch (same dtype/device) for torch input.
-    """
-    x = (
-        torch.from_numpy(np.asarray(states, np.float64))
-        if isinstance(states, np.ndarray)
-        else states
-    )
-    if x.shape[-2] < 2:
-        raise ValueError(f"estimate_load_state: need at least 2 time steps, got {x.shape[-2]}")
-    p, _, _, p_load = split_state(x)
-    rel = p_load - p
-    xi = rel / rel.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    aux = x.new_empty(*x.shape[:-1], AUX_DIM)
-    aux[..., LOAD_VEL] = _backward_difference(p_load, params.dt)
-    rel_rate = _backward_difference(rel, params.dt)
-    aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / params.cable_length
-    return aux.numpy() if isinstance(states, np.ndarray) else aux
-
-
-LOAD_FIT_STEPS = 9  # history steps of the smoothed load-state estimate (``fit_load_state``)
-
-
-def load_fit_coefficients(steps: int, dt: float) -> np.ndarray:
-    """(steps,) weights c with sum_j c_j y_{k-steps+1+j} = the slope at sample k of the
-    least-squares quadratic through the last ``steps`` samples y, spaced ``dt`` s apart: a
-    causal derivative with less noise than the backward difference (which is steps = 2, a
-    line) and no lag for a constant acceleration."""
-    if steps < 3:
-        raise ValueError(f"load_fit_coefficients: a quadratic needs >= 3 steps, got {steps}")
-    t = np.arange(-steps + 1, 1, dtype=np.float64) * dt
-    basis = np.stack([np.ones_like(t), t, t * t], axis=-1)  # (steps, 3)
-    return np.linalg.pinv(basis)[1]  # the row giving the linear coefficient = slope at t = 0
-
-
-def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
-    """Smoothed causal estimate of the load state at the last of K steps, (..., K, 13) ->
-    (..., 6): vL and the rate of r = pL - p are the slopes of least-squares quadratics through
-    the K samples (``load_fit_coefficients``), Omega_L = xi x r_dot / l with xi from the last
-    sample, as ``estimate_load_state`` does with two samples. K >= 3."""
-    c = torch.as_tensor(load_fit_coefficients(states.shape[-2], params.dt), dtype=states.dtype).to(
-        states.device
-    )
-    p, _, _, p_load = split_state(states)
-    rel = p_load - p
-    v_load = torch.einsum("k,...kd->...d", c, p_load)
-    rel_rate = torch.einsum("k,...kd->...d", c, rel)
-    xi = rel[..., -1, :] / rel[..., -1, :].norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    rate = torch.linalg.cross(xi, rel_rate) / params.cable_length
-    return torch.cat([v_load, rate], dim=-1)
-
-
-def _backward_difference(y: Tensor, h: float) -> Tensor:
-    """(y_k - y_{k-1}) / h along axis -2, the first step repeating the second."""
-    d = (y[..., 1:, :] - y[..., :-1, :]) / h
-    return torch.cat([d[..., :1, :], d], dim=-2)

@@ -50,10 +50,10 @@ from ..config import (
     VehicleParams,
     WindowConfig,
 )
-from ..data.flight import estimate_load_state
 from ..data.windows import Windows, make_windows
 from ..evaluation.machine import cpu_model
 from ..evaluation.results import PAPER_TIMING
+from ..load_state import estimate_load_state
 from ..loss import compute_loss, model_config_for
 from ..models.base import count_parameters
 from ..models.registry import build

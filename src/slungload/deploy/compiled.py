@@ -28,7 +28,7 @@ loop, whose decoder step is x_{k+1} = f(x_k, u_k, a_k) + delta_std * out_k (the 
 folded into the head as above) instead of x_k + delta_std * out_k, with the load state a =
 (vL, Omega_L) started by ``_estimate_load_state`` from the last two history rows and carried by
 f. ``_physics_step`` and ``_estimate_load_state`` are a **compiled copy** of
-``physics.step`` and ``data.flight.estimate_load_state``: the model is written once, in
+``physics.step`` and ``load_state.estimate_load_state``: the model is written once, in
 batched torch (``physics.py``), where the loss, training, the eager predictor and the ONNX
 export use it; compiled code cannot call torch, and a batch-1 step is a few dozen scalar
 operations, which a compiled loop does in well under a microsecond. The copy uses the same
@@ -55,7 +55,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..config import VehicleParams
-from ..data.flight import LOAD_FIT_STEPS, load_fit_coefficients
+from ..load_state import LOAD_FIT_STEPS, load_fit_coefficients
 from ..models.lstm_attention import SlungLoadNet
 from ..models.physics_step import PhysicsStepNet
 from ..physics import VehicleConstants
@@ -121,7 +121,7 @@ class FoldedWeights(NamedTuple):
     architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
     physics_step: bool  # x_{k+1} = f(x_k, u_k, a_k) + head(...) (``PhysicsStepNet``)
     vehicle: VehicleConstants  # f's constants as floats (the model's; defaults where f is unused)
-    # The smoothed load estimate's weights (``data.flight.load_fit_coefficients``): row K - 3
+    # The smoothed load estimate's weights (``load_state.load_fit_coefficients``): row K - 3
     # holds the K weights for a window of K = min(M, LOAD_FIT_STEPS) steps; (0, 0) for the
     # backward difference.
     load_filters: np.ndarray
@@ -562,7 +562,7 @@ def _swing_rate(last, r_dot, c, aux):
 
 @_jit
 def _estimate_load_state(prev, last, c, aux):
-    """``data.flight.estimate_load_state`` at the later of two consecutive states prev, last
+    """``load_state.estimate_load_state`` at the later of two consecutive states prev, last
     (>= 13,) (package layout) -> aux (6,) = (vL m/s, Omega_L rad/s): backward differences of
     pL and of r = pL - p over h, Omega_L = xi x r_dot / l with xi = r / |r|. float64 inside."""
     h = c.dt
@@ -577,7 +577,7 @@ def _estimate_load_state(prev, last, c, aux):
 
 @_jit
 def _fit_load_state(xu, m, filters, c, aux):
-    """``data.flight.fit_load_state`` at history row m - 1 of xu (M, >= 13) -> aux (6,): the
+    """``load_state.fit_load_state`` at history row m - 1 of xu (M, >= 13) -> aux (6,): the
     slopes of least-squares quadratics through the last K = min(M, rows of filters + 2) rows of
     pL and r = pL - p, weights ``filters[K - 3, :K]``; Omega_L = xi x r_dot / l with xi from
     the last row. float64 inside."""

@@ -8,9 +8,9 @@ correction, in physical units::
 
 for k = M-1 ... M+N-2, with x_hat_{M-1} the last measured state, out_k the head's 13 state
 rows and a = (vL, Omega_L) the unmeasured load state: a_{M-1} is the causal estimate from the
-last two measured states (``data.flight.estimate_load_state``, as the data's estimate at that
+last two measured states (``load_state.estimate_load_state``, as the data's estimate at that
 step) or, with ``ModelConfig.load_estimate = "smoothed"``, the slopes of quadratics fitted
-through the last 9 (``data.flight.fit_load_state``: less noise, no lag at constant
+through the last 9 (``load_state.fit_load_state``: less noise, no lag at constant
 acceleration); from there f carries it; the network never sees or corrects it. In network units
 the correction is out_k * delta_std / state_std, the paper network's residual gain, so the
 head's output has the same scale in both architectures: one step's typical change.
@@ -32,7 +32,7 @@ from torch import Tensor
 
 from .. import physics
 from ..config import ModelConfig, VehicleParams
-from ..data.flight import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
+from ..load_state import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
 from .lstm_attention import SlungLoadNet
 
 

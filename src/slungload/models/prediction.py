@@ -25,7 +25,7 @@ whose future inputs are the rest of each plan (a test holds it for both implemen
   (``physics.rollout``, float64): over windows with the data's load-state estimate at step
   M-1 (``data.windows.physics_rollout``, the one physics-only rollout over windows, which
   training and ``identify`` share); over candidates with the same causal estimate from the
-  last two measured states (``data.flight.estimate_load_state``).
+  last two measured states (``load_state.estimate_load_state``).
 - ``NetworkModel``: any registered architecture (``models.MODELS``) in eval mode: ``forward``
   over windows in batches, ``forward_candidates`` over candidates (the encoder runs once over
   the M - 1 rows the candidates share; equal to ``forward`` per candidate). Its quaternion is
@@ -46,9 +46,9 @@ from torch import Tensor, nn
 
 from .. import physics
 from ..config import VehicleParams
-from ..data.flight import estimate_load_state
 from ..data.windows import Windows, physics_rollout
 from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
+from ..load_state import estimate_load_state
 from ..state import with_unit_quaternion
 from .checkpoints import load_checkpoint
 

@@ -12,6 +12,7 @@ import torch
 
 from ...config import VehicleParams
 from ...fileio import FLIGHT_KEYS, IGNORED_KEYS, OPTIONAL_KEYS, read_npz
+from ...load_state import estimate_load_state
 from ...state import (
     INPUT_DIM,
     RATES,
@@ -27,7 +28,6 @@ from ..flight import (
     _numeric,
     _series,
     _unit_quaternions,
-    estimate_load_state,
 )
 
 
