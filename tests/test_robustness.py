@@ -526,18 +526,17 @@ def _alive(pid: int) -> bool:
 
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
 def test_a_pool_worker_stops_when_reproduce_is_killed(tmp_path):
-    # A parent runs a job in reproduce's pool (``worker_pool``, ``_pool_job``), prints the
+    # A parent runs a job in the package's pool (``process_pool``, ``run_watched``), prints the
     # worker's pid and is killed, as `kill <reproduce pid>` does. The job stops on SIGTERM the
     # way a training run does (it raises); the orphaned worker must then exit, not linger.
     tests, marker = str(Path(__file__).parent), tmp_path / "running"
     parent_code = (
-        "import functools, os, sys, time\n"
+        "import os, sys, time\n"
         f"sys.path.insert(0, {tests!r})\n"
         "from flights import stop_gracefully_on_sigterm\n"
-        "from slungload.experiment import _pool_job, worker_pool\n"
-        "pool = worker_pool(1)\n"
-        f"job = functools.partial(stop_gracefully_on_sigterm, {str(marker)!r})\n"
-        "pool.submit(_pool_job, job, os.getpid())\n"
+        "from slungload.workers import process_pool, run_watched\n"
+        "pool = process_pool(1)\n"
+        f"pool.submit(run_watched, stop_gracefully_on_sigterm, {str(marker)!r}, os.getpid())\n"
         "print(*pool._processes, flush=True)\n"
         "time.sleep(120)\n"
     )

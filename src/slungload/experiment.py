@@ -8,18 +8,11 @@ both cores: the model is small and its decoder loop is latency-bound.
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
-import signal
-import threading
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-from tqdm.auto import tqdm
 
 from .config import LossWeights, ModelConfig, WindowConfig
 from .deploy.timing import time_models
@@ -29,6 +22,7 @@ from .loss import LOSS_VARIANTS
 from .run_config import RunConfig
 from .sim import simulate_dataset
 from .training.trainer import Run, train
+from .workers import run_jobs
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
 
@@ -84,36 +78,6 @@ class Reproduction:
     report_path: Path
     seconds: dict[str, float]  # stage -> wall-clock s
     time_capped: tuple[Path, ...] = ()  # runs the time cap stopped short (run again: resumed)
-
-
-def _pool_job(job: Callable[[], Any], parent: int) -> Any:
-    """``job()`` (a training run) in a pool worker that stops when its parent goes.
-
-    A ``kill`` of ``reproduce`` reaches the parent only; its workers would train on as
-    orphans, using the cores and writing into the output folder. Each watches its parent from
-    its start (``watch_parent`` as the pool's initializer) and sends itself SIGTERM, which
-    makes a training run save last.ckpt and stop; the worker then exits here rather than wait
-    for work from a parent that is gone.
-    """
-    try:
-        return job()
-    finally:
-        if os.getppid() != parent:
-            os._exit(128 + signal.SIGTERM)
-
-
-def watch_parent(parent: int, interval: float = 1.0) -> threading.Thread:
-    """Send this process SIGTERM once it is no longer the child of process ``parent`` (checked
-    every ``interval`` seconds, in a daemon thread; at once if that is already so)."""
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(interval)
-        os.kill(os.getpid(), signal.SIGTERM)
-
-    thread = threading.Thread(target=watch, name="watch-parent", daemon=True)
-    thread.start()
-    return thread
 
 
 def reproduce(
@@ -237,31 +201,14 @@ def evaluate_runs(
     return evaluate(runs, timer=timer, device=device, progress=progress, **options)
 
 
-def worker_pool(workers: int) -> ProcessPoolExecutor:
-    """Processes for training runs (``_pool_job``): spawned, since a forked child would
-    inherit the parent's torch thread pools and locks; each watches its parent from its start."""
-    return ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=watch_parent,
-        initargs=(os.getpid(),),
-    )
-
-
 def run_training_jobs(jobs: Sequence[TrainingJob], *, workers: int, progress: bool) -> None:
-    """Every job, ``workers`` at a time in a pool (one torch thread each) that stops with its
-    parent; a failed run raises here."""
-    if not jobs:
-        return
-    bar = tqdm(total=len(jobs), desc="training runs", unit="run", disable=not progress)
-    if workers == 1:
-        for job in jobs:
-            job()
-            bar.update()
-    else:
-        with worker_pool(min(workers, len(jobs))) as pool:
-            futures = [pool.submit(_pool_job, job, os.getpid()) for job in jobs]
-            for future in as_completed(futures):
-                future.result()  # re-raise a failed run here
-                bar.update()
-    bar.close()
+    """Every job, ``workers`` at a time in the package's pool (``workers.run_jobs``: spawned
+    processes, one torch thread each, that stop with their parent); a failed run raises here."""
+    for _ in run_jobs(
+        _train, jobs, workers=workers, progress=progress, desc="training runs", unit="run"
+    ):
+        pass
+
+
+def _train(job: TrainingJob) -> Run:
+    return job()

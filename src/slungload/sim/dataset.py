@@ -9,10 +9,8 @@ at the end, so a crash leaves nothing half-written) and split by ``data.split.sp
 
 from __future__ import annotations
 
-import multiprocessing
 import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,6 +21,7 @@ from ..config import VehicleParams, to_dict
 from ..data.split import split_flights
 from ..data.writer import DatasetWriter
 from ..fileio import write_npz
+from ..workers import run_jobs
 from .config import SimConfig
 from .flight import simulate_flight
 from .maneuvers import MANEUVERS
@@ -94,7 +93,18 @@ def simulate_dataset(
             (family, name, s, cfg, writer.flight_path(name))
             for (family, name), s in zip(plan, flight_seeds, strict=True)
         ]
-        steps = dict(_run(jobs, workers, progress))
+        # Torch-free workers: fork starts in milliseconds.
+        steps = dict(
+            run_jobs(
+                _fly,
+                jobs,
+                workers=workers,
+                progress=progress,
+                desc="simulating flights",
+                unit="flight",
+                start="fork",
+            )
+        )
         names = [name for _, name in plan]
         lengths = [steps[n] for n in names]
         families = [family for family, _ in plan]
@@ -119,25 +129,3 @@ def vehicle_params(cfg: SimConfig) -> VehicleParams:
 def _about(cfg: SimConfig, seed: int, flights: int) -> dict:
     """What made the data, for ``vehicle.json`` beside the constants."""
     return {"sim": to_dict(cfg), "seed": seed, "flights": flights, "version": __version__}
-
-
-def _run(jobs: list, workers: int, progress: bool):
-    from tqdm.auto import tqdm
-
-    bar = tqdm(total=len(jobs), desc="simulating flights", unit="flight", disable=not progress)
-    try:
-        if workers <= 1:
-            for job in jobs:
-                yield _fly(job)
-                bar.update()
-            return
-        # fork starts in milliseconds; the workers only use numpy and MuJoCo (never torch), so
-        # the parent's torch state is harmless. spawn elsewhere.
-        methods = multiprocessing.get_all_start_methods()
-        ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            for result in pool.map(_fly, jobs):
-                yield result
-                bar.update()
-    finally:
-        bar.close()
