@@ -13,6 +13,7 @@ import pytest
 import torch
 from flights import predict_args
 
+import slungload.deploy.onnx as onnx_module
 from slungload.config import WindowConfig
 from slungload.data.windows import make_windows
 from slungload.deploy.onnx import (
@@ -169,6 +170,14 @@ def test_export_from_a_trained_run(tmp_path: Path, tiny_run):
     np.testing.assert_allclose(got, eager.predict(history, future), atol=1e-4, rtol=0)
     with pytest.raises(ValueError, match="only 'onnx'"):
         export(tiny_run.out, tmp_path / "x.tflite", format="tflite")
+
+
+def test_export_refuses_an_architecture_it_does_not_support(tmp_path, tiny_run, monkeypatch):
+    """An architecture outside ``ONNX_ARCHITECTURES`` is refused by name, nothing written."""
+    monkeypatch.setattr(onnx_module, "ONNX_ARCHITECTURES", ("physics-step",))
+    with pytest.raises(ValueError, match="the ONNX exporter does not support the 'lstm-attention'"):
+        export(tiny_run.out, tmp_path / "tiny.onnx")
+    assert not any(tmp_path.iterdir())
 
 
 def _spoil(change):

@@ -37,10 +37,11 @@ import numpy as np
 import onnxruntime as ort
 
 from .._version import __version__
-from ..config import to_dict
+from ..config import DEFAULT_ARCHITECTURE, to_dict
 from ..fileio import atomic_path, write_json
 from ..layout import HISTORY_DIM, STATE_COLUMNS
 from ..models.checkpoints import load_checkpoint
+from ..models.registry import require_architecture
 from ..state import (
     GROUP_UNITS,
     GROUPS,
@@ -67,6 +68,8 @@ from .predictor import (
 FORMAT = "slungload-onnx"
 FORMAT_VERSION = 1  # bump when the graph's inputs/outputs or the sidecar change incompatibly
 OPSET = 17
+# The architectures whose export is checked by tests; any other is refused by name.
+ONNX_ARCHITECTURES = (DEFAULT_ARCHITECTURE, "physics-step")
 HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
 
 
@@ -263,7 +266,14 @@ def _check_model_path(out: Path) -> None:
 
 
 def _load(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], str]:
-    """A predictor, the configs to record and a description of where it came from."""
+    """A predictor, the configs to record and a description of where it came from; an
+    architecture outside ``ONNX_ARCHITECTURES`` is refused by name."""
+    predictor, configs, where = _read(source)
+    require_architecture(predictor.model, ONNX_ARCHITECTURES, "the ONNX exporter")
+    return predictor, configs, where
+
+
+def _read(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], str]:
     if isinstance(source, Predictor):
         if source.device.type != "cpu":  # export on the CPU without moving the caller's model
             model = copy.deepcopy(source.model).cpu()
