@@ -5,7 +5,6 @@ and its warm-up + cosine schedule, per-batch reseeding of dropout.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -16,7 +15,7 @@ from lightning.pytorch.utilities import rank_zero_warn
 from torch import Tensor
 
 from ..config import LossWeights, TrainConfig, VehicleParams, WindowConfig
-from ..loss import compute_loss
+from ..loss import LossTerms, compute_loss
 from ..models.base import Prediction
 from ..models.checkpoints import CKPT_KEY
 from ..models.lstm_attention import SlungLoadNet
@@ -30,20 +29,14 @@ class TrainingDiverged(ValueError):
     """The training loss stayed non-finite for ``TrainConfig.max_bad_steps`` steps in a row."""
 
 
-# --- presets -----------------------------------------------------------------------------
-
-
-def _terms(loss_terms: Any) -> dict[str, Tensor]:
-    """LossTerms (NamedTuple or dataclass) -> {name: scalar tensor}, Nones dropped."""
-    if dataclasses.is_dataclass(loss_terms):
-        items = {f.name: getattr(loss_terms, f.name) for f in dataclasses.fields(loss_terms)}
-    else:
-        items = loss_terms._asdict()
-    return {k: v for k, v in items.items() if isinstance(v, Tensor)}
+def _terms(loss_terms: LossTerms) -> dict[str, Tensor]:
+    """LossTerms -> {name: scalar tensor}, Nones dropped."""
+    return {k: v for k, v in loss_terms._asdict().items() if isinstance(v, Tensor)}
 
 
 class SlungLoadModule(L.LightningModule):
-    """The network and its loss: Adam with L2 decay, optional warm-up + cosine lr.
+    """The network and its loss: Adam (L2 decay) or AdamW (``TrainConfig.optimizer``), optional
+    warm-up + cosine lr.
 
     Logs every loss term as ``train/<term>`` and ``val/<term>`` (epoch means), the validation
     RMSE per state group ``val/rmse_<group>`` (unit quaternion, error q_hat (x) q^-1 - q_id) and
@@ -189,7 +182,8 @@ class SlungLoadModule(L.LightningModule):
 
     def configure_optimizers(self) -> Any:
         cfg = self.config
-        # Adam's weight_decay adds wd * theta to the gradient: the L2 penalty the paper means.
+        # Adam's weight_decay adds wd * theta to the gradient: the L2 penalty the paper means;
+        # AdamW decouples the decay from the adaptive step.
         optimizer = torch.optim.AdamW if cfg.optimizer == "adamw" else torch.optim.Adam
         opt = optimizer(self.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         if cfg.lr_schedule == "constant":
