@@ -18,8 +18,8 @@ from slungload.control.mppi import (
     MPPIController,
     ReferenceAhead,
     mppi_weights,
-    rotation_matrix,
 )
+from slungload.frames import rotation_matrix
 
 PARAMS = VehicleParams()
 HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity

@@ -1015,3 +1015,23 @@ def test_unknown_log_suffix_names_the_file(tmp_path):
         find_logs([log])
     with pytest.raises(LogError, match=rf"{tmp_path.name}: holds no logs \(\*\.bag"):
         find_logs([tmp_path])
+
+
+def test_numpy_rotations_match_the_torch_ones():
+    """``frames``' rotation matrix and exponential map (the simulator's) equal ``state``'s
+    torch versions (the models'), a batch of unnormalised quaternions included."""
+    import torch
+
+    from slungload.state import quat_from_rotvec as torch_rotvec
+    from slungload.state import quat_to_rotmat
+
+    rng = np.random.default_rng(4)
+    q = rng.normal(size=(7, 4)) * 3.0
+    want = quat_to_rotmat(torch.from_numpy(q)).numpy()
+    np.testing.assert_allclose(frames.rotation_matrix(q), want, atol=1e-14)
+    np.testing.assert_allclose(frames.rotation_matrix(q[2]), want[2], atol=1e-14)
+    for r in (rng.normal(size=3), np.array([1e-13, -2e-13, 0.0]), np.zeros(3)):
+        got = frames.quat_from_rotvec(r)
+        np.testing.assert_allclose(got, torch_rotvec(torch.from_numpy(r)).numpy(), atol=1e-15)
+        np.testing.assert_allclose(frames.rotate(got, np.eye(3)).T, frames.rotation_matrix(got),
+                                   atol=1e-15)  # fmt: skip

@@ -1,4 +1,7 @@
-"""Frame conventions, converted to the package's: world z up, body z up (FLU); numpy only.
+"""Rotations and frame conventions in numpy: the package's one numpy home for quaternion
+products, rotation matrices and the conversion of other frames to the package's (world z up,
+body z up, FLU). The simulator and the log readers use these; ``state`` holds the batched
+torch versions for the models.
 
 The log readers (``data.readers``) convert recorded flights with these helpers, and a
 vehicle's own control loop converts its autopilot's measurements with the same ones before
@@ -19,6 +22,8 @@ Quaternions here are numpy arrays w-x-y-z, shape (..., 4).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -43,6 +48,28 @@ def quat_multiply(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
         ],
         axis=-1,
     )
+
+
+def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) rad -> unit quaternion w-x-y-z (4,): exp(r / 2)."""
+    angle = math.sqrt(r @ r)
+    if angle < 1e-12:
+        return np.array([1.0, 0.5 * r[0], 0.5 * r[1], 0.5 * r[2]])
+    s = math.sin(0.5 * angle) / angle
+    return np.array([math.cos(0.5 * angle), s * r[0], s * r[1], s * r[2]])
+
+
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) body -> world rotation of w-x-y-z quaternions (..., 4), normalised first;
+    its columns are the body axes in the world."""
+    q = np.asarray(q, float)
+    w, x, y, z = np.moveaxis(q / np.sqrt(np.sum(q * q, axis=-1, keepdims=True)), -1, 0)
+    rows = (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
 def quat_conjugate(q: np.ndarray) -> np.ndarray:

@@ -370,7 +370,7 @@ class MPPIController:
             return self.plan
         self.stats.hover_steps += 1
         if rotation is None:
-            rotation = rotation_matrix(state[QUAT])
+            rotation = frames.rotation_matrix(state[QUAT])
         return self.hover_command(rotation, float(ref.yaw[0]))
 
     def hover_command(self, rotation: np.ndarray, yaw: float) -> np.ndarray:
@@ -388,13 +388,6 @@ class MPPIController:
         plan = np.tile(self.hover, (self.cfg.horizon, 1))
         plan[0] = self.limits.clamp(np.array([self.hover_thrust, *rates]))
         return plan
-
-
-def rotation_matrix(q: np.ndarray) -> np.ndarray:
-    """(3, 3) body -> world rotation of a w-x-y-z quaternion (4,); its columns are the body
-    axes (``frames.rotate`` of each)."""
-    q = np.asarray(q, dtype=float)
-    return frames.rotate(q / np.linalg.norm(q), np.eye(3)).T
 
 
 def _interpolation(n: int, knots: int) -> np.ndarray:

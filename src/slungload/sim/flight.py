@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..frames import rotation_matrix
 from .aero import ou_wind
 from .config import SimConfig
 from .controller import Controller, Measurement, PIDController, excitation_signal
@@ -89,7 +90,7 @@ def simulate_flight(
     for k in range(total):
         p, v, q, pl = plant.p, plant.v, plant.q, plant.p_load
         p_m, v_m, q_m, pl_m = mocap.measure(p, v, q, pl)
-        rot_m = _rotmat(q_m)
+        rot_m = rotation_matrix(q_m)
         # Read-only views: the same arrays are recorded below (and the mocap keeps some).
         meas = Measurement(float(times[k]), *map(_read_only, (p_m, v_m, q_m, rot_m, pl_m)))
         thrust, rates = _checked(ctrl(meas, ref, k), k, warm)
@@ -144,13 +145,3 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     view = a.view()
     view.flags.writeable = False
     return view
-
-
-def _rotmat(q: np.ndarray) -> np.ndarray:
-    """w-x-y-z unit quaternion (4,) -> rotation matrix (3, 3)."""
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])  # fmt: skip

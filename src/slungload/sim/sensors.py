@@ -7,28 +7,8 @@ import math
 
 import numpy as np
 
+from ..frames import quat_from_rotvec, quat_multiply
 from .config import SimConfig
-
-
-def quat_mul_np(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Hamilton product of w-x-y-z quaternions, (4,) x (4,) -> (4,)."""
-    w1, x1, y1, z1 = q1
-    w2, x2, y2, z2 = q2
-    return np.array([
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ])  # fmt: skip
-
-
-def quat_from_rotvec_np(r: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) rad -> unit quaternion w-x-y-z (4,)."""
-    angle = math.sqrt(r @ r)
-    if angle < 1e-12:
-        return np.array([1.0, 0.5 * r[0], 0.5 * r[1], 0.5 * r[2]])
-    s = math.sin(0.5 * angle) / angle
-    return np.array([math.cos(0.5 * angle), s * r[0], s * r[1], s * r[2]])
 
 
 class Mocap:
@@ -57,7 +37,7 @@ class Mocap:
         n = self.rng.standard_normal(9)
         p_m = p + self.pos_std * n[0:3]
         pl_m = p_load + self.load_std * n[3:6]
-        q_m = quat_mul_np(q, quat_from_rotvec_np(self.att_std * n[6:9]))
+        q_m = quat_multiply(q, quat_from_rotvec(self.att_std * n[6:9]))
         if not self.filtered:
             v_est = v.copy()
         elif self.last_p is None:
