@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from ..layout import LOAD_POS, POS
 from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
 from ..sim.flight import simulate_flight
@@ -154,7 +155,7 @@ def _stats_dict(stats: Any) -> dict[str, Any]:
 
 def swing_angle(states: np.ndarray) -> np.ndarray:
     """Angle, rad, between the cable pL - p and the downward vertical, (S, 13) -> (S,)."""
-    r = states[:, 10:13] - states[:, 0:3]
+    r = states[:, LOAD_POS] - states[:, POS]
     cos = -r[:, 2] / np.maximum(np.linalg.norm(r, axis=1), 1e-9)
     return np.arccos(np.clip(cos, -1.0, 1.0))
 
@@ -179,8 +180,8 @@ def flight_metrics(log: FlightLog, limits: InputLimits, cable_length: float) -> 
         "stopped": log.stopped,
         "steps": int(rec.sum()),
         "planned_steps": log.planned_steps,
-        "vehicle_rmse": rms(np.sum((x[:, 0:3] - p_ref) ** 2, axis=1)),
-        "load_rmse": rms(np.sum((x[:, 10:13] - load_ref) ** 2, axis=1)),
+        "vehicle_rmse": rms(np.sum((x[:, POS] - p_ref) ** 2, axis=1)),
+        "load_rmse": rms(np.sum((x[:, LOAD_POS] - load_ref) ** 2, axis=1)),
         "swing_rms": rms(swing**2),
         "swing_max": float(swing.max()) if swing.size else math.nan,
         "at_limit": 100.0 * float(np.mean(at_limit)) if at_limit else math.nan,

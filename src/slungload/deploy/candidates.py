@@ -31,6 +31,7 @@ from torch import Tensor, nn
 from .._version import __version__
 from ..config import VehicleParams, to_dict
 from ..fileio import atomic_path, write_json
+from ..layout import STATE_DIM
 from ..models.prediction import PHYSICS, PhysicsModel
 from ..state import with_unit_quaternion
 from . import onboard
@@ -202,8 +203,8 @@ def candidate_inputs(
     from .onnx import sample_inputs
 
     history, future = sample_inputs(predictor, batch=1, horizon=horizon, seed=seed)
-    x_hist = states_from_file(torch.from_numpy(history[0, :, :13]).double()).float().numpy()
-    u = np.concatenate([history[0, :, 13:], future[0]])  # (M + N, 4) u_0 ... u_{M+N-1}
+    x_hist = states_from_file(torch.from_numpy(history[0, :, :STATE_DIM]).double()).float().numpy()
+    u = np.concatenate([history[0, :, STATE_DIM:], future[0]])  # (M + N, 4) u_0 ... u_{M+N-1}
     m = x_hist.shape[0]
     spread = 0.2 * predictor.model.input_std.cpu().numpy()
     noise = np.random.default_rng(seed).standard_normal((k, horizon, 4)) * spread
