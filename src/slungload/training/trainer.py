@@ -55,7 +55,7 @@ from lightning.pytorch.callbacks import (
 )
 from lightning.pytorch.loggers import TensorBoardLogger
 from lightning.pytorch.utilities.exceptions import SIGTERMException
-from torch import nn
+from torch import Tensor, nn
 
 from .._version import __version__
 from ..config import ModelConfig, TrainConfig, VehicleParams, to_dict
@@ -172,17 +172,7 @@ def train(
     )
     model_config = run.model
     meta = _checkpoint_meta(run, dataset)
-    model_params = dataset.params  # the constants of the physics loss and of the network's f
-    if config.fit_constants:
-        fitted = identify(dataset)
-        model_params = fitted.params
-        meta.update(constants=fitted.table, model_params=to_dict(model_params))
-    fit_scale = None
-    if weights.steps != "paper":
-        physics_mse = physics_step_mse(dataset.splits["train"], model_params)
-        fit_scale = step_scale(weights.steps, physics_mse, weights.alpha).float()
-        # In the run's record (a resume recomputes it: the same data give the same values).
-        meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
+    model_params, fit_scale = _constants_and_step_scale(run, dataset, meta)
     if resume:
         check_resumable(last, meta)
 
@@ -215,6 +205,25 @@ def train(
     if trainer.is_global_zero:
         write_json(out / RUN_JSON, {**result.to_dict(), "config": meta})
     return result
+
+
+def _constants_and_step_scale(
+    run: RunConfig, dataset: Dataset, meta: dict[str, Any]
+) -> tuple[VehicleParams, Tensor | None]:
+    """The constants of the physics loss and of the network's f (the dataset's, or fitted to
+    the training flights with ``identify``) and the per-step weights of the fit term (None for
+    the paper's weighting); what they were goes into ``meta``, the run's record (a resume
+    recomputes them: the same data give the same values)."""
+    params = dataset.params
+    if run.train.fit_constants:
+        fitted = identify(dataset)
+        params = fitted.params
+        meta.update(constants=fitted.table, model_params=to_dict(params))
+    if run.loss.steps == "paper":
+        return params, None
+    physics_mse = physics_step_mse(dataset.splits["train"], params)
+    meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
+    return params, step_scale(run.loss.steps, physics_mse, run.loss.alpha).float()
 
 
 def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192) -> torch.Tensor:
