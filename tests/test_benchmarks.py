@@ -9,14 +9,8 @@ import pytest
 import torch
 
 from slungload.config import ModelConfig, WindowConfig
-from slungload.deploy.benchmarks import (
-    BACKENDS,
-    BenchmarkResult,
-    _paper_ms,
-    benchmark,
-    file_inputs,
-    physics_windows,
-)
+from slungload.deploy.benchmark_report import BACKENDS, BenchmarkResult, paper_ms
+from slungload.deploy.benchmarks import benchmark, file_inputs, physics_windows
 from slungload.evaluation.results import PAPER_TIMING
 from slungload.state import QUAT
 
@@ -70,6 +64,9 @@ def test_markdown_and_dict(result: BenchmarkResult):
     for backend in BACKENDS:
         assert f"| {backend} | 4 |" in text
     assert "windows/s" in text and "1.00x" in text  # eager against itself
+    assert "epoch windows" in text and "Load average (1 min)" in text
+    # Results only: no acceptance target in the user's report.
+    assert "target" not in text.lower()
     json.dumps(result.to_dict())  # plain data only
     # The paper's figures appear only at the horizons the paper reports.
     assert str(PAPER_TIMING[0].mean_ms) not in text
@@ -78,10 +75,10 @@ def test_markdown_and_dict(result: BenchmarkResult):
 def test_paper_latency_is_read_from_the_papers_table():
     # One copy of the paper's Table II: the benchmark's columns read it (Orin Nano 59.44 and
     # 115.26 ms, not rounded), and a cell the paper does not have is None.
-    assert _paper_ms("NVIDIA Jetson Orin Nano", 50, 25) == 59.44
-    assert _paper_ms("NVIDIA Jetson Orin Nano", 50, 50) == 115.26
-    assert _paper_ms("NVIDIA RTX 3090", 50, 25) == 10.76
-    assert _paper_ms("NVIDIA RTX 3090", 50, 7) is None
+    assert paper_ms("NVIDIA Jetson Orin Nano", 50, 25) == 59.44
+    assert paper_ms("NVIDIA Jetson Orin Nano", 50, 50) == 115.26
+    assert paper_ms("NVIDIA RTX 3090", 50, 25) == 10.76
+    assert paper_ms("NVIDIA RTX 3090", 50, 7) is None
 
 
 def test_physics_windows_are_physical():

@@ -19,7 +19,8 @@ from slungload.config import VehicleParams
 from slungload.control.closed_loop import Arena, flight_metrics, fly
 from slungload.control.history import History
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC, state_from_measurement
-from slungload.control.report import target_check
+from slungload.control.report import report_markdown, versus_lines
+from slungload.control.results import ControlComparison, versus_physics
 from slungload.models.prediction import PhysicsModel
 from slungload.sim.config import SimConfig
 from slungload.sim.controller import Measurement
@@ -225,16 +226,45 @@ def _row(controller, seed, load, swing, vehicle, completed=True, k=32):
                 stopped=None if completed else "vehicle left the arena")  # fmt: skip
 
 
-def test_target_compares_the_flights_both_controllers_flew_to_the_end():
+def test_a_network_is_compared_with_physics_on_the_flights_both_flew_to_the_end():
     ref = "mpc-physics K=32"
     physics = [_row(ref, 0, 0.20, 20, 0.1), _row(ref, 1, 0.20, 20, 0.1),
                _row(ref, 2, 9.0, 90, 9.0, completed=False)]  # fmt: skip
     good = [_row("mpc-net K=32", s, 0.14, 19, 0.1) for s in range(3)]  # 30 % lower load error
-    (line,) = target_check(physics + good)
+    pid = [dict(_row("pid", s, 0.3, 30, 0.1), K=None) for s in range(3)]  # not an MPC: left out
+    (v,) = versus_physics(pid + physics + good)
     # the physics flight that ended early is left out of the means (not 1 - 0.14 / 3.13)
+    assert (v.controller, v.samples, v.paired, v.physics_failed, v.failed) == (
+        "mpc-net K=32", 32, 2, 1, 0)  # fmt: skip
+    assert v.network["load_rmse"] == pytest.approx(0.14) and v.lower("load_rmse") == (
+        pytest.approx(0.3)
+    )
+    (line,) = versus_lines([v])
     assert "0.140 vs 0.200 m (30 % lower)" in line and "over the 2 flights" in line
-    assert "ended 1 more early" in line and line.endswith("**met**.")
-    swing_only = [_row("mpc-net K=32", s, 0.18, 14, 0.2) for s in range(3)]  # worse tracking
-    assert target_check(physics + swing_only)[0].endswith("**not met**.")
+    assert "ended 1 more early" in line
+    # A network flight that ended early is counted, and the others are still compared.
     crashed = [*good[:2], _row("mpc-net K=32", 2, 0.1, 10, 0.1, completed=False)]
-    assert "not met**: 1 of 3" in target_check(physics + crashed)[0]
+    (v,) = versus_physics(physics + crashed)
+    assert (v.failed, v.flights, v.paired, v.stopped) == (1, 3, 2, "vehicle left the arena")
+    (line,) = versus_lines([v])
+    assert line.startswith("- mpc-net K=32: 1 of 3 flights ended early (vehicle left")
+    assert "over the 2 flights" in line
+    # No flight both flew to the end: said so, no means.
+    lost = [_row("mpc-net K=32", 2, 0.1, 10, 0.1)]
+    assert (
+        "no flight that MPC + physics also flew" in versus_lines(versus_physics(physics + lost))[0]
+    )
+
+
+def test_the_control_report_shows_results_only():
+    ref = "mpc-physics K=32"
+    rows = [_row(ref, 0, 0.20, 20, 0.1), _row("mpc-net K=32", 0, 0.14, 19, 0.1)]
+    for r in rows:
+        r.update(swing_max=30.0, at_limit=1.0, compute_median=5.0, compute_p99=9.0)
+    settings = dict(date="2026-11-24", maneuvers=["roll_35"], seeds=[0], samples=[32],
+                    mpc={"horizon": 15}, threads=1,
+                    machine={"cpu": "x", "cores": 2, "load_average": None})  # fmt: skip
+    text = report_markdown(ControlComparison(rows, settings))
+    assert "load average at the end unknown" in text and "| mpc-net K=32 |" in text
+    assert "0.140 vs 0.200 m (30 % lower)" in text
+    assert "target" not in text.lower() and "met**" not in text

@@ -1,10 +1,10 @@
 """The package's layout: every import points down the data flow, and no import circle.
 
-config/state/fileio -> physics -> data -> sim -> models, loss -> training -> evaluation ->
-deploy -> control -> experiment -> cli (docs/design.md). The simulator is a data source above
-``data/``: it writes its datasets with ``data``'s writer and split policy, and nothing in
-``data`` knows it. Read from the source's import statements, so a function-level import counts
-as much as a top-level one.
+config/state/fileio/reporting -> physics -> data -> sim -> models, loss -> training ->
+evaluation -> deploy -> control -> experiment -> cli (docs/design.md). The simulator is a data
+source above ``data/``: it writes its datasets with ``data``'s writer and split policy, and
+nothing in ``data`` knows it. Read from the source's import statements, so a function-level
+import counts as much as a top-level one.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import slungload
 PACKAGE = Path(slungload.__file__).parent
 ORDER = {  # wing -> floor; a module may import its own floor and those below
     "_version": 0, "_lazy": 0, "config": 0, "state": 0, "fileio": 0, "run_config": 0,
-    "layout": 0, "frames": 0, "workers": 0,
+    "layout": 0, "frames": 0, "reporting": 0, "workers": 0,
     "physics": 1, "load_state": 1,
     "data": 2,
     "sim": 3,

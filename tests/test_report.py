@@ -232,13 +232,13 @@ def figures(monkeypatch) -> list:
     from slungload.evaluation import plots
 
     saved = []
-    save = plots._save
+    save = plots.save_figure
 
     def capture(fig, path):
         saved.append(fig)
         return save(fig, path)
 
-    monkeypatch.setattr(plots, "_save", capture)
+    monkeypatch.setattr(plots, "save_figure", capture)
     return saved
 
 

@@ -39,7 +39,8 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "deploy.compiled": ("CompiledPredictor",),
     "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
     "deploy.timing": ("time_inference",),
-    "deploy.benchmarks": ("BenchmarkResult", "benchmark"),
+    "deploy.benchmark_report": ("BenchmarkResult",),
+    "deploy.benchmarks": ("benchmark",),
     "experiment": ("Reproduction", "evaluate_runs", "reproduce"),
 }  # fmt: skip
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -66,7 +66,7 @@ def add_control(sub: Any) -> None:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
-    from ..control.report import compare
+    from ..control.comparison import compare
 
     result = compare(
         args.model,

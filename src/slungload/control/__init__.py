@@ -6,10 +6,11 @@ over an exported network on ONNX Runtime, ``deploy.onboard``); ``history``: the 
 and applied inputs it keeps for its prediction model (numpy); ``mpc``: ``SamplingMPC``, the same
 controller over any torch prediction model (``models.prediction``: the physics model or any
 trained network of ``models.MODELS``, through ``predict_candidates``), meeting
-``sim.controller.Controller``; ``closed_loop``: guarded flights and their metrics; ``report``:
-``slungload control``'s comparison, report.md and figures (docs/control.md).
+``sim.controller.Controller``; ``closed_loop``: guarded flights and their metrics;
+``comparison``: ``slungload control``'s flights (``compare``), ``results`` their statistics,
+``report`` their report.md and figures (docs/control.md).
 
 Like ``training/``, ``evaluation/`` and ``deploy/``, this package imports nothing here: ``mpc``,
-``closed_loop`` and ``report`` load torch, MuJoCo and matplotlib, and the onboard controller
-must not.
+``closed_loop``, ``comparison`` and ``report`` load torch, MuJoCo and matplotlib, and the
+onboard controller must not.
 """

@@ -17,31 +17,28 @@ of 256 and 1024 windows, windows predicted per second (sampling-based MPC). Trai
 paper-size network, proposed loss (physics term with slack), N = 25, batch 256, Adam, through
 ``train_windows`` windows (default 10,000, or a measured fraction extrapolated: ``quick``).
 
-Training is timed on a plain loop (forward, loss, backward, clipping, Adam step): the work of
-``training.SlungLoadModule.training_step`` without Lightning's own per-step bookkeeping.
+Training is timed on a plain loop over the training module (``training.SlungLoadModule``: its
+forward, its optimiser; the loss of ``loss.compute_loss``), then backward, clipping and the
+optimiser step, which Lightning's loop does in training: the work of a training step without
+Lightning's own per-step bookkeeping. The records and their Markdown are in
+``benchmark_report``; this module measures.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 import os
-import platform
 import statistics
 import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
-import onnxruntime as ort
 import torch
 from torch import Tensor
 
-from .._version import __version__
 from ..config import (
     DEFAULT_ARCHITECTURE,
     LossWeights,
@@ -51,14 +48,23 @@ from ..config import (
     WindowConfig,
 )
 from ..data.windows import Windows, make_windows
-from ..evaluation.machine import cpu_model
-from ..evaluation.results import PAPER_TIMING
 from ..load_state import estimate_load_state
 from ..loss import compute_loss, model_config_for
 from ..models.base import count_parameters
 from ..models.registry import build
 from ..physics import hover_thrust, rollout
+from ..reporting import load_average, machine_line, versions
 from ..state import join_state, quat_from_rotvec
+from .benchmark_report import (
+    COMPILED,
+    EAGER,
+    ONNX,
+    SCRIPT,
+    BenchmarkResult,
+    Latency,
+    Throughput,
+    TrainingSpeed,
+)
 from .compiled import CompiledPredictor, unsupported
 from .onnx import OnnxPredictor, export
 from .predictor import (
@@ -71,95 +77,8 @@ from .predictor import (
 )
 from .timing import time_calls
 
-EAGER, SCRIPT, ONNX, COMPILED = "torch eager", "torch script", "onnxruntime", "numba compiled"
-BACKENDS = (EAGER, SCRIPT, ONNX, COMPILED)
-# Targets of this project's issue (CPU, one thread for latency, the whole 2-core machine for
-# training); reported beside the measurements, never asserted.
-TARGET_LATENCY_MS = {25: 1.0, 50: 2.0}
-PAPER_DEVICES = ("NVIDIA RTX 3090", "NVIDIA Jetson Orin Nano")  # columns of the latency table
 PAPER_WINDOW = WindowConfig(history=50, horizon=25)  # M, N of the training benchmark
-TARGET_TRAIN_S = 6.0  # s to train the paper-size model through 10,000 windows
-
-
-# --- results -----------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Latency:
-    """Batch-1 call times of one backend at one horizon, ms."""
-
-    backend: str
-    horizon: int
-    history: int
-    threads: int
-    median_ms: float  # wall clock
-    p90_ms: float
-    std_ms: float
-    cpu_median_ms: float  # CPU time of the calling thread: what a busy machine cannot inflate
-    repeats: int
-
-
-@dataclass(frozen=True)
-class Throughput:
-    """Batched prediction speed of one backend: windows predicted per second."""
-
-    backend: str
-    horizon: int
-    batch: int
-    threads: int
-    median_s: float  # per call of ``batch`` windows
-    windows_per_s: float
-    repeats: int
-
-
-@dataclass(frozen=True)
-class TrainingSpeed:
-    """Training throughput of the paper-size network (or the given config)."""
-
-    variant: str
-    parameters: int
-    history: int
-    horizon: int
-    batch: int
-    threads: int
-    windows_measured: int  # windows actually run through forward + backward + Adam
-    seconds_measured: float
-    target_windows: int  # the epoch size ``epoch_s`` refers to
-    extrapolated: bool  # epoch_s scaled from windows_measured < target_windows
-
-    @property
-    def windows_per_s(self) -> float:
-        return self.windows_measured / self.seconds_measured
-
-    @property
-    def epoch_s(self) -> float:
-        """Seconds to train through ``target_windows`` windows."""
-        return self.target_windows / self.windows_per_s
-
-
-@dataclass(frozen=True)
-class BenchmarkResult:
-    """Everything one ``benchmark`` call measured, with the conditions."""
-
-    latency: list[Latency]
-    throughput: list[Throughput]
-    training: list[TrainingSpeed]  # one per thread count
-    parity: dict[int, float]  # N -> max |backend - eager| over backends and benchmark inputs
-    source: str  # the run or "random paper-size network"
-    device: str
-    versions: dict[str, str]
-    quick: bool
-    notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        for row, t in zip(d["training"], self.training, strict=True):
-            row.update(windows_per_s=t.windows_per_s, epoch_s=t.epoch_s)
-        return d
-
-    def markdown(self) -> str:
-        """Tables with the paper's figures and the targets beside ours, ratios to eager."""
-        return _markdown(self)
+PACKAGES = ("torch", "onnxruntime", "onnx", "numpy")  # whose versions a benchmark records
 
 
 # --- inputs ------------------------------------------------------------------------------
@@ -282,43 +201,46 @@ def measure_training(
     variant: str = "proposed",
     window: WindowConfig = PAPER_WINDOW,
     batch: int = 256,
-    target_windows: int = 10_000,
+    epoch_windows: int = 10_000,
     measured_windows: int | None = None,
     threads: int | None = None,
     seed: int = 0,
 ) -> TrainingSpeed:
     """Train the network (paper size by default) on physics windows and time it.
 
-    One warm-up step, then ``measured_windows`` windows (default: all ``target_windows``;
-    fewer means the epoch time is extrapolated) in batches of ``batch``, each a forward pass,
-    the loss of ``variant``, backward, gradient clipping and an Adam step with the default
-    ``TrainConfig``. ``threads``: torch intra-op threads (default: every CPU core).
+    One warm-up step, then ``measured_windows`` windows (default: all ``epoch_windows``;
+    fewer means the epoch time is extrapolated) in batches of ``batch``, each a training step
+    of ``training.SlungLoadModule`` with the default ``TrainConfig``: its forward pass, the
+    loss of ``variant``, backward, gradient clipping (``grad_clip``) and a step of the module's
+    own optimiser (Adam). ``threads``: torch intra-op threads (default: every CPU core).
     """
+    from ..training.module import SlungLoadModule  # Lightning: only when training is timed
+
     cfg = TrainConfig()
     threads = threads or os.cpu_count() or 1
-    todo = target_windows if measured_windows is None else min(measured_windows, target_windows)
+    todo = epoch_windows if measured_windows is None else min(measured_windows, epoch_windows)
     params = VehicleParams()
     pool = physics_windows(min(batch, 256), window, params=params, seed=seed)
     torch.manual_seed(seed)
-    net = build(model_config_for(variant, model_config or ModelConfig()), VehicleParams())
+    net = build(model_config_for(variant, model_config or ModelConfig()), params)
     net.fit_normalization(pool.states, pool.inputs, origin_step=window.history - 1)
-    net.train()
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    module = SlungLoadModule(net, variant=variant, params=params, weights=LossWeights(),
+                             window=window, config=cfg, meta={})  # fmt: skip
+    module.train()
+    opt = module.configure_optimizers()  # a plain optimiser under the constant lr schedule
     gen = torch.Generator().manual_seed(seed)
-    m = window.history
 
     def train_step(size: int) -> None:
         idx = torch.randint(len(pool), (size,), generator=gen)
         states, inputs, aux = pool.states[idx], pool.inputs[idx], pool.aux[idx]
-        pred = net(states[:, :m], inputs[:, :m], inputs[:, m:])
         loss = compute_loss(
-            pred, states, inputs, aux, history=m, params=params, weights=LossWeights(),
-            variant=variant,
+            module(states, inputs), states, inputs, aux, history=module.history, params=params,
+            weights=module.weights, variant=variant, fit_scale=module.fit_scale,
         ).total  # fmt: skip
         opt.zero_grad(set_to_none=True)
         loss.backward()
         if cfg.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+            torch.nn.utils.clip_grad_norm_(module.parameters(), cfg.grad_clip)
         opt.step()
 
     with torch_threads(threads):
@@ -331,8 +253,8 @@ def measure_training(
             done += size
         seconds = time.perf_counter() - t0
     return TrainingSpeed(
-        variant, count_parameters(net), m, window.horizon, batch, threads, done, seconds,
-        target_windows, done < target_windows,
+        variant, count_parameters(net), window.history, window.horizon, batch, threads, done,
+        seconds, epoch_windows, done < epoch_windows,
     )  # fmt: skip
 
 
@@ -364,9 +286,10 @@ def benchmark(
     run is given (tests use a tiny one).
     """
     repeats = repeats or (20 if quick else 300)
-    load_start, device, versions = os.getloadavg()[0], _device(), _versions()
+    load_start = load_average()
+    stamp = versions(*PACKAGES)
     big = max(batches, default=1)
-    predictor, source = _predictor(run, history, max(horizons), model_config, seed)
+    predictor, source = benchmark_predictor(run, history, max(horizons), model_config, seed)
     latency, throughput, parity = [], [], {}
     notes = [
         "All backends are called through numpy in / numpy out with the same checks "
@@ -382,14 +305,7 @@ def benchmark(
             window = WindowConfig(history=history, horizon=n)
             windows = physics_windows(max(big, 16), window, params=predictor.params, seed=seed + n)
             hist, fut = file_inputs(windows)
-            fns: dict[str, PredictFn] = {
-                EAGER: predictor.predict,
-                SCRIPT: script_predict(predictor, hist, fut),
-                ONNX: OnnxPredictor(export(predictor, Path(tmp) / f"n{n}.onnx", horizon=n).model,
-                                    threads=threads, any_history=True).predict,
-            }  # fmt: skip
-            if compiled is not None:
-                fns[COMPILED] = compiled.predict
+            fns = _backends(predictor, compiled, hist, fut, Path(tmp) / f"n{n}.onnx", threads)
             parity[n] = _parity(fns, hist[:64], fut[:64])
             latency += _latencies(fns, hist[:16], fut[:16], threads=threads, repeats=repeats)
             for b in batches:
@@ -404,7 +320,7 @@ def benchmark(
         measure_training(
             model_config=model_config,
             window=WindowConfig(history=history, horizon=25 if 25 in horizons else horizons[0]),
-            target_windows=train_windows,
+            epoch_windows=train_windows,
             measured_windows=max(256, train_windows // 5) if quick else None,
             threads=n_threads,
             seed=seed,
@@ -412,12 +328,39 @@ def benchmark(
         for n_threads in ((train_threads or sorted({1, cores})) if train else ())
     ]
     notes.append(
-        f"Load average (1 min) {load_start:.2f} at the start, {os.getloadavg()[0]:.2f} at the end "
-        f"on {cores} cores: other processes compete for the cores and inflate wall-clock times."
+        f"Load average (1 min) {_load(load_start)} at the start, {_load(load_average())} at the "
+        f"end on {cores} cores: other processes compete for the cores and inflate wall-clock "
+        "times."
     )
     return BenchmarkResult(
-        latency, throughput, training, parity, source, device, versions, quick, notes
+        latency, throughput, training, parity, source, machine_line(), stamp, quick, notes
     )
+
+
+def _backends(
+    predictor: Predictor,
+    compiled: CompiledPredictor | None,
+    history: np.ndarray,
+    future: np.ndarray,
+    onnx_file: Path,
+    threads: int,
+) -> dict[str, PredictFn]:
+    """Backend name -> its predict call at the horizon of ``future`` (the ONNX file exported
+    there, TorchScript traced on these inputs)."""
+    n = future.shape[1]
+    fns: dict[str, PredictFn] = {
+        EAGER: predictor.predict,
+        SCRIPT: script_predict(predictor, history, future),
+        ONNX: OnnxPredictor(export(predictor, onnx_file, horizon=n).model, threads=threads,
+                            any_history=True).predict,
+    }  # fmt: skip
+    if compiled is not None:
+        fns[COMPILED] = compiled.predict
+    return fns
+
+
+def _load(value: float | None) -> str:
+    return "unknown" if value is None else f"{value:.2f}"
 
 
 def _parity(fns: dict[str, PredictFn], history: np.ndarray, future: np.ndarray) -> float:
@@ -438,9 +381,11 @@ def _latencies(
     ]
 
 
-def _predictor(
+def benchmark_predictor(
     run: str | Path | None, history: int, horizon: int, config: ModelConfig | None, seed: int
 ) -> tuple[Predictor, str]:
+    """The predictor to time and its description: the run's (``run``), or a random network of
+    ``config`` (default paper size) with normalisation fitted on physics windows."""
     # threads=None: ``benchmark`` sets torch's threads itself; any_history: ``history`` may
     # differ from the run's M (a timing question, not a prediction).
     if run is not None:
@@ -454,124 +399,3 @@ def _predictor(
     size = f"{'paper-size' if paper else 'custom-size'} {model.architecture}"
     predictor = Predictor(model.eval(), window, VehicleParams(), "proposed", threads=None)
     return predictor, f"random {size} network"
-
-
-def _device() -> str:
-    """CPU model and core count."""
-    return f"{cpu_model() or platform.machine()}, {os.cpu_count()} cores"
-
-
-def _paper_ms(device: str, history: int, horizon: int) -> float | None:
-    """The paper's Table II mean time on ``device`` at (M, N), ms, or None."""
-    for t in PAPER_TIMING:
-        if (t.device, t.history, t.horizon) == (device, history, horizon):
-            return t.mean_ms
-    return None
-
-
-def _versions() -> dict[str, str]:
-    import onnx
-
-    return {
-        "slungload": __version__,
-        "torch": torch.__version__,
-        "onnxruntime": ort.__version__,
-        "onnx": onnx.__version__,
-        "numpy": np.__version__,
-    }
-
-
-# --- markdown ----------------------------------------------------------------------------
-
-
-def _ratio(value: float, reference: float | None) -> str:
-    if reference is None or not math.isfinite(reference) or reference <= 0:
-        return "-"
-    return f"{value / reference:.2f}x"
-
-
-def _markdown(r: BenchmarkResult) -> str:
-    """The report: where and with what it was measured, the latency, throughput and training
-    tables, the parity and the notes."""
-    lines = [
-        f"Measured on {r.device}; {r.source}; "
-        + ", ".join(f"{k} {v}" for k, v in r.versions.items())
-        + (" (quick run)" if r.quick else ""),
-        "",
-        *_latency_table(r),
-        *_throughput_table(r),
-        *_training_table(r),
-        "",
-        "Parity (max |backend - eager| on the benchmark windows): "
-        + ", ".join(f"N = {n}: {d:.1e}" for n, d in r.parity.items()),
-    ]
-    lines += ["", *(f"Note: {n}" for n in r.notes)]
-    return "\n".join(lines) + "\n"
-
-
-def _latency_table(r: BenchmarkResult) -> list[str]:
-    """Batch-1 latency in ms per backend and N, beside the targets and the paper's times."""
-    lines = [
-        f"Batch-1 latency (M = {r.latency[0].history if r.latency else '-'} history rows; wall "
-        "clock, and the calling thread's CPU time; speed-up: eager / backend in this run, on "
-        "wall-clock medians; the paper's figures are GPU / Jetson times of its own code):",
-        "",
-        "| backend | N | threads | median ms | p90 ms | std ms | CPU median ms | "
-        "speed-up vs eager | target ms | paper RTX 3090 ms | paper Orin Nano ms |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    eager = {(x.horizon,): x.median_ms for x in r.latency if x.backend == EAGER}
-    for x in r.latency:
-        paper = [_paper_ms(d, x.history, x.horizon) for d in PAPER_DEVICES]
-        base = eager.get((x.horizon,))
-        speedup = _ratio(base, x.median_ms) if base else "-"
-        lines.append(
-            f"| {x.backend} | {x.horizon} | {x.threads} | {x.median_ms:.3f} | {x.p90_ms:.3f} | "
-            f"{x.std_ms:.3f} | {x.cpu_median_ms:.3f} | {speedup} | "
-            f"{TARGET_LATENCY_MS.get(x.horizon, '-')} | "
-            + " | ".join("-" if p is None else f"{p:g}" for p in paper)
-            + " |"
-        )
-    return lines
-
-
-def _throughput_table(r: BenchmarkResult) -> list[str]:
-    """Windows predicted per second per backend, N and batch (after a blank line)."""
-    lines = [
-        "",
-        "Throughput (windows predicted per second; speed-up: backend / eager, same run):",
-        "",
-        "| backend | N | batch | threads | ms per call | windows/s | speed-up vs eager |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    base_tp = {(x.horizon, x.batch): x.windows_per_s for x in r.throughput if x.backend == EAGER}
-    for x in r.throughput:
-        ratio = _ratio(x.windows_per_s, base_tp.get((x.horizon, x.batch)))
-        lines.append(
-            f"| {x.backend} | {x.horizon} | {x.batch} | {x.threads} | {1e3 * x.median_s:.1f} | "
-            f"{x.windows_per_s:,.0f} | {ratio} |"
-        )
-    return lines
-
-
-def _training_table(r: BenchmarkResult) -> list[str]:
-    """Training windows per second and seconds per epoch (after a blank line); no lines when
-    training was not measured."""
-    if not r.training:
-        return []
-    lines = [
-        "",
-        "Training throughput (forward + loss + backward + clipping + Adam; plain loop):",
-        "",
-        "| parameters | variant | M | N | batch | threads | windows/s | "
-        "s per epoch | epoch windows | how | target s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for t in r.training:
-        how = f"{t.windows_measured:,} measured, extrapolated" if t.extrapolated else "measured"
-        lines.append(
-            f"| {t.parameters:,} | {t.variant} | {t.history} | {t.horizon} | {t.batch} | "
-            f"{t.threads} | {t.windows_per_s:,.0f} | {t.epoch_s:.1f} | {t.target_windows:,} | "
-            f"{how} | {TARGET_TRAIN_S:g} |"
-        )
-    return lines

@@ -19,7 +19,6 @@ load average is stamped at the start and the end.
 from __future__ import annotations
 
 import dataclasses
-import os
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -32,8 +31,9 @@ import torch
 
 from ..config import ModelConfig, WindowConfig
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
+from ..reporting import load_average, machine_line, markdown_table, versions
 from .batched import BACKENDS, with_backend
-from .benchmarks import _device, _predictor, _versions, physics_windows
+from .benchmarks import PACKAGES, benchmark_predictor, physics_windows
 from .predictor import Predictor, torch_threads
 
 ONNX = "onnxruntime"  # the exported candidates graph (``deploy.onboard.OnnxCandidateModel``)
@@ -67,7 +67,7 @@ class MPCBenchmark:
     versions: dict[str, str]
     threads: int
     history: int
-    load_average: tuple[float, float]  # 1-min load average at the start and at the end
+    load_average: tuple[float | None, float | None]  # 1-min, at the start and the end
     quick: bool
     notes: list[str] = field(default_factory=list)
 
@@ -75,27 +75,26 @@ class MPCBenchmark:
         return dataclasses.asdict(self)
 
     def markdown(self) -> str:
+        start, end = ("unknown" if x is None else f"{x:.2f}" for x in self.load_average)
+        header = ["model", "backend", "N", "K", "calls", "median ms", "p99 ms", "CPU median ms",
+                  "speed-up", "max abs diff"]  # fmt: skip
+        rows = [
+            [r.model, r.backend, r.horizon, r.samples, r.calls, f"{r.median_ms:.1f}",
+             f"{r.p99_ms:.1f}", f"{r.cpu_median_ms:.1f}", f"{r.speedup:.2f}x",
+             "-" if r.backend == "eager" else f"{r.max_abs_diff:.1e}"]
+            for r in self.rows
+        ]  # fmt: skip
         lines = [
             f"Measured on {self.device}; {self.source}; "
             + ", ".join(f"{k} {v}" for k, v in self.versions.items())
             + (" (quick run)" if self.quick else ""),
             "",
             f"MPC-shaped rollouts: `predict_candidates` with M = {self.history}, one thread, "
-            f"load average (1 min) {self.load_average[0]:.2f} at the start, "
-            f"{self.load_average[1]:.2f} at the end; backends of a row group timed "
-            "interleaved; speed-up against eager in the same run:",
+            f"load average (1 min) {start} at the start, {end} at the end; backends of a row "
+            "group timed interleaved; speed-up against eager in the same run:",
             "",
-            "| model | backend | N | K | calls | median ms | p99 ms | CPU median ms | speed-up "
-            "| max abs diff |",
-            "|---|---|---|---|---|---|---|---|---|---|",
+            markdown_table(header, rows),
         ]
-        for r in self.rows:
-            diff = "-" if r.backend == "eager" else f"{r.max_abs_diff:.1e}"
-            lines.append(
-                f"| {r.model} | {r.backend} | {r.horizon} | {r.samples} | {r.calls} | "
-                f"{r.median_ms:.1f} | {r.p99_ms:.1f} | {r.cpu_median_ms:.1f} | "
-                f"{r.speedup:.2f}x | {diff} |"
-            )
         lines += [""] + [f"Note: {n}" for n in self.notes]
         return "\n".join(lines) + "\n"
 
@@ -123,9 +122,9 @@ def benchmark_mpc(
     """
     calls = calls or (10 if quick else 100)
     seconds = seconds or (1.0 if quick else 10.0)
-    load_start = os.getloadavg()[0]
+    load_start = load_average()
     config = model_config or ModelConfig(architecture="physics-step")
-    predictor, source = _predictor(run, HISTORY, max(horizons), config, seed)
+    predictor, source = benchmark_predictor(run, HISTORY, max(horizons), config, seed)
     m = predictor.window.history
     if run is None:
         source = f"random {config.size or 'custom'}-size {config.architecture} network"
@@ -148,9 +147,16 @@ def benchmark_mpc(
         "The physics model runs in float64 on every backend; the network in float32.",
     ]
     return MPCBenchmark(
-        rows, source, _device(), _versions(), 1, m,
-        (load_start, os.getloadavg()[0]), quick, notes,
-    )  # fmt: skip
+        rows,
+        source,
+        machine_line(),
+        versions(*PACKAGES),
+        1,
+        m,
+        (load_start, load_average()),
+        quick,
+        notes,
+    )
 
 
 Call = Callable[[tuple[Any, ...]], np.ndarray]

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
@@ -14,8 +13,8 @@ from tqdm.auto import tqdm
 
 from ..config import VehicleParams
 from ..data.windows import Windows
-from ..evaluation.machine import device_name
 from ..evaluation.results import Timing, TimingResult
+from ..reporting import device_name, load_average
 from .compiled import CompiledPredictor, unsupported
 from .predictor import Predictor, states_to_file
 
@@ -62,7 +61,7 @@ def _timing(
         threads=threads,
         device=device_name(device),
         backend=backend,
-        load_average=_load_average(),
+        load_average=load_average(),
     )
 
 
@@ -97,14 +96,6 @@ def time_compiled(
     future = w.inputs[0, m:].numpy()
     wall, _ = time_calls(lambda i: compiled.predict(history, future), repeats, warmup)
     return _timing(windows, wall, threads=1, device=torch.device("cpu"), backend="numba compiled")
-
-
-def _load_average() -> float | None:
-    """The machine's 1-min load average (None where the OS has none)."""
-    try:
-        return os.getloadavg()[0]
-    except (AttributeError, OSError):
-        return None
 
 
 def _timing_window(caller: str, windows: Windows, repeats: int) -> tuple[int, Windows]:

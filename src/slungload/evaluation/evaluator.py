@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 import torch
 from torch import Tensor, nn
+from tqdm.auto import tqdm
 
-from .._version import __version__
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
+from ..reporting import device_name, versions
 from ..state import GROUPS, group_errors
-from .machine import device_name
 from .metrics import Curve, mae_curve, metrics_from_errors
 from .report import write_report
 from .results import PHYSICS, Example, Report, RunResult, TimingResult, table_rows
@@ -137,7 +137,7 @@ def evaluate_predictors(
 
     test_flights = windows[horizons[0]].names
     env = {
-        "torch": torch.__version__,
+        **versions("torch"),  # slungload's and torch's
         "threads": torch.get_num_threads(),
         "device": device_name(torch.device(device)),
         **(environment or {}),
@@ -181,7 +181,7 @@ def _run_candidates(
     """Every candidate at every horizon: its metrics, its error norms pooled per (label, N)
     over seeds, and its predictions per (id(candidate), N), (W, N, 13)."""
     jobs = [(c, n) for n in sorted(windows) for c in candidates]
-    bar = _progress(len(jobs), progress)
+    bar = tqdm(total=len(jobs), unit="run", leave=False, disable=not progress)
     results: list[RunResult] = []
     pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
     predictions: dict[tuple[int, int], Tensor] = {}
@@ -221,20 +221,6 @@ def _example(
         window_states=windows.states[index].double().numpy(),
         predictions=preds,
     )
-
-
-class _NoBar:
-    def set_description(self, _: str) -> None: ...
-    def update(self) -> None: ...
-    def close(self) -> None: ...
-
-
-def _progress(total: int, enabled: bool) -> Any:
-    if not enabled:
-        return _NoBar()
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, unit="run", leave=False)
 
 
 # --- entry ----------------------------------------------------------------------------------
@@ -299,7 +285,7 @@ def evaluate(
         timer=timer,
         device=device,
         progress=progress,
-        environment={"slungload": __version__, "params_source": _params_source(loaded, dataset)},
+        environment={"params_source": _params_source(loaded, dataset)},
     )
     if out is not None:
         write_report(report, out)

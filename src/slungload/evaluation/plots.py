@@ -13,9 +13,9 @@ atomically and returns its path.
   window of each, where the predicted paths are visible.
 
 Every label keeps one look in every figure (``label_styles``): physics grey and dotted, the
-networks a colour, a dash pattern and a marker each, none solid (solid is the truth). Labels
-such as ``physics-step/proposed`` (architecture/variant) are labels like any other; the
-combinations repeat only after hundreds of labels.
+networks their colour (``reporting.model_colors``), a dash pattern and a marker each, none
+solid (solid is the truth). Labels such as ``physics-step/proposed`` (architecture/variant) are
+labels like any other; no two looks repeat within hundreds of labels.
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 
-from ..fileio import atomic_path
+from ..reporting import model_colors, save_figure
 from ..state import GROUP_UNITS, GROUPS, LOAD_POS, POS
 from .metrics import Curve
 from .results import PHYSICS, Example
@@ -47,13 +47,10 @@ COMPONENTS = {
     "quaternion": ("w", "x", "y", "z"),
     "load_position": ("x", "y", "z"),
 }
-PHYSICS_COLOR = "0.4"
 TRUTH_COLOR = "k"
 LOAD_TRUTH_COLOR = "0.55"  # the load's measured path in the 3D figure (the vehicle's is black)
 HISTORY_LINE_COLOR = "0.55"
 HORIZON_LINE = {"color": "k", "linewidth": 1.0, "linestyle": "-"}  # the training horizon
-# Network colours: tab10 without its grey (C7), which is the physics model's.
-NETWORK_COLORS = ("C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9")
 # Network dash patterns: none solid (the truth) and none dotted (physics).
 NETWORK_LINESTYLES = (
     (0, (6, 2)),  # dashed
@@ -64,7 +61,6 @@ NETWORK_LINESTYLES = (
 )
 NETWORK_MARKERS = ("o", "s", "^", "D", "v", "P", "X")
 REFERENCE_BAND_ALPHA = 0.18
-DPI = 120
 
 
 @dataclass(frozen=True)
@@ -92,24 +88,25 @@ class LabelStyle:
 
 
 def label_styles(labels: Sequence[str]) -> dict[str, LabelStyle]:
-    """A distinct look per label, stable in the order given: physics grey and dotted; the
-    i-th network the i-th colour, dash pattern and marker of their cycles (9, 5 and 7 long,
-    so no two of the first 315 networks look alike), lines narrowing with i."""
-    styles, i = {}, 0
-    for label in labels:
-        if label in styles:
-            continue
-        if label == PHYSICS:
-            styles[label] = LabelStyle(PHYSICS_COLOR, (0, (1, 1.5)), None, 2.0)
-            continue
-        styles[label] = LabelStyle(
-            NETWORK_COLORS[i % len(NETWORK_COLORS)],
-            NETWORK_LINESTYLES[i % len(NETWORK_LINESTYLES)],
-            NETWORK_MARKERS[i % len(NETWORK_MARKERS)],
-            max(1.2, 2.6 - 0.4 * i),
-        )
-        i += 1
-    return styles
+    """A distinct look per label, stable in the order given: physics grey and dotted; each
+    network its colour (``reporting.model_colors``) and the i-th network the i-th dash pattern
+    and marker of their cycles (5 and 7 long; a look already taken moves on to the next
+    marker), lines narrowing with i."""
+    colors = model_colors(labels)
+    styles: dict[str, LabelStyle] = {}
+    looks: set[tuple[str, int, int]] = set()
+    for i, label in enumerate(la for la in colors if la != PHYSICS):
+        dash, mark = i % len(NETWORK_LINESTYLES), i % len(NETWORK_MARKERS)
+        for shift in range(len(NETWORK_MARKERS)):
+            if (colors[label], dash, (mark + shift) % len(NETWORK_MARKERS)) not in looks:
+                mark = (mark + shift) % len(NETWORK_MARKERS)
+                break
+        looks.add((colors[label], dash, mark))
+        styles[label] = LabelStyle(colors[label], NETWORK_LINESTYLES[dash],
+                                   NETWORK_MARKERS[mark], max(1.2, 2.6 - 0.4 * i))  # fmt: skip
+    if PHYSICS in colors:
+        styles[PHYSICS] = LabelStyle(colors[PHYSICS], (0, (1, 1.5)), None, 2.0)
+    return {label: styles[label] for label in colors}
 
 
 def _markevery(steps: int, index: int, count: int) -> tuple[int, int]:
@@ -168,7 +165,7 @@ def plot_mae(
                fontsize="small")  # fmt: skip
     named = f": {' vs '.join(labels)}" if len(labels) <= 3 else f", {len(labels)} models"
     fig.suptitle(title or f"Test-set MAE per horizon step, N = {steps}{named}")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _mae_bands(
@@ -264,7 +261,7 @@ def plot_prediction(
         or f"Flight {example.flight}, window from step {example.start}: "
         f"M = {m} history steps, N = {len(truth) - m} predicted"
     )
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _prediction_lines(
@@ -351,7 +348,7 @@ def plot_paths_3d(
                fontsize="small")  # fmt: skip
     fig.suptitle(title or f"Flight {example.flight}: vehicle and load paths, window from step "
                  f"{example.start}")  # fmt: skip
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _whole_flight_panel(
@@ -454,10 +451,3 @@ def _frame(ax, points: np.ndarray, margin: float = 0.02) -> tuple[np.ndarray, np
     ax.set_ylabel("y (m)")
     ax.set_zlabel("z, up (m)")
     return lo, hi
-
-
-def _save(fig: Figure, path: str | Path) -> Path:
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
-    return path

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from ..config import to_dict
 from ..fileio import write_json, write_text
+from ..reporting import markdown_table
 from ..state import GROUPS
 from . import plots
 from .metrics import COMBINED, METRIC_KEYS
@@ -255,24 +256,16 @@ def _first_per_horizon(report: Report):
 
 
 def _models_section(report: Report) -> list[str]:
-    lines = [
-        "## Models",
-        "",
-        "| label | seed | run | epochs | parameters |",
-        "|---|---|---|---|---|",
-    ]
-    for m in report.models:
-        lines.append(
-            f"| {m.get('label')} | {_dash(m.get('seed'))} | `{m.get('run', '')}` "
-            f"| {_epochs(m)} | {_dash(m.get('parameters'))} |"
-        )
+    rows = [
+        [m.get("label"), _dash(m.get("seed")), f"`{m.get('run', '')}`", _epochs(m),
+         _dash(m.get("parameters"))]
+        for m in report.models
+    ]  # fmt: skip
     if PHYSICS in report.labels:
-        lines.append(
-            f"| {PHYSICS} | - | open-loop `physics.rollout` from x_(M-1) with the estimated "
-            "(vL, Omega_L) and the true inputs | - | - |"
-        )
-    lines += _constants_lines(report)
-    return lines + [""]
+        rows.append([PHYSICS, "-", "open-loop `physics.rollout` from x_(M-1) with the estimated "
+                     "(vL, Omega_L) and the true inputs", "-", "-"])  # fmt: skip
+    table = markdown_table(["label", "seed", "run", "epochs", "parameters"], rows)
+    return ["## Models", "", table, *_constants_lines(report), ""]
 
 
 def _constants_lines(report: Report) -> list[str]:
@@ -357,28 +350,28 @@ def _rmse_section(report: Report, n: int) -> list[str]:
     rows = [r for r in report.table if r.horizon == n]
     seeds = any(r.seeds > 1 for r in rows)
     note = " (mean ± std across seeds)" if seeds else ""
-    lines = [f"## RMSE over the {_split_name(report)} set, N = {n}{note}", ""]
-    lines += _table_header("Model (ours)")
-    for r in rows:
-        name = f"{r.label} ({r.seeds} seeds)" if r.seeds > 1 else r.label
-        lines.append(f"| {name} | " + " | ".join(_pm(r, k) for k in METRIC_KEYS) + " |")
-    return lines + [""]
+    cells = [
+        [
+            f"{r.label} ({r.seeds} seeds)" if r.seeds > 1 else r.label,
+            *(_pm(r, k) for k in METRIC_KEYS),
+        ]
+        for r in rows
+    ]
+    table = markdown_table(_table_header("Model (ours)"), cells)
+    return [f"## RMSE over the {_split_name(report)} set, N = {n}{note}", "", table, ""]
 
 
 def _paper_rmse_section() -> list[str]:
-    lines = [f"## The paper's RMSE (Table I, real flights, N = {PAPER_HORIZON})", ""]
-    lines += _table_header("Model (paper)")
-    for key, values in PAPER_RMSE_N50.items():
-        cells = " | ".join(f"{values[k]:.3f}" for k in METRIC_KEYS)
-        lines.append(f"| {PAPER_MODEL_NAMES[key]} (`{key}`) | {cells} |")
-    return lines + [""]
+    rows = [
+        [f"{PAPER_MODEL_NAMES[key]} (`{key}`)", *(f"{values[k]:.3f}" for k in METRIC_KEYS)]
+        for key, values in PAPER_RMSE_N50.items()
+    ]
+    table = markdown_table(_table_header("Model (paper)"), rows)
+    return [f"## The paper's RMSE (Table I, real flights, N = {PAPER_HORIZON})", "", table, ""]
 
 
 def _table_header(first: str) -> list[str]:
-    return [
-        f"| {first} | " + " | ".join(COLUMN_TITLES[k] for k in METRIC_KEYS) + " |",
-        "|---" * (len(METRIC_KEYS) + 1) + "|",
-    ]
+    return [first, *(COLUMN_TITLES[k] for k in METRIC_KEYS)]
 
 
 def combined_ratios(report: Report) -> list[tuple[str, str, dict[int, float], float | None]]:
@@ -408,33 +401,29 @@ def _ratio_section(report: Report) -> list[str]:
     if not ratios:
         return []
     horizons = sorted(report.horizons)
-    lines = [
-        "## Combined-RMSE ratios (below 1: the first model is better)",
-        "",
-        "| ratio | " + " | ".join(f"ours, N = {n}" for n in horizons) + " | paper, N = 50 |",
-        "|---" * (len(horizons) + 2) + "|",
-    ]
-    for ref, other, ours, paper in ratios:
-        cells = " | ".join(_ratio(ours[n]) if n in ours else "-" for n in horizons)
-        lines.append(f"| {ref} / {other} | {cells} | {_dash(paper, '{:.3f}')} |")
-    return lines + [""]
+    header = ["ratio", *(f"ours, N = {n}" for n in horizons), "paper, N = 50"]
+    rows = [
+        [f"{ref} / {other}", *(_ratio(ours[n]) if n in ours else "-" for n in horizons),
+         _dash(paper, "{:.3f}")]
+        for ref, other, ours, paper in ratios
+    ]  # fmt: skip
+    title = "## Combined-RMSE ratios (below 1: the first model is better)"
+    return [title, "", markdown_table(header, rows), ""]
 
 
 def _timing_section(report: Report) -> list[str]:
     lines = ["## Inference time, batch 1", ""]
     if report.timings:
+        header = ["model", "seed", "backend", "M", "N", "mean (ms)", "std (ms)", "calls",
+                  "threads", "device"]  # fmt: skip
+        rows = [
+            [t.label, _dash(t.seed), t.timing.backend, t.timing.history, t.timing.horizon,
+             f"{t.timing.mean_ms:.2f}", f"{t.timing.std_ms:.2f}", t.timing.repeats,
+             t.timing.threads, t.timing.device]
+            for t in report.timings
+        ]  # fmt: skip
         lines += [
-            "| model | seed | backend | M | N | mean (ms) | std (ms) | calls | threads | device |",
-            "|---|---|---|---|---|---|---|---|---|---|",
-        ]
-        for t in report.timings:
-            tm = t.timing
-            lines.append(
-                f"| {t.label} | {_dash(t.seed)} | {tm.backend} | {tm.history} | {tm.horizon} "
-                f"| {tm.mean_ms:.2f} | {tm.std_ms:.2f} | {tm.repeats} | {tm.threads} "
-                f"| {tm.device} |"
-            )
-        lines += [
+            markdown_table(header, rows),
             "",
             "`torch eager`: the network as trained, called on tensors (as the paper timed its own "
             "code). `numba compiled`: `CompiledPredictor.predict`, the batch-1 deployment path, "
@@ -454,18 +443,12 @@ def _timing_section(report: Report) -> list[str]:
             "Not measured: timing is a separate step (`slungload evaluate --timing`, or the "
             "full latency benchmark `slungload benchmark`)."
         )
-    lines += [
-        "",
-        "The paper's (Table II):",
-        "",
-        "| device | M | N | mean (ms) | std (ms) |",
-        "|---|---|---|---|---|",
+    paper = [
+        [t.device, t.history, t.horizon, f"{t.mean_ms:.2f}", f"{t.std_ms:.2f}"]
+        for t in PAPER_TIMING
     ]
-    for t in PAPER_TIMING:
-        lines.append(
-            f"| {t.device} | {t.history} | {t.horizon} | {t.mean_ms:.2f} | {t.std_ms:.2f} |"
-        )
-    return lines + [""]
+    table = markdown_table(["device", "M", "N", "mean (ms)", "std (ms)"], paper)
+    return [*lines, "", "The paper's (Table II):", "", table, ""]
 
 
 def _busy(load_average: float | None) -> bool:

@@ -31,6 +31,7 @@ from ..evaluation.metrics import COMBINED
 from ..evaluation.results import PHYSICS
 from ..experiment import PAPER_VARIANTS, TrainingJob, run_training_jobs
 from ..fileio import write_splits, write_text
+from ..reporting import markdown_table, model_colors, save_figure
 from ..run_config import RunConfig
 from ..sim import simulate_dataset
 
@@ -147,16 +148,10 @@ def write_study(rows: Sequence[StudyRow], out: Path, horizon: int) -> None:
     table = _mean_std(rows)
     labels = list(dict.fromkeys(label for (_, label) in table))
     sizes = sorted({k for (k, _) in table})
-    md = [
-        f"# Data-efficiency study: combined RMSE at N = {horizon} on the test flights",
-        "",
-        "| training flights | " + " | ".join(labels) + " |",
-        "|---|" + "---|" * len(labels),
-    ]
-    for k in sizes:
-        cells = [_cell(table.get((k, label))) for label in labels]
-        md.append(f"| {k} | " + " | ".join(cells) + " |")
-    write_text(out / "study.md", "\n".join(md) + "\n")
+    rows = [[k, *(_cell(table.get((k, label))) for label in labels)] for k in sizes]
+    md = markdown_table(["training flights", *labels], rows)
+    title = f"# Data-efficiency study: combined RMSE at N = {horizon} on the test flights"
+    write_text(out / "study.md", f"{title}\n\n{md}\n")
     _figure(table, labels, sizes, out / "study.png", horizon)
 
 
@@ -180,17 +175,15 @@ def _cell(value: tuple[float, float, int] | None) -> str:
 def _figure(table, labels: list[str], sizes: list[int], path: Path, horizon: int) -> None:
     from matplotlib.figure import Figure
 
-    from ..fileio import atomic_path
-
     fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
     ax = fig.add_subplot()
+    colors = model_colors(labels)
     for i, label in enumerate(labels):
         ks = [k for k in sizes if (k, label) in table]
         mean = np.array([table[(k, label)][0] for k in ks])
         std = np.array([table[(k, label)][1] for k in ks])
-        style = (
-            dict(color="0.3", linestyle=":") if label == PHYSICS else dict(marker="os^vD"[i % 5])
-        )
+        style = dict(linestyle=":") if label == PHYSICS else dict(marker="os^vD"[i % 5])
+        style["color"] = colors[label]
         ax.errorbar(ks, mean, yerr=std, capsize=3, label=label, **style)
     ax.set_xscale("log", base=2)
     ax.set_xticks(sizes, [str(k) for k in sizes])
@@ -198,5 +191,4 @@ def _figure(table, labels: list[str], sizes: list[int], path: Path, horizon: int
     ax.set_ylabel(f"combined RMSE at N = {horizon}")
     ax.grid(alpha=0.3)
     ax.legend()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
+    save_figure(fig, path)

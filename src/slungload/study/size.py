@@ -24,7 +24,6 @@ kept, so an interrupted study goes on where it stopped; the rollouts are timed a
 
 from __future__ import annotations
 
-import os
 import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -44,6 +43,7 @@ from ..fileio import write_text
 from ..models.base import count_parameters
 from ..models.checkpoints import load_checkpoint
 from ..models.prediction import NetworkModel
+from ..reporting import load_average, markdown_table, save_figure
 from ..run_config import RunConfig
 
 
@@ -231,7 +231,7 @@ def _time_size(
         samples,
         steps,
         repeats,
-        os.getloadavg()[0],
+        load_average(),
     )
 
 
@@ -283,41 +283,32 @@ def size_table(study: SizeStudy) -> str:
     mean = _means(study.rows)
     seeds = sorted({r.seed for r in study.rows if r.seed is not None})
     per_seed = {(r.size, r.seed): r.rmse for r in study.rows}
-    t = study.timings[0]
-    lines = [
-        f"Validation combined RMSE at N = {study.horizon} against one batched rollout "
-        f"(K = {t.samples}, N = {t.steps}, one torch thread, median of {t.repeats} calls)",
-        "",
-        "| size | widths | parameters | "
-        + " | ".join(f"seed {s}" for s in seeds)
-        + " | mean ± std | rollout median / p90 (ms) | load average | on the front |",
-        "|---|---|---|" + "---|" * len(seeds) + "---|---|---|---|",
-    ]
+    header = ["size", "widths", "parameters", *(f"seed {s}" for s in seeds), "mean ± std",
+              "rollout median / p90 (ms)", "load average", "on the front"]  # fmt: skip
+    rows = []
     for t in sorted(study.timings, key=lambda t: -t.parameters):
         m, s, n = mean.get(t.size, (float("nan"), 0.0, 0))
-        cells = [f"{per_seed[(t.size, k)]:.3f}" if (t.size, k) in per_seed else "-" for k in seeds]
-        load = "-" if t.load_average is None else f"{t.load_average:.2f}"
-        lines.append(
-            f"| {t.size} | {MODEL_SIZES[t.size].summary()} | {t.parameters:,} | "
-            + " | ".join(cells)
-            + f" | {m:.3f}"
-            + (f" ± {s:.3f}" if n > 1 else "")
-            + f" | {t.median_ms:.1f} / {t.p90_ms:.1f} | {load} | "
-            + ("yes" if t.size in study.front else "")
-            + " |"
-        )
+        rows.append([
+            t.size, MODEL_SIZES[t.size].summary(), f"{t.parameters:,}",
+            *(f"{per_seed[(t.size, k)]:.3f}" if (t.size, k) in per_seed else "-" for k in seeds),
+            f"{m:.3f}" + (f" ± {s:.3f}" if n > 1 else ""), f"{t.median_ms:.1f} / {t.p90_ms:.1f}",
+            "-" if t.load_average is None else f"{t.load_average:.2f}",
+            "yes" if t.size in study.front else "",
+        ])  # fmt: skip
     if PHYSICS in mean:
-        blank = " | ".join("" for _ in seeds)
-        lines.append(f"| physics model | - | 0 | {blank} | {mean[PHYSICS][0]:.3f} | - | - | |")
-    return "\n".join(lines)
+        rows.append(["physics model", "-", 0, *("" for _ in seeds), f"{mean[PHYSICS][0]:.3f}",
+                     "-", "-", ""])  # fmt: skip
+    t = study.timings[0]
+    return (
+        f"Validation combined RMSE at N = {study.horizon} against one batched rollout "
+        f"(K = {t.samples}, N = {t.steps}, one torch thread, median of {t.repeats} calls)\n\n"
+        + markdown_table(header, rows)
+    )
 
 
 def _figure(study: SizeStudy, path: Path) -> None:
     from matplotlib.figure import Figure
     from matplotlib.ticker import NullLocator
-
-    from ..evaluation.plots import DPI
-    from ..fileio import atomic_path
 
     mean = _means(study.rows)
     fig = Figure(figsize=(6.4, 4.2), constrained_layout=True)
@@ -353,5 +344,4 @@ def _figure(study: SizeStudy, path: Path) -> None:
     ax.set_ylabel(f"validation combined RMSE at N = {study.horizon}")
     ax.grid(alpha=0.3)
     ax.legend()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
+    save_figure(fig, path)

@@ -1,0 +1,188 @@
+"""``slungload control``: the PID, MPC + physics model and MPC + each network, flown and measured.
+
+``compare(models, maneuvers, seeds, samples, out)`` flies every controller on every maneuver
+and seed (every unmodelled effect on), one MPC per prediction model and K in ``samples``, and
+writes into ``out``: ``results.json`` (one row of ``closed_loop.flight_metrics`` per flight,
+the settings and the machine), ``flights/*.npz`` (each flight's log), and the report
+(``report.write_report``: ``report.md`` and the figures). The statistics are in ``results``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from datetime import date
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ..config import VehicleParams
+from ..deploy.batched import load_model
+from ..fileio import write_json, write_npz
+from ..models.prediction import PHYSICS, PredictionModel
+from ..reporting import machine
+from ..sim.config import SimConfig
+from ..sim.controller import PIDController
+from ..sim.dataset import vehicle_params
+from ..sim.maneuvers import MANEUVERS
+from .closed_loop import Arena, FlightLog, flight_metrics, fly
+from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .report import write_report
+from .results import ControlComparison
+
+# The simulator's three fastest maneuvers: back and forth along a line at 2.8-3.6 s a cycle,
+# roll doublets of 25-35 degrees, and figure eights that climb and sink.
+DEFAULT_MANEUVERS = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")
+PID = "pid"
+
+
+def compare(
+    models: Sequence[str | Path] = (),
+    maneuvers: Sequence[str] = DEFAULT_MANEUVERS,
+    seeds: Sequence[int] = (100, 101, 102),
+    samples: Sequence[int] = (32,),
+    out: str | Path | None = None,
+    *,
+    horizon: int | None = None,
+    steps: int | None = None,
+    config: SimConfig | None = None,
+    threads: int = 1,
+    backend: str = "eager",
+    progress: Callable[[str], None] | None = print,
+) -> ControlComparison:
+    """Fly the PID, MPC + physics and MPC + each network (run folders) and write the report.
+
+    samples: K values; each prediction model runs once per K. horizon: the MPC's N (default
+    ``MPCConfig.horizon``). steps: cut every flight to this many recorded steps (smoke runs).
+    threads: torch threads while flying (restored after). backend: what the prediction models
+    run on (``deploy.batched.BACKENDS``: "eager" torch, or "compiled" kernels).
+    """
+    unknown = [m for m in maneuvers if m not in MANEUVERS]
+    if unknown:
+        raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
+    cfg = config or SimConfig()
+    params = vehicle_params(cfg)
+    limits = InputLimits.from_sim(cfg)
+    predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=backend)]
+    predictors += [load_model(m, backend=backend) for m in models]
+    base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon)
+    out_dir = Path(out) if out is not None else None
+    if out_dir is not None:
+        (out_dir / "flights").mkdir(parents=True, exist_ok=True)
+    plans = _plans(cfg, predictors, samples, base, limits, params)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
+    finally:
+        torch.set_num_threads(previous)
+    settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
+    settings["backend"] = backend
+    result = ControlComparison(rows, settings, out_dir, logs)
+    if out_dir is not None:
+        write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
+        write_report(result, out_dir)
+    return result
+
+
+_Plan = tuple[str, int | None, Callable[[int], Any]]  # (label, K or None, seed -> controller)
+
+
+def _plans(
+    cfg: SimConfig,
+    predictors: list[PredictionModel],
+    samples: Sequence[int],
+    base: MPCConfig,
+    limits: InputLimits,
+    params: VehicleParams,
+) -> list[_Plan]:
+    """The controllers to fly: the PID, then one MPC per K and prediction model."""
+    plans: list[_Plan] = [(PID, None, lambda seed: PIDController(cfg))]
+    for k in samples:
+        for model in predictors:
+            mpc_cfg = replace(base, samples=int(k))
+            plans.append(
+                (f"mpc-{model.name}", int(k), _mpc_factory(model, limits, mpc_cfg, params))
+            )
+    return plans
+
+
+def _fly_all(
+    maneuvers: Sequence[str],
+    seeds: Sequence[int],
+    plans: list[_Plan],
+    cfg: SimConfig,
+    limits: InputLimits,
+    steps: int | None,
+    out_dir: Path | None,
+    progress: Callable[[str], None] | None,
+) -> tuple[list[dict[str, Any]], list[FlightLog]]:
+    """Every plan on every maneuver and seed: the metric rows (with "K" and the wall time in
+    s) and the flight logs, each log saved under ``out_dir/flights`` as it lands."""
+    rows, logs = [], []
+    for maneuver in maneuvers:
+        for seed in seeds:
+            for label, k, make in plans:
+                name = label if k is None else f"{label} K={k}"
+                start = time.perf_counter()
+                log = fly(maneuver, seed, make(seed), label=name, config=cfg, steps=steps)
+                row = flight_metrics(log, limits, cfg.cable_length)
+                row["K"] = k
+                row["wall_s"] = time.perf_counter() - start
+                rows.append(row)
+                logs.append(log)
+                if out_dir is not None:
+                    _save_log(out_dir / "flights", log)
+                if progress:
+                    progress(_progress_line(row))
+    return rows, logs
+
+
+def _settings(
+    models: Sequence[str | Path],
+    maneuvers: Sequence[str],
+    seeds: Sequence[int],
+    samples: Sequence[int],
+    base: MPCConfig,
+    limits: InputLimits,
+    steps: int | None,
+    threads: int,
+) -> dict[str, Any]:
+    """What was flown and where (the machine when the flights ended: timings depend on its
+    load), for ``results.json`` and the report."""
+    return {
+        "models": [str(m) for m in models],
+        "maneuvers": list(maneuvers),
+        "seeds": list(seeds),
+        "samples": [int(k) for k in samples],
+        "mpc": {k: v for k, v in vars(base).items() if k != "samples"},
+        "limits": vars(limits),
+        "arena": vars(Arena()),
+        "steps": steps,
+        "threads": threads,
+        "machine": machine(),
+        "date": date.today().isoformat(),
+    }
+
+
+def _mpc_factory(model, limits, mpc_cfg, params):
+    return lambda seed: SamplingMPC(model, limits, replace(mpc_cfg, seed=seed), params)
+
+
+def _save_log(folder: Path, log: FlightLog) -> None:
+    name = f"{log.maneuver}_s{log.seed}_{log.controller.replace(' ', '_').replace('=', '')}.npz"
+    write_npz(folder / name, {
+        "t": log.t, "states": log.states, "p_ref": log.p_ref, "inputs": log.inputs,
+        "compute": log.compute,
+    })  # fmt: skip
+
+
+def _progress_line(row: dict[str, Any]) -> str:
+    status = "ok" if row["completed"] else f"STOPPED: {row['stopped']}"
+    return (
+        f"{row['maneuver']} seed {row['seed']} {row['controller']}: vehicle "
+        f"{row['vehicle_rmse']:.3f} m, load {row['load_rmse']:.3f} m, swing RMS "
+        f"{row['swing_rms']:.1f} deg, compute median {row['compute_median']:.1f} ms ({status})"
+    )

@@ -1,0 +1,110 @@
+"""What ``slungload control`` measured and its statistics: the typed ``ControlComparison`` (one
+row of ``closed_loop.flight_metrics`` per flight), the means over the seeds per group
+(``summary``), and each network's MPC against MPC + physics at the same K, paired by flight
+(``versus_physics``). Plain numbers, no files: ``comparison`` flies, ``report`` writes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..models.prediction import PHYSICS
+from .closed_loop import FlightLog
+
+COLUMNS = (  # (key, header, format): the error columns of the tables, means over seeds
+    ("vehicle_rmse", "vehicle RMSE (m)", "{:.3f}"),
+    ("load_rmse", "load RMSE (m)", "{:.3f}"),
+    ("swing_rms", "swing RMS (deg)", "{:.1f}"),
+    ("swing_max", "swing max (deg)", "{:.1f}"),
+    ("at_limit", "at a limit (%)", "{:.1f}"),
+)
+PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
+
+
+@dataclass
+class ControlComparison:
+    """What ``compare`` flew and measured; ``rows`` are ``flight_metrics`` dicts plus "K" (None
+    for the PID) and "wall_s"; ``logs`` the flights, in the same order."""
+
+    rows: list[dict[str, Any]]
+    settings: dict[str, Any]
+    out: Path | None = None
+    logs: list[FlightLog] = field(default_factory=list, repr=False)
+
+
+def _mean(values: Sequence[float | None]) -> float:
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
+
+
+def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Means over the seeds (completed flights only for the errors) grouped by ``by``."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in by), []).append(row)
+    out = []
+    for key, group in groups.items():
+        done = [r for r in group if r["completed"]]
+        entry = dict(zip(by, key, strict=True))
+        entry.update({k: _mean([r[k] for r in done]) for k, _, _ in COLUMNS})
+        entry["flights"] = len(group)
+        entry["failed"] = len(group) - len(done)
+        entry["fallbacks"] = sum(r.get("fallback_steps", 0) for r in group)
+        entry["K"] = group[0]["K"]
+        compute = [r["compute_median"] for r in group]
+        entry["compute_median"] = float(np.median(compute))
+        entry["compute_p99"] = float(np.max([r["compute_p99"] for r in group]))
+        out.append(entry)
+    return out
+
+
+@dataclass(frozen=True)
+class VersusPhysics:
+    """One network's MPC against MPC + physics at the same K, over every maneuver flown.
+
+    The means (``network``, ``physics``: key of ``PAIRED`` -> mean; m, deg, m) are over the
+    flights both flew to the end, paired by maneuver and seed; empty when there is none.
+    """
+
+    controller: str
+    samples: int  # K
+    flights: int  # the network's flights
+    failed: int  # of them, ended early
+    stopped: str | None  # why the first of those ended
+    paired: int  # flights both flew to the end
+    physics_failed: int  # flights the network flew to the end and MPC + physics did not
+    network: dict[str, float]
+    physics: dict[str, float]
+
+    def lower(self, key: str) -> float:
+        """How much lower the network's mean of ``key`` is, as a fraction of physics's."""
+        return 1.0 - self.network[key] / self.physics[key]
+
+
+def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
+    """Every network flown in the MPC against MPC + physics at the same K (see
+    ``VersusPhysics``), by K, then by controller name."""
+    out = []
+    mpc = [r for r in rows if r["K"] is not None]
+    for k in sorted({r["K"] for r in mpc}):
+        reference = f"mpc-{PHYSICS} K={k}"
+        at_k = [r for r in mpc if r["K"] == k]
+        physics = {(r["maneuver"], r["seed"]): r for r in at_k if r["controller"] == reference}
+        for net in sorted({r["controller"] for r in at_k} - {reference}):
+            mine = [r for r in at_k if r["controller"] == net]
+            pairs = [(r, physics.get((r["maneuver"], r["seed"]))) for r in mine if r["completed"]]
+            both = [(r, q) for r, q in pairs if q is not None and q["completed"]]
+            means = [{key: _mean([pair[i][key] for pair in both]) for key in PAIRED} if both
+                     else {} for i in (0, 1)]  # fmt: skip
+            failed = [r for r in mine if not r["completed"]]
+            out.append(VersusPhysics(
+                net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
+                len(both), sum(q is not None and not q["completed"] for _, q in pairs), *means,
+            ))  # fmt: skip
+    return out

@@ -1,0 +1,87 @@
+"""The reporting home: one Markdown table helper, one figure saver at one DPI, one colour per
+model, and a machine stamp whose load average never raises."""
+
+from __future__ import annotations
+
+import os
+import re
+import struct
+from pathlib import Path
+
+import pytest
+
+import slungload
+from slungload import reporting
+from slungload.models.prediction import PHYSICS
+
+
+def test_markdown_table_writes_header_rule_and_rows():
+    text = reporting.markdown_table(["a", "b"], [[1, "x"], [None, 2.5]])
+    assert text == "| a | b |\n|---|---|\n| 1 | x |\n| - | 2.5 |"
+    assert reporting.markdown_table(["only"], []) == "| only |\n|---|"
+
+
+def test_save_figure_writes_a_png_at_the_one_dpi(tmp_path):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(2.0, 1.0))
+    fig.add_subplot().plot([0, 1])
+    path = reporting.save_figure(fig, tmp_path / "sub" / "f.png")
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", head[16:24])
+    assert (width, height) == (2 * reporting.DPI, 1 * reporting.DPI)
+    assert [p.name for p in path.parent.iterdir()] == ["f.png"]  # no temporary file left
+
+
+def test_only_the_reporting_home_saves_figures_or_sets_a_dpi():
+    package = Path(slungload.__file__).parent
+    found = {
+        p.relative_to(package).as_posix()
+        for p in package.rglob("*.py")
+        if re.search(r"\.savefig\(|\bdpi\s*=", p.read_text())
+    }
+    assert found == {"reporting.py"}
+
+
+def test_load_average_is_none_where_the_os_has_none(monkeypatch):
+    def fails():
+        raise OSError("no load average here")
+
+    monkeypatch.setattr(os, "getloadavg", fails)
+    assert reporting.load_average() is None and reporting.load_averages() is None
+    assert reporting.machine()["load_average"] is None
+    monkeypatch.delattr(os, "getloadavg")
+    assert reporting.load_average() is None
+    assert reporting.machine()["cores"] == os.cpu_count()
+
+
+def test_load_average_reads_the_os(monkeypatch):
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.5, 1.0, 0.5))
+    assert reporting.load_average() == 1.5
+    assert reporting.machine()["load_average"] == [1.5, 1.0, 0.5]
+
+
+def test_versions_start_with_the_package():
+    found = reporting.versions("numpy")
+    assert list(found) == ["slungload", "numpy"] and found["slungload"] == slungload.__version__
+
+
+def test_model_colors_are_stable_per_label_and_distinct_within_a_figure():
+    assert reporting.PHYSICS_LABEL == PHYSICS
+    labels = [PHYSICS, "proposed", "no-slack", "no-physics", "physics-step/no-physics"]
+    colors = reporting.model_colors(labels)
+    assert colors[PHYSICS] == reporting.PHYSICS_COLOR
+    networks = [colors[la] for la in labels[1:]]
+    assert len(set(networks)) == len(networks) and reporting.PHYSICS_COLOR not in networks
+    # A label's colour does not depend on the labels after it, nor on the process.
+    assert reporting.model_colors(labels[:2]) == {la: colors[la] for la in labels[:2]}
+    assert reporting.model_colors(["proposed", "x"])["proposed"] == colors["proposed"]
+    # Past the palette, colours repeat rather than fail.
+    many = reporting.model_colors(f"run-{i}" for i in range(20))
+    assert len(set(list(many.values())[:9])) == 9 and len(many) == 20
+
+
+@pytest.mark.parametrize("label", ["proposed", "physics-step/no-physics", "ps-exc"])
+def test_model_color_is_a_palette_colour(label):
+    assert reporting.model_colors([label])[label] in reporting.MODEL_COLORS
