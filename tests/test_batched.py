@@ -1,7 +1,8 @@
-"""Batched rollouts for the MPC (deploy/batched.py, deploy/kernels.py): the vectorised kernels
-against exact references, the compiled physics rollout against ``PhysicsModel`` (float64), the
-compiled network against the eager ``NetworkModel`` (float32) for both architectures and every
-model mode, and the backend choice. Nothing is timed here (``slungload benchmark --mpc``)."""
+"""Batched rollouts for the MPC (``deploy/compiled/batched.py``): the compiled physics rollout
+against ``PhysicsModel`` (float64), the compiled network against the eager ``NetworkModel``
+(float32) for both architectures and every model mode, and the backend choice. Their kernels
+and their copy of the physics are tested in ``test_compiled_kernels.py`` and
+``test_compiled_physics.py``. Nothing is timed here (``slungload benchmark --mpc``)."""
 
 from __future__ import annotations
 
@@ -9,17 +10,13 @@ import json
 import math
 from dataclasses import replace
 
-import numpy as np
 import pytest
 import torch
-import torch.nn.functional as F
 from flights import TINY
 from test_prediction import candidate_windows, random_history, random_plans
 
-from slungload import physics
 from slungload.config import MODEL_SIZES, PREDICTION_BACKENDS, ModelConfig, VehicleParams
-from slungload.deploy import kernels
-from slungload.deploy.batched import (
+from slungload.deploy.compiled import (
     BACKENDS,
     CompiledNetworkModel,
     CompiledPhysicsModel,
@@ -29,8 +26,7 @@ from slungload.deploy.batched import (
 from slungload.deploy.predictor import PARITY_TOLERANCE
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.prediction import NetworkModel, PhysicsModel, PredictionModel
-from slungload.physics import VehicleConstants
-from slungload.state import QUAT
+from slungload.state import LOAD_POS, POS, QUAT, VEL
 
 torch.set_num_threads(1)
 
@@ -43,71 +39,15 @@ PHYSICS_STEP = PhysicsStepNet.architecture
 M, N, K = 9, 6, 11
 
 
-# --- kernels --------------------------------------------------------------------------------
-
-
-def test_exp_tanh_sigmoid_match_float64_references():
-    x = np.linspace(-80.0, 80.0, 20_001).astype(np.float32)
-    ref = x.astype(np.float64)
-    exp = np.array([kernels.fexp(v) for v in x[::7]])
-    assert (np.abs(exp - np.exp(ref[::7])) / np.exp(ref[::7])).max() < 2e-7
-    tanh = np.array([kernels.ftanh(v) for v in x[::7]])
-    assert np.abs(tanh - np.tanh(ref[::7])).max() < 2e-7
-    small = np.linspace(-9.0, 9.0, 1001).astype(np.float32)
-    sig = np.array([kernels.fsigmoid(v) for v in small])
-    assert np.abs(sig - 1.0 / (1.0 + np.exp(-small.astype(np.float64)))).max() < 2e-7
-
-
-def test_gelu_matches_torch_exact_gelu():
-    x = (np.random.default_rng(0).standard_normal((37, 53)) * 4).astype(np.float32)
-    want = F.gelu(torch.from_numpy(x).double()).numpy()
-    got = x.copy()
-    kernels.gelu(got)
-    assert np.abs(got - want).max() < 1e-6 * max(1.0, np.abs(x).max())
-
-
-def test_lstm_columns_match_torch_cell():
-    gen = torch.Generator().manual_seed(0)
-    hidden, k = 5, 9
-    cell = torch.nn.LSTMCell(3, hidden)
-    x, h, c = (torch.randn(k, n, generator=gen) for n in (3, hidden, hidden))
-    with torch.no_grad():
-        h_want, c_want = cell(x, (h, c))
-        gates = x @ cell.weight_ih.T + h @ cell.weight_hh.T + cell.bias_ih + cell.bias_hh
-    g, hc, cc = (np.ascontiguousarray(t.T.numpy()) for t in (gates, h, c))
-    kernels.lstm_cols(g, cc, hc)
-    np.testing.assert_allclose(hc.T, h_want.numpy(), atol=1e-6)
-    np.testing.assert_allclose(cc.T, c_want.numpy(), atol=1e-6)
-
-
 # --- the physics model ----------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
-def test_physics_step_in_columns_is_physics_step(params):
-    # Random states and inputs, body rates up to 80 rad/s: half angles beyond 1 rad take the
-    # C library's sin and cos, the others the polynomials.
-    gen = torch.Generator().manual_seed(6)
-    k = 64
-    x = torch.randn(k, 13, generator=gen, dtype=torch.float64)
-    x[:, 6:10] += torch.tensor([2.0, 0, 0, 0])  # any norm: the step normalises
-    u = torch.randn(k, 4, generator=gen, dtype=torch.float64) * torch.tensor([5.0, 20, 20, 20])
-    u[:4, 1:] *= 4.0
-    aux = torch.randn(k, 6, generator=gen, dtype=torch.float64)
-    want_x, want_aux = physics.step(x, u, aux, params)
-    got_x, got_aux = np.empty((13, k)), np.empty((6, k))
-    cols = [np.ascontiguousarray(t.T.numpy()) for t in (x, u, aux)]
-    kernels.physics_step_cols(*cols, VehicleConstants.of(params), np.empty((4, k)), got_x, got_aux)
-    np.testing.assert_allclose(got_x.T, want_x.numpy(), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(got_aux.T, want_aux.numpy(), rtol=0, atol=1e-12)
 
 
 @pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
 def test_compiled_physics_candidates_are_the_physics_model(params):
     gen = torch.Generator().manual_seed(0)
     x_hist, u_past = random_history(4, gen)
-    x_hist[-1, 3:6] = torch.tensor([0.4, -0.3, 0.2])  # moving, with a swinging load
-    x_hist[-1, 10:13] += torch.tensor([0.05, -0.04, 0.0])
+    x_hist[-1, VEL] = torch.tensor([0.4, -0.3, 0.2])  # moving, with a swinging load
+    x_hist[-1, LOAD_POS] += torch.tensor([0.05, -0.04, 0.0])
     plans = random_plans(K, 40, gen, scale=2.0)
     want = PhysicsModel(params).predict_candidates(x_hist, u_past, plans)
     got = CompiledPhysicsModel(params).predict_candidates(x_hist, u_past, plans)
@@ -158,8 +98,8 @@ def random_network(config: ModelConfig, params: VehicleParams, seed: int = 0) ->
 def assert_parity(net: torch.nn.Module, m: int = M, n: int = N, k: int = K, seed: int = 1):
     gen = torch.Generator().manual_seed(seed)
     x_hist, u_past = random_history(m, gen)
-    x_hist[:, :3] += torch.tensor([1.0, -2.0, 0.5])  # away from the origin
-    x_hist[:, 10:13] += torch.tensor([1.0, -2.0, 0.5])
+    x_hist[:, POS] += torch.tensor([1.0, -2.0, 0.5])  # away from the origin
+    x_hist[:, LOAD_POS] += torch.tensor([1.0, -2.0, 0.5])
     plans = random_plans(k, n, gen, scale=1.0)
     want = NetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
     got = CompiledNetworkModel(net, m).predict_candidates(x_hist, u_past, plans)

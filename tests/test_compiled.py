@@ -1,17 +1,15 @@
-"""The Numba batch-1 predictor: its element-wise kernels against exact references, its
-compiled copy of the discrete model against ``physics.py``, and its predictions against the
-eager network for every model mode and both compiled architectures."""
+"""The Numba batch-1 predictor (``deploy/compiled/predictor.py``): its predictions against the
+eager network for every model mode and both compiled architectures, and what it refuses. Its
+kernels are tested in ``test_compiled_kernels.py``, its copy of the discrete model in
+``test_compiled_physics.py``."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 import torch
-import torch.nn.functional as F
 from flights import predict_args
 
 from slungload import physics
@@ -21,18 +19,12 @@ from slungload.deploy.compiled import (
     COMPILED_ARCHITECTURES,
     PARITY_TOLERANCE,
     CompiledPredictor,
-    _estimate_load_state,
-    _exp,
-    _fit_load_state,
-    _gelu,
-    _load_filters,
-    _lstm_update,
-    _physics_step,
     fold,
     unsupported,
 )
+from slungload.deploy.compiled.fold import PHYSICS_STEP as PHYSICS_STEP_MODE
 from slungload.deploy.predictor import Predictor
-from slungload.load_state import estimate_load_state, fit_load_state
+from slungload.load_state import estimate_load_state
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.lstm_attention import SlungLoadNet
 from slungload.physics import VehicleConstants
@@ -47,52 +39,6 @@ OTHER_PARAMS = VehicleParams(
     mass_quad=1.5, mass_load=0.15, cable_length=0.85, load_damping=0.05, dt=0.025,
     gravity=9.8, thrust_gain=1.12,
 )  # fmt: skip
-
-
-def test_exp_matches_numpy_to_float32_precision():
-    x = np.linspace(-80.0, 80.0, 100_001).astype(np.float32)
-    got = x.copy()
-    _exp(got, np.empty(x.shape, np.int32), 0, x.size)
-    want = np.exp(x.astype(np.float64))
-    rel = np.abs(got - want) / want
-    assert rel.max() < 5e-7
-    # Only the requested range is touched.
-    part = x.copy()
-    _exp(part, np.empty(x.shape, np.int32), 10, 20)
-    np.testing.assert_array_equal(part[:10], x[:10])
-    np.testing.assert_array_equal(part[20:], x[20:])
-
-
-def test_gelu_matches_torch_exact_gelu():
-    x = np.linspace(-12.0, 12.0, 24_000).astype(np.float32).reshape(3, -1)
-    got = x.copy()
-    _gelu(got, np.empty(x.size, np.float32), np.empty(x.size, np.int32))
-    want = F.gelu(torch.from_numpy(x).double()).numpy()
-    assert np.abs(got - want).max() < 1e-6
-    assert got[0, 0] == pytest.approx(0.0, abs=1e-9) and got[-1, -1] == pytest.approx(12.0)
-
-
-def test_lstm_update_matches_torch_cell():
-    torch.manual_seed(1)
-    hidden = 20
-    gates = (4 * torch.randn(4 * hidden)).float()
-    c0 = torch.randn(hidden).float()
-    # torch's cell with identity input weights and zero recurrent weights gives gates = input.
-    cell = torch.nn.LSTMCell(4 * hidden, hidden).double()
-    with torch.no_grad():
-        cell.weight_ih.copy_(torch.eye(4 * hidden))
-        cell.weight_hh.zero_()
-        cell.bias_ih.zero_()
-        cell.bias_hh.zero_()
-        h_want, c_want = cell(
-            gates.double()[None], (torch.zeros(1, hidden).double(), c0.double()[None])
-        )
-    c, h = c0.numpy().copy(), np.zeros(hidden, np.float32)
-    _lstm_update(
-        gates.numpy(), c, h, np.empty(5 * hidden, np.float32), np.empty(5 * hidden, np.int32)
-    )
-    np.testing.assert_allclose(c, c_want[0].numpy(), atol=1e-6)
-    np.testing.assert_allclose(h, h_want[0].numpy(), atol=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -138,11 +84,11 @@ def test_quaternion_sign_jumps_and_scale_in_the_history_change_nothing(
     history, future = histories[0], futures[0]
     base = compiled.predict(history, future)
     flipped = history.copy()
-    flipped[20:35, 6:10] *= -1.0  # q and -q: the same attitude
-    flipped[:, 6:10] *= 1.05  # not unit, within the tolerance: normalised on the way in
+    flipped[20:35, QUAT] *= -1.0  # q and -q: the same attitude
+    flipped[:, QUAT] *= 1.05  # not unit, within the tolerance: normalised on the way in
     np.testing.assert_allclose(compiled.predict(flipped, future), base, atol=1e-5)
     np.testing.assert_allclose(predictor.predict(flipped, future), base, atol=PARITY_TOLERANCE)
-    flipped[:, 6:10] *= 1.7  # far from unit: wrong columns or a broken estimator, refused
+    flipped[:, QUAT] *= 1.7  # far from unit: wrong columns or a broken estimator, refused
     for fn in (compiled.predict, predictor.predict):
         with pytest.raises(ValueError, match=r"row 0 has a quaternion of norm 1\.7\d.*x-y-z-w"):
             fn(flipped, future)
@@ -151,7 +97,7 @@ def test_quaternion_sign_jumps_and_scale_in_the_history_change_nothing(
 def test_unbatched_call_and_checks(untrained_predictor):
     compiled = CompiledPredictor(untrained_predictor(), warm_up=False)
     history = np.zeros((M, 17))
-    history[:, 9] = 1.0
+    history[:, QUAT.stop - 1] = 1.0  # w, last in the file layout (x-y-z-w)
     out = compiled.predict(history, np.zeros((7, 4)))
     assert out.shape == (7, STATE_DIM) and np.isfinite(out).all()
     with pytest.raises(ValueError, match=r"CompiledPredictor\.predict.*history"):
@@ -160,79 +106,12 @@ def test_unbatched_call_and_checks(untrained_predictor):
         compiled.predict(history, np.full((7, 4), math.nan))
 
 
-def test_fold_refuses_other_layer_counts():
+def test_other_layer_counts_are_refused_by_the_batch_1_predictor_only():
+    net = SlungLoadNet(ModelConfig(embed_sizes=(64, 64)))
+    assert "three embedding" in unsupported(net)
     with pytest.raises(ValueError, match="three embedding"):
-        fold(SlungLoadNet(ModelConfig(embed_sizes=(64, 64))))
-
-
-# --- the discrete model's compiled copy against physics.py ----------------------------------
-
-
-def random_steps(count: int, dtype, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` random batch-1 arguments of ``physics.step``: rows (count, 17) = (x, u) in the
-    package layout with quaternions of norm 0.5 ... 1.5 (a corrected decoder state need not be
-    unit), thrust around hover, and load states aux (count, 6)."""
-    rng = np.random.default_rng(seed)
-    xu = rng.normal(size=(count, 17))
-    xu[:, 10:13] = xu[:, 0:3] + 0.7 * rng.normal(size=(count, 3)) / np.sqrt(3)
-    xu[:, 6:10] *= rng.uniform(0.5, 1.5, (count, 1)) / np.linalg.norm(xu[:, 6:10], axis=1)[:, None]
-    xu[:, 13] = 14.5 + 3.0 * rng.normal(size=count)
-    xu[:, 14:17] *= 3.0  # rad/s
-    xu[:3, 14:17] = [[0.0, 0.0, 0.0], [1e-5, 0.0, -2e-5], [0.0, 3e-3, 0.0]]  # sinc near zero
-    return xu.astype(dtype), rng.normal(size=(count, 6)).astype(dtype)
-
-
-@pytest.mark.parametrize("params", [VehicleParams(), OTHER_PARAMS], ids=["default", "other"])
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_compiled_physics_step_is_physics_step(params: VehicleParams, dtype):
-    """``_physics_step`` (Numba, one state) equals ``physics.step`` (torch, batched), the one
-    written definition of the model: to round-off in float64, to float32 precision in float32."""
-    xu, aux = random_steps(300, dtype)
-    want_x, want_aux = physics.step(
-        torch.from_numpy(xu[:, :13]), torch.from_numpy(xu[:, 13:]), torch.from_numpy(aux), params
-    )
-    constants = VehicleConstants.of(params)
-    got_x, got_aux = np.empty((len(xu), 13), dtype), np.empty((len(xu), 6), dtype)
-    for i in range(len(xu)):
-        _physics_step(xu[i], aux[i], constants, got_x[i], got_aux[i])
-    rtol, atol = (1e-12, 1e-12) if dtype == np.float64 else (1e-5, 1e-5)
-    np.testing.assert_allclose(got_x, want_x.numpy(), rtol=rtol, atol=atol)
-    np.testing.assert_allclose(got_aux, want_aux.numpy(), rtol=rtol, atol=atol)
-
-
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_compiled_load_state_estimate_is_estimate_load_state(dtype):
-    xu, _ = random_steps(200, dtype, seed=1)
-    pairs = xu[:, :13].reshape(100, 2, 13)  # (prev, last)
-    want = estimate_load_state(torch.from_numpy(pairs), OTHER_PARAMS)[:, -1].numpy()
-    constants = VehicleConstants.of(OTHER_PARAMS)
-    got = np.empty((len(pairs), 6), dtype)
-    for i, (prev, last) in enumerate(pairs):
-        _estimate_load_state(prev, last, constants, got[i])
-    rtol, atol = (1e-12, 1e-12) if dtype == np.float64 else (1e-5, 1e-5)
-    np.testing.assert_allclose(got, want, rtol=rtol, atol=atol)
-
-
-@pytest.mark.parametrize("rows", [50, 9, 5, 3])
-def test_compiled_smoothed_load_state_is_fit_load_state(rows: int):
-    xu, _ = random_steps(20 * rows, np.float64, seed=2)
-    windows = xu[:, :13].reshape(20, rows, 13)
-    model = SimpleNamespace(params=OTHER_PARAMS)
-    filters = _load_filters("smoothed", model)
-    want = fit_load_state(torch.from_numpy(windows[:, -min(rows, 9) :]), OTHER_PARAMS).numpy()
-    got = np.empty((len(windows), 6))
-    for i, window in enumerate(windows):
-        _fit_load_state(window, rows, filters, VehicleConstants.of(OTHER_PARAMS), got[i])
-    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
-    assert _load_filters("difference", model).shape == (0, 0)
-
-
-def test_vehicle_constants_reach_the_compiled_copy_as_floats():
-    # The kernels read VehicleConstants' fields by name (physics.VehicleConstants mirrors every
-    # VehicleParams field, test_physics), as python floats, which Numba types as float64.
-    constants = VehicleConstants.of(OTHER_PARAMS)
-    assert constants._asdict() == dataclasses.asdict(OTHER_PARAMS)
-    assert all(type(value) is float for value in constants)
+        CompiledPredictor(Predictor(net, WindowConfig(), VehicleParams(), "x"), warm_up=False)
+    assert len(fold(net).embed) == 2  # the fold takes any layer count (the batched backend)
 
 
 # --- the physics-step network compiled --------------------------------------------------------
@@ -283,7 +162,8 @@ def test_physics_step_predictions_match_the_eager_network(
     config = ModelConfig(architecture=PHYSICS_STEP, **change)
     predictor = physics_step_predictor(config, params)
     compiled = CompiledPredictor(predictor)
-    assert compiled.weights.physics_step and compiled.weights.architecture == PHYSICS_STEP
+    assert compiled.weights.mode == PHYSICS_STEP_MODE
+    assert compiled.weights.architecture == PHYSICS_STEP
     assert compiled.weights.vehicle == VehicleConstants.of(params)
     flights = [physics_flight(f"t{i}", 100 + i, M + horizon + 15) for i in range(2)]
     windows = make_windows(flights, WindowConfig(history=M, horizon=horizon, stride=5))
@@ -333,7 +213,7 @@ def test_physics_step_needs_two_history_rows(physics_step_predictor):
     predictor.any_history = True
     compiled = CompiledPredictor(predictor, warm_up=False)
     history = np.zeros((1, 17))
-    history[:, 9] = 1.0
+    history[:, QUAT.stop - 1] = 1.0  # w, last in the file layout (x-y-z-w)
     with pytest.raises(ValueError, match=r"M >= 2"):
         compiled.predict(history, np.zeros((3, 4)))
 

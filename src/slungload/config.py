@@ -102,8 +102,8 @@ ARCHITECTURES: dict[str, str] = {
 }
 
 
-# What a prediction model runs on in the MPC (``deploy.batched``, ``control --backend``), first
-# the default; the names live here so the command line lists them without loading torch.
+# What a prediction model runs on in the MPC (``deploy.compiled.batched``, ``control --backend``),
+# first the default; the names live here so the command line lists them without loading torch.
 PREDICTION_BACKENDS: dict[str, str] = {
     "eager": "torch operators (models.prediction)",
     "compiled": "compiled kernels: the physics in one float64 loop, a network in float32",

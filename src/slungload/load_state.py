@@ -4,8 +4,8 @@ The load velocity vL and the load angular velocity Omega_L are not measured; the
 estimated causally from the positions so that a prediction made at step k never uses a sample
 after k: from the last two samples (``estimate_load_state``, the data's and the paper model's
 estimate) or from a least-squares quadratic through the last few (``fit_load_state``, the
-smoothed estimate). Pure batched torch beside ``physics``; the compiled copies in
-``deploy.compiled`` are held to these by parity tests. See ``docs/data.md``.
+smoothed estimate). Pure batched torch beside ``physics``; the compiled copy in
+``deploy.compiled.physics`` is held to these by parity tests. See ``docs/data.md``.
 """
 
 from __future__ import annotations

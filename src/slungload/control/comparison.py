@@ -19,7 +19,7 @@ from typing import Any
 import torch
 
 from ..config import VehicleParams
-from ..deploy.batched import load_model
+from ..deploy.compiled.batched import load_model
 from ..fileio import write_json, write_npz
 from ..models.prediction import PHYSICS, PredictionModel
 from ..reporting import machine

@@ -32,8 +32,8 @@ import torch
 from ..config import ModelConfig, WindowConfig
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..reporting import load_average, machine_line, markdown_table, versions
-from .batched import BACKENDS, with_backend
 from .benchmarks import PACKAGES, benchmark_predictor, physics_windows
+from .compiled.batched import BACKENDS, with_backend
 from .predictor import Predictor, torch_threads
 
 ONNX = "onnxruntime"  # the exported candidates graph (``deploy.onboard.OnnxCandidateModel``)

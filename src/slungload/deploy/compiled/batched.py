@@ -10,13 +10,13 @@ step ~50 float64 ones, and at K = 256-4096 their element-wise work (attention ta
 H, GELUs, gates, quaternions) and allocations cost as much as the matrix products. Here:
 
 - ``CompiledPhysicsModel``: the discrete model rolled out for the K candidates in one compiled
-  call (``kernels.physics_rollout``: ``kernels.physics_step_cols``, the compiled copy of
-  ``physics.step`` over candidates in columns, per step), float64 as ``PhysicsModel``.
-- ``CompiledNetworkModel``: the network's candidates in float32 on the folded weights of the
-  batch-1 predictor (``compiled.fold``: standardisation folded into the first layer, physical
-  units relative to the last position, the head's Linears joined, the residual gain in the last
-  layer). The matrix products go to torch's BLAS with preallocated outputs, everything between
-  them to one ``deploy.kernels`` call each. As in the eager ``forward_candidates`` the encoder
+  call (``physics.physics_rollout``: the compiled copy of ``physics.step`` over candidates in
+  columns, per step), float64 as ``PhysicsModel``.
+- ``CompiledNetworkModel``: the network's candidates in float32 on the weights of the one fold
+  (``fold``: standardisation folded into the first layer, physical units relative to the last
+  position, the head's Linears joined, the residual gain in the last layer), the batch-1
+  predictor's. The matrix products go to torch's BLAS with preallocated outputs, everything
+  between them to one ``kernels`` call each. As in the eager ``forward_candidates`` the encoder
   runs once over the M - 1 shared rows (batch 1) and only its last step at batch K; the
   attention works on the shared rows' keys and context projections once (no K copies of the
   encoder outputs); the last encoder step's embedding is the first decoder step's.
@@ -29,6 +29,7 @@ backend cannot run is a ``ValueError`` naming why, never a silent fallback.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -37,11 +38,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import PREDICTION_BACKENDS, VehicleParams
-from ..data.windows import Windows
-from ..models.lstm_attention import SlungLoadNet
-from ..models.physics_step import PhysicsStepNet
-from ..models.prediction import (
+from ...config import PREDICTION_BACKENDS, VehicleParams
+from ...data.windows import Windows
+from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
+from ...models.prediction import (
     PHYSICS,
     NetworkModel,
     PhysicsModel,
@@ -49,18 +49,13 @@ from ..models.prediction import (
     check_candidates,
     load_prediction_model,
 )
-from ..physics import VehicleConstants
-from ..state import INPUT_DIM, POS, STATE_DIM
-from . import kernels
-from .compiled import (
-    COMPILED_ARCHITECTURES,
-    _estimate_load_state,
-    _fit_load_state,
-    _load_filters,
-)
+from ...physics import VehicleConstants
+from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, fold
+from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
+from .physics import estimate_load_state, fit_load_state, physics_rollout, physics_step_columns
 
 BACKENDS = tuple(PREDICTION_BACKENDS)  # ``load_model``'s choices; eager: models.prediction
-_RESIDUAL, _ABSOLUTE, _PHYSICS_STEP = 0, 1, 2  # ``kernels.next_rows``' modes
+_Q = QUAT.start
 
 
 @dataclass
@@ -82,11 +77,11 @@ class CompiledPhysicsModel:
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
         x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
-        aux = np.empty(6, np.float64)
-        _estimate_load_state(x[0], x[1], self._vehicle, aux)
+        aux = np.empty(AUX_DIM, np.float64)
+        estimate_load_state(x[0], x[1], self._vehicle, aux)
         u = np.ascontiguousarray(plans.detach().cpu().numpy(), np.float64)
         out = np.empty((*u.shape[:2], STATE_DIM), np.float64)
-        kernels.physics_rollout(x[1], aux, u, self._vehicle, out)
+        physics_rollout(x[1], aux, u, self._vehicle, out)
         return torch.from_numpy(out).to(plans.device, plans.dtype)
 
 
@@ -106,23 +101,24 @@ class _Buffers:
 class CompiledNetworkModel:
     """A network's candidates on compiled kernels and torch's BLAS, float32 (see the module).
 
-    net: a ``SlungLoadNet`` or ``PhysicsStepNet`` (``compiled.COMPILED_ARCHITECTURES``, any
-    widths and layer counts; another architecture is a ``ValueError`` naming it); history: its
-    M. ``predict_windows`` is ``NetworkModel``'s.
+    net: a ``SlungLoadNet`` or ``PhysicsStepNet`` (``fold.COMPILED_ARCHITECTURES``, any widths
+    and layer counts; another architecture is a ``ValueError`` naming it); history: its M.
+    ``predict_windows`` is ``NetworkModel``'s.
 
     The K candidates are the columns of every work array (features x K), so that each kernel's
     inner loop runs over the candidates and each product is W (out, in) @ X (in, K).
     """
 
     def __init__(self, net: torch.nn.Module, history: int, name: str = "network") -> None:
-        self.w = fold_columns(net)  # raises, naming why, for what it cannot run
+        folded = fold(net)  # raises, naming why, for what it cannot run
+        self.w = _columns(folded)
         self.name, self.history = name, history
         self._eager = NetworkModel(net, history, name=name)
         self._buffers: _Buffers | None = None
         # The encoder's batch-1 pass takes (in, out) matrices and (L, 4H) biases.
-        rows = lambda t: np.ascontiguousarray(t.numpy().transpose(0, 2, 1))  # noqa: E731
-        w = self.w
-        self._encoder_rows = (rows(w.enc_ih), rows(w.enc_hh), w.enc_b[:, :, 0].numpy())
+        rows = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
+        self._encoder_rows = (rows(folded.enc_ih), rows(folded.enc_hh), folded.enc_b)
+        self._bias0 = folded.dec_b[0]
 
     def predict_windows(self, windows: Windows) -> Tensor:
         return self._eager.predict_windows(windows)
@@ -149,7 +145,7 @@ class CompiledNetworkModel:
                 self._embed(b.t["xu"], b)
             self._decoder_step(b, shared)
             u_next = u_cols[step + 1] if step + 1 < n else no_input
-            kernels.next_cols(
+            _next_columns(
                 b.a["xu"], self._head(b), aux, w.mode, w.add_mean, w.vehicle, u_next, origin,
                 out, step,
             )  # fmt: skip
@@ -172,25 +168,25 @@ class CompiledNetworkModel:
         b.add("ctx_last", gates, k)
         b.add("h", layers, hidden, k)
         b.add("c", layers, hidden, k)
-        b.add("aux", 6, k)
+        b.add("aux", AUX_DIM, k)
         self._buffers = b
         return b
 
     def _load_state(self, x_rel: np.ndarray, aux: np.ndarray) -> np.ndarray:
         """The physics-step network's a_{M-1} (shared by the candidates) into aux (6, K)."""
         w = self.w
-        if w.mode != _PHYSICS_STEP:
+        if w.mode != PHYSICS_STEP:
             return aux
-        one = np.zeros(6, np.float64)
+        one = np.zeros(AUX_DIM, np.float64)
         m = x_rel.shape[0]
         if w.load_filters.shape[0] > 0:
             if m < 3:
                 raise ValueError(
                     f"the smoothed load estimate needs M >= 3 history steps; got M = {m}"
                 )
-            _fit_load_state(x_rel, m, w.load_filters, w.vehicle, one)
+            fit_load_state(x_rel, m, w.load_filters, w.vehicle, one)
         else:
-            _estimate_load_state(x_rel[-2], x_rel[-1], w.vehicle, one)
+            estimate_load_state(x_rel[-2], x_rel[-1], w.vehicle, one)
         aux[:] = one[:, None]
         return aux
 
@@ -203,7 +199,7 @@ class CompiledNetworkModel:
                 h = torch.addmm(bias, weight, h)
             else:
                 h = torch.addmm(bias, weight, h, out=b.t[f"e{i}"])
-            kernels.gelu(h.numpy())
+            gelu(h.numpy())
         return h
 
     def _encode(self, x_rel: np.ndarray, u_past: np.ndarray, b: _Buffers) -> dict:
@@ -219,7 +215,7 @@ class CompiledNetworkModel:
         h1 = np.zeros((layers, hidden), np.float32)
         c1 = np.zeros((layers, hidden), np.float32)
         enc = np.empty((rows.shape[1], hidden), np.float32)  # top layer's outputs
-        kernels.encode_rows(pre, *self._encoder_rows, h1, c1, enc)
+        encode_rows(pre, *self._encoder_rows, h1, c1, enc)
 
         gates, h, c = b.t["gates"], b.t["h"], b.t["c"]
         e = self._embed(b.t["xu"], b)
@@ -228,7 +224,7 @@ class CompiledNetworkModel:
             w_in, x_in = (w.enc_emb, e) if i == 0 else (w.enc_ih[i], h[i - 1])
             torch.addmm(base, w_in, x_in, out=gates)
             c[i] = t(c1[i][:, None])
-            kernels.lstm_cols(b.a["gates"], b.a["c"][i], b.a["h"][i])
+            lstm_cols(b.a["gates"], b.a["c"][i], b.a["h"][i])
         torch.mm(w.att_w, h[layers - 1], out=b.t["keys_last"])
         torch.mm(w.dec_ctx, h[layers - 1], out=b.t["ctx_last"])
         enc_cols = t(np.ascontiguousarray(enc.T))  # (H, M-1)
@@ -248,22 +244,18 @@ class CompiledNetworkModel:
         h, c, gates = b.a["h"], b.a["c"], b.a["gates"]
         tg, th = b.t["gates"], b.t["h"]
         torch.mm(w.att_u, th[layers - 1], out=b.t["query"])
-        kernels.attention_cols(
+        attention_cols(
             b.a["query"], w.att_v, shared["keys"], b.a["keys_last"], b.a["ctx_last"],
             self._bias0, shared["weights"], gates,
         )  # fmt: skip
         tg.addmm_(shared["ctx"], shared["weights_t"])
         tg.addmm_(w.dec_emb, b.t[f"e{len(w.embed) - 1}"])
         tg.addmm_(w.dec_hh[0], th[0])
-        kernels.lstm_cols(gates, c[0], h[0])
+        lstm_cols(gates, c[0], h[0])
         for i in range(1, layers):
             torch.addmm(w.dec_b[i], w.dec_ih[i], th[i - 1], out=tg)
             tg.addmm_(w.dec_hh[i], th[i])
-            kernels.lstm_cols(gates, c[i], h[i])
-
-    @property
-    def _bias0(self) -> np.ndarray:
-        return self.w.dec_b[0, :, 0].numpy()
+            lstm_cols(gates, c[i], h[i])
 
     def _head(self, b: _Buffers) -> np.ndarray:
         """The head on the top hidden state: the state rows (13, K), residual gain folded."""
@@ -272,106 +264,82 @@ class CompiledNetworkModel:
         for i, (weight, bias) in enumerate(head):
             h = torch.addmm(bias, weight, h, out=b.t[f"y{i}"])
             if i < len(head) - 1:
-                kernels.gelu(b.a[f"y{i}"])
+                gelu(b.a[f"y{i}"])
         return b.a[f"y{len(head) - 1}"]
 
 
-class ColumnWeights(NamedTuple):
-    """A network's weights for products on columns (``CompiledNetworkModel``): matrices (out,
-    in), biases (out, 1), float32 torch tensors; the kernels' vectors as numpy float32.
-
-    The arithmetic is the network's, rearranged exactly as ``compiled.fold`` does for batch 1,
-    for any number of embedding and head layers: the standardisation folded into the first
-    embedding layer (which takes (x - origin, u) in physical units), the head's first two
-    Linears joined (``OutputHead.joined``; a head of two Linears without an activation is their
-    product), the residual gain (or the output's standard deviation) folded into its last
-    layer, whose slack rows are dropped. G = 4H gates in PyTorch's order (i, f, g, o).
-    """
+class _Columns(NamedTuple):
+    """``FoldedWeights`` as ``CompiledNetworkModel``'s products take them: matrices (out, in)
+    and biases (out, 1) as float32 torch tensors sharing the folded arrays' memory; the
+    kernels' vectors as numpy."""
 
     embed: list[tuple[Tensor, Tensor]]  # GELU after each
     head: list[tuple[Tensor, Tensor]]  # GELU after each but the last; the last (13, .)
-    enc_emb: Tensor  # (G, E) encoder layer 0 on the embedding
-    enc_ih: Tensor  # (L, G, H) encoder input weights of layers >= 1 (layer 0 unused)
+    enc_emb: Tensor  # (G, E)
+    enc_ih: Tensor  # (L, G, H)
     enc_hh: Tensor  # (L, G, H)
     enc_b: Tensor  # (L, G, 1)
-    att_w: Tensor  # (H, H) keys W enc
-    att_u: Tensor  # (H, H) query U h
+    att_w: Tensor  # (H, H)
+    att_u: Tensor  # (H, H)
     att_v: np.ndarray  # (H,)
-    dec_ctx: Tensor  # (G, H) decoder layer 0 on the context
-    dec_emb: Tensor  # (G, E) decoder layer 0 on the embedding
+    dec_ctx: Tensor  # (G, H)
+    dec_emb: Tensor  # (G, E)
     dec_ih: Tensor  # (L, G, H)
     dec_hh: Tensor  # (L, G, H)
     dec_b: Tensor  # (L, G, 1)
-    add_mean: np.ndarray  # (13,) added to an absolute head's output (zero otherwise)
-    mode: int  # the decoder's state update: _RESIDUAL, _ABSOLUTE or _PHYSICS_STEP
-    origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (``net.origin``)
-    vehicle: VehicleConstants  # f's constants as floats (the physics-step network's)
-    load_filters: np.ndarray  # ``compiled.FoldedWeights.load_filters``
+    add_mean: np.ndarray  # (13,)
+    mode: int  # ``fold.RESIDUAL``, ``ABSOLUTE`` or ``PHYSICS_STEP``
+    origin_shift: np.ndarray  # (3, 13)
+    vehicle: VehicleConstants
+    load_filters: np.ndarray
 
 
-def fold_columns(net: torch.nn.Module) -> ColumnWeights:
-    """``net``'s weights for ``CompiledNetworkModel`` (see ``ColumnWeights``); an architecture
-    it cannot run is a ``ValueError`` naming it."""
-    name = getattr(net, "architecture", type(net).__name__)
-    if name not in COMPILED_ARCHITECTURES or not isinstance(net, SlungLoadNet):
-        raise ValueError(
-            f"the compiled backend does not support the {name!r} architecture (it supports "
-            f"{list(COMPILED_ARCHITECTURES)})"
-        )
-    cfg = net.config
-    with torch.no_grad():
-        d = {k: v.detach().double().cpu() for k, v in net.state_dict().items()}
-        head = [(w.double().cpu(), b.double().cpu()) for w, b in net.head.joined()]
-    f32 = lambda t: t.float().contiguous()  # noqa: E731
-    ms, ss, mu, su = d["state_mean"], d["state_std"], d["input_mean"], d["input_std"]
-    w0, b0 = d["embed.layers.0.weight"], d["embed.layers.0.bias"]  # (E0, 17) on (z, v)
-    first = torch.cat([w0[:, :STATE_DIM] / ss, w0[:, STATE_DIM:] / su], 1)  # on (x - o, u)
-    embed = [(first, b0 - first[:, :STATE_DIM] @ ms - first[:, STATE_DIM:] @ mu)]
-    embed += [(d[f"embed.layers.{i}.weight"], d[f"embed.layers.{i}.bias"])
-              for i in range(1, len(cfg.embed_sizes))]  # fmt: skip
-    if len(net.head.layers) == 2:  # Linear -> Linear, no activation: their product
-        (wa, ba), (wb, bb) = head
-        head = [(wb @ wa, wb @ ba + bb)]
-    gain, add_mean, mode = _output_gain(net, ms, ss)
-    wl, bl = head[-1]
-    head[-1] = (wl[:STATE_DIM] * gain[:, None], bl[:STATE_DIM] * gain)
-    h = cfg.hidden_size
-
-    def lstm(prefix: str) -> tuple[Tensor, Tensor, Tensor]:
-        ih = [d[f"{prefix}.weight_ih_l{i}"] for i in range(cfg.num_layers)]
-        hh = torch.stack([d[f"{prefix}.weight_hh_l{i}"] for i in range(cfg.num_layers)])
-        b = torch.stack([d[f"{prefix}.bias_ih_l{i}"] + d[f"{prefix}.bias_hh_l{i}"]
-                         for i in range(cfg.num_layers)])  # fmt: skip
-        upper = torch.stack([torch.zeros_like(hh[0])] + ih[1:])  # layer 0's input unused
-        return ih[0], upper, hh, b.unsqueeze(-1)
-
-    enc0, enc_ih, enc_hh, enc_b = lstm("encoder")
-    dec0, dec_ih, dec_hh, dec_b = lstm("decoder")
-    return ColumnWeights(
-        embed=[(f32(w), f32(b.unsqueeze(1))) for w, b in embed],
-        head=[(f32(w), f32(b.unsqueeze(1))) for w, b in head],
-        enc_emb=f32(enc0), enc_ih=f32(enc_ih), enc_hh=f32(enc_hh), enc_b=f32(enc_b),
-        att_w=f32(d["attention.W.weight"]), att_u=f32(d["attention.U.weight"]),
-        att_v=d["attention.v.weight"][0].float().numpy(),
-        dec_ctx=f32(dec0[:, :h]), dec_emb=f32(dec0[:, h:]), dec_ih=f32(dec_ih),
-        dec_hh=f32(dec_hh), dec_b=f32(dec_b),
-        add_mean=add_mean.float().numpy(), mode=mode,
-        origin_shift=net.position_shift.double().cpu().numpy(),
-        vehicle=VehicleConstants.of(getattr(net, "params", None) or VehicleParams()),
-        load_filters=_load_filters(cfg.load_estimate, net),
+def _columns(w: FoldedWeights) -> _Columns:
+    t = torch.from_numpy
+    return _Columns(
+        embed=[(t(weight), t(bias)[:, None]) for weight, bias in w.embed],
+        head=[(t(weight), t(bias)[:, None]) for weight, bias in w.head],
+        enc_emb=t(w.enc_emb), enc_ih=t(w.enc_ih), enc_hh=t(w.enc_hh), enc_b=t(w.enc_b)[..., None],
+        att_w=t(w.att_w), att_u=t(w.att_u), att_v=w.att_v,
+        dec_ctx=t(w.dec_ctx), dec_emb=t(w.dec_emb), dec_ih=t(w.dec_ih), dec_hh=t(w.dec_hh),
+        dec_b=t(w.dec_b)[..., None],
+        add_mean=w.add_mean, mode=w.mode, origin_shift=w.origin_shift, vehicle=w.vehicle,
+        load_filters=w.load_filters,
     )  # fmt: skip
 
 
-def _output_gain(net: SlungLoadNet, ms: Tensor, ss: Tensor) -> tuple[Tensor, Tensor, int]:
-    """What scales the head's state rows into a physical update, what is added to them, and
-    the update's mode: the residual gain delta_std (one without normalisation) for residual
-    heads and the physics step, the state's spread and mean for an absolute head."""
-    cfg = net.config
-    mode = _PHYSICS_STEP if isinstance(net, PhysicsStepNet) else _RESIDUAL
-    if not cfg.residual:
-        return ss, ms, _ABSOLUTE
-    gain = net.delta_std.detach().double().cpu() if cfg.normalize else torch.ones_like(ms)
-    return gain, torch.zeros_like(ms), mode
+@jit
+def _next_columns(xu, y, aux, mode, add_mean, vehicle, u_next, origin, out, step):
+    """The decoder's state update for K candidates (columns), and their output rows.
+
+    xu (17, K): (x_k relative to the origin, u_k), float32; y (13, K) the head's state rows
+    (the residual gain folded in); aux (6, K) the load state (physics step). mode (``fold``):
+    RESIDUAL x + y, ABSOLUTE y + add_mean, PHYSICS_STEP f(x, u, aux) + y (``vehicle`` its
+    constants). Then xu's state rows hold x_{k+1}, its input rows u_next (4, K) (when it has
+    columns), and out[:, step] (K, N, 13) x_{k+1} + origin with a unit quaternion, float64.
+    """
+    k = xu.shape[1]
+    if mode == PHYSICS_STEP:
+        x_next, aux_next = np.empty((STATE_DIM, k)), np.empty((AUX_DIM, k))
+        physics_step_columns(xu, aux, vehicle, np.empty((4, k)), x_next, aux_next)
+        for j in range(AUX_DIM):
+            aux[j] = aux_next[j]
+        for j in range(STATE_DIM):
+            xu[j] = x_next[j]
+    for j in range(STATE_DIM):
+        row, yj = xu[j], y[j]
+        for r in range(k):
+            row[r] = yj[r] + add_mean[j] if mode == ABSOLUTE else row[r] + yj[r]
+    if u_next.shape[1] > 0:
+        xu[STATE_DIM:] = u_next
+    for r in range(k):
+        qw, qx = float(xu[_Q, r]), float(xu[_Q + 1, r])
+        qy, qz = float(xu[_Q + 2, r]), float(xu[_Q + 3, r])
+        norm = max(math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz), 1e-12)
+        for j in range(STATE_DIM):
+            out[r, step, j] = xu[j, r] + origin[j]
+        for j in range(4):
+            out[r, step, _Q + j] = xu[_Q + j, r] / norm
 
 
 def with_backend(model: PredictionModel, backend: str) -> PredictionModel:

@@ -1,0 +1,179 @@
+"""The one weight fold of the compiled paths: a network's weights rearranged for the batch-1
+predictor (``predictor``) and the batched backend (``batched``) alike.
+
+The arithmetic is the network's (``models.lstm_attention.SlungLoadNet`` and the architectures
+built on it), rearranged exactly, once, in float64, then rounded to float32:
+
+- the input standardisation is folded into the first embedding layer, so that the compiled
+  decoder runs in physical units relative to the last measured position (``model.origin``);
+- the head's first two Linears (no activation between them) are the network's own joined
+  product (``OutputHead.joined``); a head of two Linears is their product;
+- the residual gain ``delta_std`` (one without normalisation; the state's spread for an
+  absolute head, whose mean is then added) is folded into the head's last layer, and its slack
+  rows are dropped (they are for the loss only);
+- the decoder's first LSTM layer is split into its context and embedding columns, so that the
+  encoder outputs can be projected by the context columns once per window.
+
+The physics-step network (``models.physics_step.PhysicsStepNet``) folds the same way; its
+decoder step adds the folded correction to f(x_k, u_k, a_k) (``physics``), in the network's
+own vehicle constants, with the load estimate it was trained with.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from ...config import VehicleParams
+from ...layout import STATE_DIM
+from ...models.lstm_attention import SlungLoadNet
+from ...models.physics_step import PhysicsStepNet
+from ...physics import VehicleConstants
+from .physics import load_filters
+
+# What ``fold`` knows how to rearrange: architecture name -> the class a model must be.
+_COMPILED_CLASSES: dict[str, type[SlungLoadNet]] = {
+    cls.architecture: cls for cls in (SlungLoadNet, PhysicsStepNet)
+}
+COMPILED_ARCHITECTURES = tuple(_COMPILED_CLASSES)
+
+# The decoder's state update (``FoldedWeights.mode``): x_{k+1} = x_k + out_k (residual),
+# out_k + add_mean (absolute), f(x_k, u_k, a_k) + out_k (the physics step).
+RESIDUAL, ABSOLUTE, PHYSICS_STEP = 0, 1, 2
+
+
+class FoldedWeights(NamedTuple):
+    """A network's weights for the compiled paths: float32 numpy arrays, C order; matrices
+    (out, in) as torch's Linear. Rows of the state blocks are in the package layout (q
+    w-x-y-z); E = the last embedding width, H = LSTM width, L = LSTM layers, G = 4H gates in
+    PyTorch's order (i, f, g, o)."""
+
+    # (W (out, in), b (out,)) per layer, GELU after each; the first on (x - origin, u), in
+    # physical units.
+    embed: tuple[tuple[np.ndarray, np.ndarray], ...]
+    # (W, b) per layer, GELU after each but the last; the last (13, .): the state rows, scaled.
+    head: tuple[tuple[np.ndarray, np.ndarray], ...]
+    enc_emb: np.ndarray  # (G, E) encoder layer 0 on the embedding
+    enc_ih: np.ndarray  # (L, G, H) encoder input weights of layers >= 1 (layer 0's zero)
+    enc_hh: np.ndarray  # (L, G, H)
+    enc_b: np.ndarray  # (L, G) b_ih + b_hh
+    att_w: np.ndarray  # (H, H) keys W enc
+    att_u: np.ndarray  # (H, H) query U h
+    att_v: np.ndarray  # (H,)
+    dec_ctx: np.ndarray  # (G, H) decoder layer 0 on the context
+    dec_emb: np.ndarray  # (G, E) decoder layer 0 on the embedding
+    dec_ih: np.ndarray  # (L, G, H) decoder input weights of layers >= 1 (layer 0's zero)
+    dec_hh: np.ndarray  # (L, G, H)
+    dec_b: np.ndarray  # (L, G)
+    add_mean: np.ndarray  # (13,) added to an absolute head's output (zero otherwise)
+    mode: int  # the decoder's state update: RESIDUAL, ABSOLUTE or PHYSICS_STEP
+    origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (``model.origin``)
+    architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
+    vehicle: VehicleConstants  # f's constants as floats (the model's; defaults where f is unused)
+    # The smoothed load estimate's weights (``physics.load_filters``), float64; (0, 0) for the
+    # backward difference.
+    load_filters: np.ndarray
+
+
+def unsupported_architecture(model: nn.Module) -> str | None:
+    """Why ``fold`` cannot rearrange ``model`` (its architecture), or None when it can."""
+    name = getattr(model, "architecture", type(model).__name__)
+    cls = _COMPILED_CLASSES.get(name)
+    if cls is None or not isinstance(model, cls):
+        return (
+            f"deploy.compiled does not support the {name!r} architecture (it supports "
+            f"{list(COMPILED_ARCHITECTURES)})"
+        )
+    return None
+
+
+def fold(model: SlungLoadNet) -> FoldedWeights:
+    """Rearrange ``model``'s weights for the compiled paths (see the module doc); an
+    architecture it cannot rearrange is a ``ValueError`` naming it."""
+    reason = unsupported_architecture(model)
+    if reason is not None:
+        raise ValueError(reason)
+    cfg = model.config
+    with torch.no_grad():
+        d = {k: v.detach().double().cpu() for k, v in model.state_dict().items()}
+        head = [
+            (w.detach().double().cpu(), b.detach().double().cpu()) for w, b in model.head.joined()
+        ]
+    ms, ss = d["state_mean"], d["state_std"]
+    gain, add_mean, mode = _output_gain(model, ms, ss)
+    enc_emb, enc_ih, enc_hh, enc_b = _lstm(d, "encoder", cfg.num_layers)
+    dec_0, dec_ih, dec_hh, dec_b = _lstm(d, "decoder", cfg.num_layers)
+    h = cfg.hidden_size
+    vehicle = VehicleConstants.of(getattr(model, "params", None) or VehicleParams())
+    return FoldedWeights(
+        embed=tuple((_f32(w), _f32(b)) for w, b in _embedding(d, len(cfg.embed_sizes))),
+        head=tuple((_f32(w), _f32(b)) for w, b in _head(head, len(model.head.layers), gain)),
+        enc_emb=_f32(enc_emb), enc_ih=_f32(enc_ih), enc_hh=_f32(enc_hh), enc_b=_f32(enc_b),
+        att_w=_f32(d["attention.W.weight"]), att_u=_f32(d["attention.U.weight"]),
+        att_v=_f32(d["attention.v.weight"][0]),
+        dec_ctx=_f32(dec_0[:, :h]), dec_emb=_f32(dec_0[:, h:]), dec_ih=_f32(dec_ih),
+        dec_hh=_f32(dec_hh), dec_b=_f32(dec_b),
+        add_mean=_f32(add_mean), mode=mode,
+        origin_shift=_f32(model.position_shift.double().cpu()),
+        architecture=model.architecture,
+        vehicle=vehicle,
+        load_filters=load_filters(cfg.load_estimate, vehicle.dt),
+    )  # fmt: skip
+
+
+def _f32(t: Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.numpy(), dtype=np.float32)
+
+
+def _embedding(d: dict[str, Tensor], layers: int) -> list[tuple[Tensor, Tensor]]:
+    """The embedding's (W, b) per layer, the first rewritten from the standardised inputs
+    z = (x - o - mean) / std, v = (u - mean) / std onto x - o and u."""
+    ms, ss, mu, su = d["state_mean"], d["state_std"], d["input_mean"], d["input_std"]
+    w0, b0 = d["embed.layers.0.weight"], d["embed.layers.0.bias"]  # (E0, 17) on (z, v)
+    first = torch.cat([w0[:, :STATE_DIM] / ss, w0[:, STATE_DIM:] / su], 1)  # on (x - o, u)
+    embed = [(first, b0 - first[:, :STATE_DIM] @ ms - first[:, STATE_DIM:] @ mu)]
+    embed += [(d[f"embed.layers.{i}.weight"], d[f"embed.layers.{i}.bias"])
+              for i in range(1, layers)]  # fmt: skip
+    return embed
+
+
+def _head(
+    joined: list[tuple[Tensor, Tensor]], layers: int, gain: Tensor
+) -> list[tuple[Tensor, Tensor]]:
+    """The head's (W, b) per layer from its joined layers (``OutputHead.joined``) and its
+    number of Linears: a head of two (no activation between them) multiplied into one, the
+    last layer's state rows scaled by ``gain`` (its slack rows dropped)."""
+    head = list(joined)
+    if layers == 2:  # Linear -> Linear, no activation: their product
+        (wa, ba), (wb, bb) = head
+        head = [(wb @ wa, wb @ ba + bb)]
+    wl, bl = head[-1]
+    head[-1] = (wl[:STATE_DIM] * gain[:, None], bl[:STATE_DIM] * gain)
+    return head
+
+
+def _lstm(d: dict[str, Tensor], prefix: str, layers: int) -> tuple[Tensor, ...]:
+    """A stacked LSTM's weights: layer 0's input weights (G, in), the input weights of the
+    layers above (L, G, H) (layer 0's slot zero), the recurrent weights (L, G, H) and the
+    summed biases (L, G)."""
+    ih = [d[f"{prefix}.weight_ih_l{i}"] for i in range(layers)]
+    hh = torch.stack([d[f"{prefix}.weight_hh_l{i}"] for i in range(layers)])
+    b = torch.stack([d[f"{prefix}.bias_ih_l{i}"] + d[f"{prefix}.bias_hh_l{i}"]
+                     for i in range(layers)])  # fmt: skip
+    upper = torch.stack([torch.zeros_like(hh[0])] + ih[1:])  # layer 0's input unused
+    return ih[0], upper, hh, b
+
+
+def _output_gain(net: SlungLoadNet, ms: Tensor, ss: Tensor) -> tuple[Tensor, Tensor, int]:
+    """What scales the head's state rows into a physical update, what is added to them, and
+    the update's mode: the residual gain delta_std (one without normalisation) for residual
+    heads and the physics step, the state's spread and mean for an absolute head."""
+    cfg = net.config
+    mode = PHYSICS_STEP if isinstance(net, PhysicsStepNet) else RESIDUAL
+    if not cfg.residual:
+        return ss, ms, ABSOLUTE
+    gain = net.delta_std.detach().double().cpu() if cfg.normalize else torch.ones_like(ms)
+    return gain, torch.zeros_like(ms), mode
