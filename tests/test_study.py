@@ -87,5 +87,8 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
     runs = sorted(p.name for p in runs_dir.iterdir())
     assert "physics-step-small-no-physics-N4-s0" in runs
     # Without training, the finished runs are evaluated again (and timed afresh).
-    again = study_size(**{**options, "train": False})
+    again = study_size(**{**options, "train": False, "backend": "eager"})
     assert again.rows == study.rows and sorted(p.name for p in runs_dir.iterdir()) == runs
+    assert {t.backend for t in study.timings} == {"compiled"}
+    assert {t.backend for t in again.timings} == {"eager"}
+    assert "eager backend" in (tmp_path / "study" / "size.md").read_text()

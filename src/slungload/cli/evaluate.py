@@ -201,7 +201,7 @@ def add_study(sub: Any) -> None:
 
 
 def _add_study_size(kinds: Any) -> None:
-    from ..config import MODEL_SIZES
+    from ..config import MODEL_SIZES, PREDICTION_BACKENDS
 
     s = kinds.add_parser(
         "size",
@@ -242,6 +242,14 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument("--samples", type=int, default=256, metavar="K", help="plans (default 256)")
     s.add_argument("--steps", type=int, default=15, metavar="N", help="plan steps (default 15)")
     s.add_argument("--repeats", type=int, default=200, help="timed rollouts (default 200)")
+    s.add_argument(
+        "--backend",
+        choices=list(PREDICTION_BACKENDS),
+        default="compiled",
+        help="what the rollouts are timed on: "
+        + "; ".join(f"{k}: {v}" for k, v in PREDICTION_BACKENDS.items())
+        + " (default compiled, the MPC's fast path)",
+    )
     s.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
     s.add_argument(
         "--no-train",
@@ -266,6 +274,7 @@ def cmd_study(args: argparse.Namespace) -> int:
             samples=args.samples,
             steps=args.steps,
             repeats=args.repeats,
+            backend=args.backend,
             epochs=args.epochs,
             workers=args.workers,
             train=not args.no_train,

@@ -5,7 +5,7 @@
 
 What one control step of the MPC costs in prediction: one history (M = 50 rows) and K plans of
 N steps, ``PredictionModel.predict_candidates`` (float64 tensors in and out, as the MPC calls
-it), for the physics model and a network, on every backend of ``deploy.batched.BACKENDS``
+it), for the physics model and a network, on every backend of ``deploy.compiled.BACKENDS``
 (eager torch, compiled kernels) and on ONNX Runtime over the exported candidates graph
 (``deploy.candidates``, numpy in and out, as the onboard MPC calls it). One thread (torch's and
 ONNX Runtime's). The backends of one (model, K, N) are timed interleaved, one call each in

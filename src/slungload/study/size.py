@@ -9,10 +9,12 @@ measures, per size:
 
 - accuracy: combined RMSE at N = ``horizon`` on the **validation** flights (the split to choose
   a configuration on; ``evaluate(..., split="val")``), per seed;
-- cost: one batched rollout in the MPC's shape, ``NetworkModel.predict_candidates`` on float64
-  tensors (as ``control.mpc`` calls it), K = ``samples`` plans of N = ``steps`` steps from the
-  first validation window, one torch thread, the median of ``repeats`` calls after a warm-up
-  (``deploy.timing.time_calls``), with the machine's 1-min load average.
+- cost: one batched rollout in the MPC's shape, ``predict_candidates`` on float64 tensors (as
+  ``control.mpc`` calls it) on a prediction backend (``config.PREDICTION_BACKENDS``: by
+  default "compiled", what the MPC runs with ``--backend compiled``; "eager" for torch's
+  operators), K = ``samples`` plans of N = ``steps`` steps from the first validation window,
+  one thread, the median of ``repeats`` calls after a warm-up (``deploy.timing.time_calls``),
+  with the machine's 1-min load average.
 
 The sizes on the Pareto front (no other size both faster and, by the mean over the seeds,
 more accurate) are then trained with ``front_seeds`` too.
@@ -34,6 +36,7 @@ import torch
 
 from ..config import MODEL_SIZES, WindowConfig
 from ..data.dataset import load_dataset
+from ..deploy.compiled import with_backend
 from ..deploy.timing import time_calls
 from ..evaluation.evaluator import evaluate, horizon_windows
 from ..evaluation.metrics import COMBINED
@@ -61,7 +64,7 @@ class SizeRow:
 
 @dataclass(frozen=True)
 class RolloutTiming:
-    """One size's batched rollout: ``samples`` plans of ``steps`` steps, one torch thread."""
+    """One size's batched rollout: ``samples`` plans of ``steps`` steps, one thread."""
 
     size: str
     parameters: int
@@ -71,6 +74,7 @@ class RolloutTiming:
     steps: int
     repeats: int
     load_average: float | None  # 1-min, when the timing ended
+    backend: str = "eager"  # config.PREDICTION_BACKENDS
 
 
 @dataclass(frozen=True)
@@ -105,6 +109,7 @@ def study_size(
     samples: int = 256,
     steps: int = 15,
     repeats: int = 200,
+    backend: str = "compiled",
     epochs: int | None = None,
     workers: int = 2,
     train: bool = True,
@@ -115,7 +120,8 @@ def study_size(
     Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``.
     With ``train=False`` nothing is trained: the finished runs among those named are
     evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
-    ``epochs`` replaces the preset's epoch budget (its schedule fitted to it)."""
+    ``epochs`` replaces the preset's epoch budget (its schedule fitted to it); ``backend`` is
+    what the rollouts are timed on (``config.PREDICTION_BACKENDS``)."""
     unknown = [s for s in sizes if s not in MODEL_SIZES]
     if unknown or not sizes:
         raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
@@ -132,7 +138,9 @@ def study_size(
     if missing:
         raise FileNotFoundError(f"no finished run of the sizes {missing} under {out / 'runs'}")
     timings = tuple(
-        _time_size(s, finished[s][0], data, samples=samples, steps=steps, repeats=repeats)
+        _time_size(
+            s, finished[s][0], data, samples=samples, steps=steps, repeats=repeats, backend=backend
+        )
         for s in sizes
     )
     rows = _evaluate(data, out, run_of, {s: seeds for s in sizes}, horizon)
@@ -197,11 +205,18 @@ def _evaluate(data, out, run_of, seeds, horizon) -> list[SizeRow]:
 
 
 def _time_size(
-    size: str, run_dir: Path, data: Path, *, samples: int, steps: int, repeats: int
+    size: str,
+    run_dir: Path,
+    data: Path,
+    *,
+    samples: int,
+    steps: int,
+    repeats: int,
+    backend: str = "compiled",
 ) -> RolloutTiming:
     """The batched rollout of one trained run (any seed: the weights do not change the
-    arithmetic) from the first validation window of ``data``, with ``samples`` noisy copies of
-    its inputs as the plans."""
+    arithmetic) on ``backend`` from the first validation window of ``data``, with ``samples``
+    noisy copies of its inputs as the plans."""
     loaded = load_checkpoint(run_dir)
     m = loaded.window.history
     dataset = load_dataset(data, window=WindowConfig(m, steps), params=loaded.params)
@@ -211,7 +226,8 @@ def _time_size(
     plan = window.inputs[0, m - 1 : m - 1 + steps].double()  # (N, 4) u_k ... u_{k+N-1}
     noise = torch.randn(samples, steps, plan.shape[-1], generator=torch.Generator().manual_seed(0))
     plans = plan + 0.1 * noise.double()  # (K, N, 4)
-    model = NetworkModel(loaded.model, m)
+    model = with_backend(NetworkModel(loaded.model, m), backend)
+    model.predict_candidates(x_hist, u_past, plans)  # compiles the kernels before the timing
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -232,6 +248,7 @@ def _time_size(
         steps,
         repeats,
         load_average(),
+        backend,
     )
 
 
@@ -267,10 +284,10 @@ def write_size_study(study: SizeStudy, out: Path) -> None:
         for r in study.rows
     ]
     write_text(out / "size.csv", "\n".join(runs) + "\n")
-    times = ["size,parameters,median_ms,p90_ms,samples,steps,repeats,load_average"]
+    times = ["size,parameters,median_ms,p90_ms,samples,steps,repeats,load_average,backend"]
     times += [
         f"{t.size},{t.parameters},{t.median_ms},{t.p90_ms},{t.samples},{t.steps},{t.repeats},"
-        f"{'' if t.load_average is None else t.load_average}"
+        f"{'' if t.load_average is None else t.load_average},{t.backend}"
         for t in study.timings
     ]
     write_text(out / "timing.csv", "\n".join(times) + "\n")
@@ -301,8 +318,8 @@ def size_table(study: SizeStudy) -> str:
     t = study.timings[0]
     return (
         f"Validation combined RMSE at N = {study.horizon} against one batched rollout "
-        f"(K = {t.samples}, N = {t.steps}, one torch thread, median of {t.repeats} calls)\n\n"
-        + markdown_table(header, rows)
+        f"(K = {t.samples}, N = {t.steps}, {t.backend} backend, one thread, median of "
+        f"{t.repeats} calls)\n\n" + markdown_table(header, rows)
     )
 
 
@@ -336,7 +353,9 @@ def _figure(study: SizeStudy, path: Path) -> None:
     ax.set_xscale("log")
     if timed:
         t, ms = timed[0], [t.median_ms for t in timed]
-        ax.set_xlabel(f"batched rollout, K = {t.samples}, N = {t.steps}, one thread (ms, median)")
+        ax.set_xlabel(
+            f"batched rollout, K = {t.samples}, N = {t.steps}, {t.backend}, one thread (ms, median)"
+        )
         shown = [v for i, v in enumerate(ms) if i == 0 or v / ms[i - 1] > 1.2]  # no overlap
         ax.set_xticks(shown, [f"{v:.1f}" for v in shown])  # the sizes' times
         ax.xaxis.set_minor_locator(NullLocator())
