@@ -243,12 +243,22 @@ def _add_import_sources(p: argparse.ArgumentParser) -> None:
 def _add_import_resampling(p: argparse.ArgumentParser) -> None:
     """How the thrust becomes newtons, where flights split at gaps and how the streams are
     resampled."""
-    p.add_argument(
+    thrust = p.add_mutually_exclusive_group()
+    thrust.add_argument(
         "--hover-throttle",
         type=float,
         metavar="X",
         help="normalised throttle that holds vehicle + load in hover (PX4's MPC_THR_HOVER; "
-        "a ULog's own by default): thrust = throttle / X * (mQ + mL) g",
+        "a ULog's own by default): thrust = throttle / X * (mQ + mL) g; not used (and said so) "
+        "when the thrust is logged in newtons",
+    )
+    thrust.add_argument(
+        "--newtons-per-throttle",
+        type=float,
+        metavar="N",
+        help="thrust in newtons per unit of normalised throttle, from a thrust-stand or a "
+        "hover measurement: thrust = throttle * N (instead of --hover-throttle; unlike "
+        "--thrust-gain, which scales thrust already in newtons inside the model)",
     )
     p.add_argument(
         "--max-gap",
@@ -298,7 +308,19 @@ def _add_import_output(p: argparse.ArgumentParser) -> None:
         help="vehicle constants (JSON; vehicle.json keys or aliases such as mass_quadrotor)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="import flights outside the physical consistency checks (noted, and recorded in "
+        f"vehicle.json); the checks: {_limits_text()}",
+    )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _limits_text() -> str:
+    from ..data.consistency import ConsistencyLimits  # light: no numpy
+
+    return ConsistencyLimits().describe().replace("%", "%%")
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -315,12 +337,14 @@ def cmd_import(args: argparse.Namespace) -> int:
         params = dataclasses.replace(base, **overrides)
     options = ImportOptions(
         hover_throttle=args.hover_throttle,
+        newtons_per_throttle=args.newtons_per_throttle,
         max_gap=args.max_gap,
         on_gap=args.on_gap,
         min_duration=args.min_duration,
         commands=args.commands,
         split=args.split,
         seed=args.seed,
+        force=args.force,
     )
     result = import_logs(
         args.logs,

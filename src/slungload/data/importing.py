@@ -1,32 +1,20 @@
 """``slungload import``: real flight logs (ROS 1 / ROS 2 bags, PX4 ULog, CSV) into a dataset.
 
 Each log is read by its source module in ``data/readers/`` into streams by role, already in the
-package's frames (``readers/logs.py``); this module then, per log:
-
-1. cleans each stream: samples with a NaN (a motion-capture dropout) or a zero quaternion are
-   dropped, repeated stamps keep their first sample, and stamps that go back in time are an
-   error; a stream left empty is an error (for the load: "the load is never seen");
-2. turns a normalised thrust into newtons with the thrust map
-   ``T = throttle / hover_throttle * (mass_quad + mass_load) * gravity`` (the hover throttle
-   holds the vehicle *with its load*; PX4's ``MPC_THR_HOVER``);
-3. keeps the time where every stream has samples, and splits it where any stream has no sample
-   for longer than ``max_gap`` (or stops with an error, ``on_gap="error"``); pieces shorter
-   than ``min_duration`` are dropped with a note;
-4. resamples each piece on a grid of step ``params.dt`` from its first instant: positions and
-   velocities linearly, the attitude by slerp, the commands by holding the last set-point
-   (``commands="hold"``, a set-point holds until the next one; or linearly); without a
-   velocity stream, v is the causal second-order backward difference
-   (3 p_k - 4 p_{k-1} + p_{k-2}) / (2 h) of the resampled position (first order at step 1,
-   step 0 repeats step 1), exact for a quadratic and never looking ahead, like the load-state
-   estimate;
-5. validates the arrays with the ``.npz`` reader's own checks (``readers.npz.from_arrays``).
+package's frames (``readers/logs.py``); ``resample.resample_log`` checks, cleans and resamples
+them into pieces on the dataset's time grid (the thrust map, the gaps, the interpolation: see
+that module). Each piece is validated with the ``.npz`` reader's own checks
+(``readers.npz.from_arrays``) and held to the physical consistency checks
+(``consistency.flight_checks``: the cable length, the load below the vehicle, the attitude
+upright, the thrust against hover); a piece outside them stops the import with a
+``ConsistencyError`` naming the file, the quantity, the value and the likely cause, unless
+``force`` (then noted and recorded in ``vehicle.json``, beside every figure).
 
 Each log's format comes from ``readers.LOG_READERS`` (by suffix; a rosbag2 folder by its
 ``metadata.yaml``), which also names its reader and its section of a mapping file.
 
-Then the flights are split by flight (``split.split_flights``: a seeded draw towards the
-paper's shares of the windows, ``split.SPLIT_FRACTIONS``, or all in ``train``) and written by
-``writer.DatasetWriter`` in the authors' release layout (``OUT/data/NAME.npz``,
+Then the flights are split by recording (``split``: the pieces of one log stay in one split)
+and written by ``writer.DatasetWriter`` in the authors' release layout (``OUT/data/NAME.npz``,
 ``OUT/train.txt`` ... naming files with ``.npz``, ``OUT/vehicle.json`` with the constants and
 how the import was made), all or nothing: a failure leaves nothing behind. A log that cannot be
 imported raises ``LogError`` (a ``ValueError``) naming the file and the topic or column.
@@ -40,46 +28,27 @@ from typing import Any
 
 import numpy as np
 
-from .. import frames
 from .._version import __version__
 from ..config import VehicleParams
 from ..fileio import SPLITS
+from .consistency import (
+    ConsistencyError,
+    ConsistencyLimits,
+    failures,
+    flight_checks,
+    refusal,
+)
 from .flight import FlightFormatError
+from .import_options import ImportOptions
 from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
-from .readers.logs import ROLES, LogError, RawLog, Stream
+from .readers.logs import LogError, RawLog
 from .readers.npz import from_arrays
+from .resample import backward_velocity, resample_log
 from .split import split_flights
 from .writer import DatasetWriter
 
-STAMP_EPS = 1e-6  # s: a sample stamped this close after a grid instant counts as at it
-
-
-@dataclass(frozen=True)
-class ImportOptions:
-    """How logs become flights (defaults stated in the module's docstring)."""
-
-    hover_throttle: float | None = None  # None: the log's own (ULog), else an error if needed
-    max_gap: float = 0.1  # s, longest time a stream may go without a sample
-    on_gap: str = "split"  # "split" the flight at a longer gap, or "error"
-    min_duration: float = 1.0  # s, shorter pieces are dropped
-    commands: str = "hold"  # "hold" the last set-point, or "linear"
-    split: str = "seeded"  # "seeded" draw by flight, or "train" (every flight in train.txt)
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.hover_throttle is not None and not 0.0 < self.hover_throttle <= 1.0:
-            raise ValueError(f"hover throttle must be in (0, 1], got {self.hover_throttle}")
-        if not self.max_gap > 0:
-            raise ValueError(f"max gap must be > 0 s, got {self.max_gap}")
-        if self.min_duration < 0:
-            raise ValueError(f"min duration must be >= 0 s, got {self.min_duration}")
-        for name, known in (
-            ("on_gap", ("split", "error")),
-            ("commands", ("hold", "linear")),
-            ("split", ("seeded", "train")),
-        ):
-            if getattr(self, name) not in known:
-                raise ValueError(f"{name} must be one of {known}, got {getattr(self, name)!r}")
+__all__ = ["ImportOptions", "ImportResult", "backward_velocity", "find_logs", "import_logs",
+           "read_log", "resample_log"]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -183,14 +152,16 @@ def import_logs(
     writer = DatasetWriter(out, overwrite=overwrite, subfolder=DATA_SUBFOLDER)
     logs = find_logs(inputs)
     notes: list[str] = []
+    own_cable = params is not None
     if params is None:
         params = VehicleParams()
         notes.append(
             f"no vehicle constants given: the paper's are used and written to vehicle.json "
-            f"({params})"
+            f"({params}); the cable length |pL - p| is checked only for its spread"
         )
     flights, settings = _import_flights(logs, params, mapping, preset, options, progress, notes)
     _check_flights(flights, params)
+    checks = _consistency(flights, params, options, own_cable, notes)
 
     names = [f.name for f in flights]
     splits = split_by_flight(names, [f.steps for f in flights], options)
@@ -199,7 +170,9 @@ def import_logs(
     with writer:
         for f in flights:
             writer.write_flight(f.name, f.arrays)
-        writer.finish(splits, params, _about(params, options, settings, flights))
+        about = _about(params, options, settings, flights)
+        about["import"]["checks"] = checks
+        writer.finish(splits, params, about)
     return ImportResult(
         writer.out,
         {f.name: f.steps for f in flights},
@@ -229,14 +202,14 @@ def _import_flights(
     bar = tqdm(logs, desc="importing logs", unit="log", disable=not progress or len(logs) < 2)
     for path, kind in bar:
         raw = read_log(path, kind, mapping, preset=preset, progress=progress)
-        pieces, log_notes, hover = resample_log(raw, params, options)
-        notes += raw.notes + log_notes
-        settings[str(path)] = {"format": raw.format, **raw.settings}
-        if hover is not None:
-            settings[str(path)]["hover_throttle"] = hover
+        got = resample_log(raw, params, options)
+        notes += raw.notes + got.notes
+        settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map}
+        if got.forced:
+            settings[str(path)]["forced"] = got.forced
         stem = path.stem if path.is_file() else path.name
-        for k, (start, arrays) in enumerate(pieces):
-            name = stem if len(pieces) == 1 else f"{stem}_{k:02d}"
+        for k, (start, arrays) in enumerate(got.pieces):
+            name = stem if len(got.pieces) == 1 else f"{stem}_{k:02d}"
             flights.append(ImportedFlight(name, path, start, arrays))
     return flights, settings
 
@@ -253,6 +226,46 @@ def _check_flights(flights: list[ImportedFlight], params: VehicleParams) -> None
             from_arrays(f.arrays, f.log, params, f.name)
         except FlightFormatError as exc:
             raise LogError(f"{exc} (flight {f.name} after resampling)") from None
+
+
+def _consistency(
+    flights: list[ImportedFlight],
+    params: VehicleParams,
+    options: ImportOptions,
+    own_cable: bool,
+    notes: list[str],
+) -> dict[str, Any]:
+    """Every flight held to the physical consistency checks: the first flight outside them
+    stops the import (``ConsistencyError``) unless ``options.force``; the figures, and what
+    was forced, for ``vehicle.json``."""
+    figures: dict[str, dict[str, float]] = {}
+    forced: list[str] = []
+    for f in flights:
+        a = f.arrays
+        q = np.asarray(a["attitude"])[:, [3, 0, 1, 2]]  # x-y-z-w -> w-x-y-z
+        found = flight_checks(a["p"], q, a["p_load"], a["T_ref"], params, options.limits,
+                              own_cable=own_cable)  # fmt: skip
+        figures[f.name] = {c.quantity: round(c.value, 6) for c in found}
+        bad = failures(found)
+        if bad:
+            line = refusal(f"{f.log}: flight {f.name}", bad)
+            if not options.force:
+                raise ConsistencyError(line)
+            forced.append(line)
+            notes.append(f"forced: {line}")
+    return {
+        "limits": _limits(options.limits),
+        "cable_reference": "vehicle constants" if own_cable else "own median",
+        "force": options.force,
+        "forced": forced,
+        "figures": figures,
+    }
+
+
+def _limits(limits: ConsistencyLimits) -> dict[str, float]:
+    from dataclasses import asdict
+
+    return asdict(limits)
 
 
 def _about(
@@ -272,10 +285,11 @@ def _about(
                 "commands": options.commands,
                 "missing velocity": "backward difference (3 p_k - 4 p_k-1 + p_k-2) / 2h",
             },
-            "thrust_map": "T = throttle / hover_throttle * (mass_quad + mass_load) * gravity",
+            "thrust_map": "T = throttle / hover_throttle * (mQ + mL) g, or throttle * "
+            "newtons_per_throttle",
             "options": {
                 k: getattr(options, k)
-                for k in ("max_gap", "on_gap", "min_duration", "split", "seed")
+                for k in ("max_gap", "on_gap", "min_duration", "split", "seed", "force")
             },
             "logs": settings,
             "flights": {
@@ -283,181 +297,6 @@ def _about(
             },
         },
     }
-
-
-# --- one log -> flights ---------------------------------------------------------------------
-
-
-def resample_log(
-    raw: RawLog,
-    params: VehicleParams,
-    options: ImportOptions = ImportOptions(),  # noqa: B008
-) -> tuple[list[tuple[float, dict[str, np.ndarray]]], list[str], float | None]:
-    """Pieces of one log as published-schema arrays at step ``params.dt``: a list of (the log's
-    stamp of the first sample, arrays), the notes, and the hover throttle used (or None)."""
-    path = raw.path
-    notes: list[str] = []
-    missing = [r for r in ROLES if r not in raw.streams and r != "velocity"]
-    if missing:
-        raise LogError(f"{path}: no {', '.join(missing)} in the log")
-    streams = {role: _clean(role, s, path, notes) for role, s in raw.streams.items()}
-
-    hover = None
-    if raw.thrust_normalized:
-        hover = options.hover_throttle or raw.hover_throttle
-        source = streams["thrust"].source
-        if hover is None:
-            raise LogError(
-                f"{path}: {source} is a normalised throttle; give the hover throttle (the "
-                "throttle that holds the vehicle with its load, PX4's MPC_THR_HOVER: "
-                "--hover-throttle) to turn it into newtons"
-            )
-        if not 0.0 < hover <= 1.0:
-            raise LogError(f"{path}: hover throttle {hover} is not in (0, 1]")
-        scale = (params.mass_quad + params.mass_load) * params.gravity / hover
-        thrust = streams["thrust"]
-        streams["thrust"] = Stream(thrust.source, thrust.time, thrust.values * scale)
-        how = "given" if options.hover_throttle else f"{path}'s MPC_THR_HOVER"
-        notes.append(
-            f"{path}: thrust = throttle / {hover:g} ({how}) * (mQ + mL) g = "
-            f"throttle * {scale:.4g} N"
-        )
-
-    t0 = min(float(s.time[0]) for s in streams.values())
-    start = max(float(s.time[0]) for s in streams.values())
-    end = min(float(s.time[-1]) for s in streams.values())
-    if end - start < params.dt:
-        spans = "; ".join(
-            f"{s.source}: {s.time[0] - t0:.3f} to {s.time[-1] - t0:.3f} s" for s in streams.values()
-        )
-        raise LogError(f"{path}: the streams do not overlap in time ({spans})")
-    pieces = _pieces(streams, start, end, options, path, t0)
-    kept = [(a, b) for a, b in pieces if b - a >= max(options.min_duration, params.dt)]
-    dropped = len(pieces) - len(kept)
-    if len(pieces) > 1:
-        notes.append(
-            f"{path}: split at {len(pieces) - 1} gaps longer than {options.max_gap} s into "
-            f"{len(pieces)} pieces"
-        )
-    if dropped:
-        notes.append(f"{path}: {dropped} pieces shorter than {options.min_duration} s dropped")
-    if not kept:
-        raise LogError(
-            f"{path}: no piece of at least {options.min_duration} s without a gap longer than "
-            f"{options.max_gap} s"
-        )
-    return [(a, _resample(streams, a, b, params.dt, options)) for a, b in kept], notes, hover
-
-
-def _clean(role: str, stream: Stream, path: Path, notes: list[str]) -> Stream:
-    t, v = np.asarray(stream.time, np.float64), np.asarray(stream.values, np.float64)
-    good = np.isfinite(t) & np.isfinite(v).all(axis=1)
-    if role == "attitude":
-        norm = np.linalg.norm(np.where(np.isfinite(v), v, 0.0), axis=1)
-        good &= norm > 0.5
-        v = v / np.where(norm > 0, norm, 1.0)[:, None]
-    if not good.all() and good.any():
-        notes.append(f"{path}: {stream.source}: {int((~good).sum())} samples without a value")
-    t, v = t[good], v[good]
-    if len(t) == 0:
-        if role == "load":
-            raise LogError(f"{path}: the load is never seen: {stream.source} has no sample")
-        raise LogError(f"{path}: {stream.source} ({role}) has no sample")
-    steps = np.diff(t)
-    back = np.flatnonzero(steps < 0)
-    if len(back):
-        i = back[0] + 1
-        raise LogError(
-            f"{path}: {stream.source}: stamps out of order at message {i} "
-            f"({t[i]:.6f} s after {t[i - 1]:.6f} s)"
-        )
-    repeat = np.flatnonzero(steps == 0) + 1
-    if len(repeat):
-        keep = np.ones(len(t), dtype=bool)
-        keep[repeat] = False
-        t, v = t[keep], v[keep]
-        notes.append(f"{path}: {stream.source}: {len(repeat)} repeated stamps, first sample kept")
-    return Stream(stream.source, t, v)
-
-
-def _pieces(
-    streams: dict[str, Stream],
-    start: float,
-    end: float,
-    options: ImportOptions,
-    path: Path,
-    t0: float,
-) -> list[tuple[float, float]]:
-    """[start, end] without the gaps (longer than max_gap) of any stream."""
-    holes: list[tuple[float, float]] = []
-    for s in streams.values():
-        steps = np.diff(s.time)
-        for i in np.flatnonzero(steps > options.max_gap):
-            a, b = float(s.time[i]), float(s.time[i + 1])
-            if b <= start or a >= end:
-                continue
-            if options.on_gap == "error":
-                raise LogError(
-                    f"{path}: {s.source}: no sample for {b - a:.3f} s from t = {a - t0:.3f} s "
-                    f"(longer than the gap limit of {options.max_gap} s)"
-                )
-            holes.append((a, b))
-    pieces, cursor = [], start
-    for a, b in sorted(holes):
-        if a > cursor:
-            pieces.append((cursor, a))
-        cursor = max(cursor, b)
-    if end > cursor:
-        pieces.append((cursor, end))
-    return pieces
-
-
-def _resample(
-    streams: dict[str, Stream], a: float, b: float, dt: float, options: ImportOptions
-) -> dict[str, np.ndarray]:
-    # float stamps are rounded: a last step short of dt by under STAMP_EPS still counts
-    n = int(np.floor((b - a + STAMP_EPS) / dt)) + 1
-    grid = a + dt * np.arange(n)
-
-    def linear(s: Stream) -> np.ndarray:
-        return np.stack(
-            [np.interp(grid, s.time, s.values[:, j]) for j in range(s.values.shape[1])], 1
-        )
-
-    def command(s: Stream) -> np.ndarray:
-        if options.commands == "linear":
-            return linear(s)
-        i = np.searchsorted(s.time, grid + STAMP_EPS, side="right") - 1
-        return s.values[np.clip(i, 0, len(s.time) - 1)]
-
-    p = linear(streams["position"])
-    if "velocity" in streams:
-        v = linear(streams["velocity"])
-    else:
-        v = backward_velocity(p, dt)
-    q = frames.slerp(grid, streams["attitude"].time, streams["attitude"].values)
-    return {
-        "time": dt * np.arange(n),
-        "p": p,
-        "v": v,
-        "attitude": q[:, [1, 2, 3, 0]],  # w-x-y-z -> x-y-z-w, the files' order
-        "p_load": linear(streams["load"]),
-        "w_ref": command(streams["rates"]),
-        "T_ref": command(streams["thrust"]),
-    }
-
-
-def backward_velocity(p: np.ndarray, dt: float) -> np.ndarray:
-    """Causal velocity from positions (T, 3): (3 p_k - 4 p_{k-1} + p_{k-2}) / (2 dt) from step
-    2, (p_1 - p_0) / dt at step 1, step 0 repeating step 1."""
-    v = np.empty_like(p)
-    if len(p) < 2:
-        v[:] = 0.0
-        return v
-    v[1] = (p[1] - p[0]) / dt
-    v[0] = v[1]
-    v[2:] = (3 * p[2:] - 4 * p[1:-1] + p[:-2]) / (2 * dt)
-    return v
 
 
 # --- splits -----------------------------------------------------------------------------

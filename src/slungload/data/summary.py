@@ -1,6 +1,8 @@
 """What ``slungload inspect`` prints: per split, flights, steps, seconds and windows; value
-ranges (speed, swing, thrust); validation or test maneuvers without a flight in training. No
-windows are built and no cache is used.
+ranges (speed, swing, thrust); the physical consistency checks of every flight
+(``consistency.flight_checks``: their range over the flights, and each flight outside them);
+validation or test maneuvers without a flight in training. No windows are built and no cache
+is used.
 """
 
 from __future__ import annotations
@@ -12,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import VehicleParams, WindowConfig
+from ..config import VEHICLE_FILE, VehicleParams, WindowConfig
 from ..fileio import SPLITS
 from ..state import (
     THRUST,
     split_state,
 )
+from .consistency import Check, flight_checks
 from .dataset import check_folder, read_splits, resolve_params
 from .flight import DatasetError, DataWarning, Flight
 from .readers import load_flight
@@ -35,6 +38,18 @@ class SplitSummary:
 
 
 @dataclass(frozen=True)
+class CheckSummary:
+    """One consistency figure over a dataset's flights: its range, its limit, the flights
+    outside it (with the likely cause)."""
+
+    low: float
+    high: float
+    limit: str
+    outside: tuple[str, ...] = ()
+    cause: str = ""
+
+
+@dataclass(frozen=True)
 class DatasetSummary:
     """What ``slungload inspect`` prints: sizes per split, ranges of the data, the constants."""
 
@@ -49,6 +64,7 @@ class DatasetSummary:
     # split -> maneuvers (``maneuver_of``) with no flight in training: a test on them measures
     # extrapolation to new kinds of motion, not prediction of known ones
     unseen: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    checks: dict[str, CheckSummary] = field(default_factory=dict)  # quantity -> over flights
 
     def to_table(self) -> str:
         p, w = self.params, self.window
@@ -72,6 +88,7 @@ class DatasetSummary:
         lines += ["", f"{'quantity':<28}{'min':>9}{'median':>9}{'max':>9}"]
         for name, (lo, mid, hi) in self.ranges.items():
             lines.append(f"{name:<28}{lo:>9.3f}{mid:>9.3f}{hi:>9.3f}")
+        lines += _check_lines(self.checks)
         if "train" in self.splits:
             lines.append("")
             unseen = [f"{k}: {', '.join(v)}" for k, v in self.unseen.items() if v]
@@ -111,6 +128,8 @@ def summarize(
     splits: dict[str, SplitSummary] = {}
     skipped: list[str] = []
     samples: dict[str, list[np.ndarray]] = {k: [] for k in _RANGES}
+    own_cable = source != "paper defaults" and _cable_reference(folder) != "own median"
+    found: list[tuple[str, Check]] = []
     for split, split_names in names.items():
         flights = [load_flight(paths[n], params, notes) for n in split_names]
         skipped += [f.name for f in flights if len(f) < window.length]
@@ -123,6 +142,7 @@ def summarize(
         for f in flights:
             for key, fn in _RANGES.items():
                 samples[key].append(fn(f))
+            found += [(f.name, c) for c in _flight_checks(f, params, own_cable)]
     for note in notes:
         warnings.warn(note, DataWarning, stacklevel=2)
     ranges = {}
@@ -137,8 +157,61 @@ def summarize(
         if split != "train" and "train" in names
     }
     return DatasetSummary(
-        folder, params, source, window, splits, ranges, tuple(skipped), tuple(notes), unseen
-    )
+        folder, params, source, window, splits, ranges, tuple(skipped), tuple(notes), unseen,
+        _gather(found),
+    )  # fmt: skip
+
+
+def _flight_checks(f: Flight, params: VehicleParams, own_cable: bool) -> tuple[Check, ...]:
+    p, _, q, p_load = split_state(f.states)
+    return flight_checks(p, q, p_load, f.inputs[:, THRUST][:, 0], params, own_cable=own_cable)
+
+
+def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
+    """Per quantity: the range over the flights and the flights outside the limit."""
+    out: dict[str, CheckSummary] = {}
+    for quantity in dict.fromkeys(c.quantity for _, c in found):
+        mine = [(name, c) for name, c in found if c.quantity == quantity]
+        values = [c.value for _, c in mine]
+        bad = [(name, c) for name, c in mine if not c.ok]
+        out[quantity] = CheckSummary(
+            min(values),
+            max(values),
+            mine[0][1].limit,
+            tuple(name for name, _ in bad),
+            bad[0][1].cause if bad else "",
+        )
+    return out
+
+
+def _check_lines(checks: dict[str, CheckSummary]) -> list[str]:
+    if not checks:
+        return []
+    lines = [
+        "",
+        f"{'consistency check':<38}{'min':>9}{'max':>9}  {'expected':<28}outside",
+    ]
+    for quantity, c in checks.items():
+        lines.append(
+            f"{quantity:<38}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}{len(c.outside) or '-'}"
+        )
+    for quantity, c in checks.items():
+        if c.outside:
+            names = ", ".join(c.outside[:5]) + (" ..." if len(c.outside) > 5 else "")
+            lines.append(f"outside: {quantity}: {names}; likely {c.cause}")
+    return lines
+
+
+def _cable_reference(folder: Path) -> str | None:
+    """How ``slungload import`` checked the cable length ("vehicle constants" or "own
+    median", the latter when no constants were given), from ``vehicle.json``."""
+    import json
+
+    try:
+        data = json.loads((folder / VEHICLE_FILE).read_text(encoding="utf-8"))
+        return data["import"]["checks"]["cable_reference"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def maneuver_of(flight: str) -> str:

@@ -4,9 +4,12 @@ The mapping keys (defaults in ``CSV_DEFAULTS``: the published schema's keys with
 ``_y``, ``_z``, ``_w`` suffixes) name the columns of time, ``p`` (3), ``v`` (3, optional:
 ``""`` or absent columns give finite differences of ``p``), ``attitude`` (4, in the order
 x, y, z, w), ``p_load`` (3), ``w_ref`` (3) and ``T_ref`` (1); ``time_unit`` ("s", "ms", "us",
-"ns") scales the time column; ``thrust`` says whether ``T_ref`` is in newtons ("N") or a
-normalised throttle ("normalized", converted by the thrust map); ``world`` ("enu" or "ned"),
-``body`` (the attitude's body axes) and ``rates`` (the body rates' axes) are "flu" or "frd".
+"ns") scales the time column (not given: seconds, unless the median step is too long for a
+flight log, over ``ConsistencyLimits.max_step``; then ms, us or ns, with a note); ``thrust``
+says whether ``T_ref`` is in newtons ("N") or a normalised throttle ("normalized", converted
+by the thrust map); ``world`` ("enu" or "ned"), ``body`` (the attitude's body axes) and
+``rates`` (the body rates' axes) are "flu" or "frd". The load's columns must not be the
+vehicle's (its position would be the vehicle's: refused by name).
 
 Streams may be logged at different rates in one file: a blank cell means "not sampled in this
 row", and each quantity uses the rows where all its columns hold a number. A cell that is
@@ -73,10 +76,19 @@ def read_csv(
     def numbers(name: str, key: str) -> np.ndarray:
         return _numbers(path, header, body_rows, name, key)
 
+    if _columns(settings, "p_load", path) == _columns(settings, "p", path):
+        raise LogError(
+            f"{path}: the load's columns (mapping key 'p_load') are the vehicle's own ('p': "
+            f"{', '.join(_columns(settings, 'p', path) or [])}): |pL - p| would be 0; map "
+            "p_load to the load's position columns"
+        )
     time_col = _columns(settings, "time", path)
     if time_col is None:
         raise LogError(f"{path}: mapping key 'time' must name the time column")
-    time = numbers(time_col[0], "time") * TIME_UNITS[unit]
+    time = numbers(time_col[0], "time")
+    if "time_unit" not in (mapping or {}):
+        unit = _detect_unit(time, path, notes)
+    time = time * TIME_UNITS[unit]
     stamped = np.isfinite(time)
     streams: dict[str, Stream] = {}
     for key, role in _ROLE.items():
@@ -94,6 +106,28 @@ def read_csv(
         source = f"column{'s' if len(names) > 1 else ''} {', '.join(names)}"
         streams[role] = Stream(source, time[rows_of], v)
     return RawLog(path, "csv", streams, thrust_unit == "normalized", settings, notes)
+
+
+def _detect_unit(time: np.ndarray, path: Path, notes: list[str]) -> str:
+    """The time unit when the mapping gives none: seconds, unless the median step is too long
+    for a flight log (``ConsistencyLimits.max_step``); then the first of ms, us, ns that puts
+    it within the limits, with a note."""
+    from ..consistency import ConsistencyLimits
+
+    limits = ConsistencyLimits()
+    steps = np.diff(time[np.isfinite(time)])
+    step = float(np.median(steps)) if len(steps) else 0.0
+    if step <= limits.max_step:
+        return "s"
+    for unit in ("ms", "us", "ns"):
+        if limits.min_step <= step * TIME_UNITS[unit] <= limits.max_step:
+            notes.append(
+                f"{path}: no time_unit given and the time column's median step is {step:g}: "
+                f'read as {unit} (a step of {step * TIME_UNITS[unit]:g} s); set time_unit = "s" '
+                "in the mapping if it is seconds"
+            )
+            return unit
+    return "s"
 
 
 def _read_rows(path: Path) -> tuple[list[str], list[list[str]]]:
