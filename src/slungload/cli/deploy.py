@@ -114,7 +114,6 @@ def add_benchmark(sub: Any) -> None:
 def cmd_benchmark(args: argparse.Namespace) -> int:
     from ..config import ModelConfig
     from ..deploy.benchmarks import benchmark
-    from ..fileio import write_text
 
     if args.mpc:
         return _benchmark_mpc(args)
@@ -127,17 +126,12 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
         args.run, quick=args.quick, threads=args.threads, train=not args.no_train,
         model_config=config,
     )  # fmt: skip
-    table = result.markdown()
-    if args.out:
-        write_text(args.out, table)
-    print(table)
-    return 0
+    return _show(result.markdown(), args.out)
 
 
 def _benchmark_mpc(args: argparse.Namespace) -> int:
     from ..config import ModelConfig
     from ..deploy.mpc_benchmark import benchmark_mpc
-    from ..fileio import write_text
 
     if args.run is not None and (args.model or args.size):
         raise ValueError("--model and --size build a random network; a RUN_DIR brings its own")
@@ -146,8 +140,14 @@ def _benchmark_mpc(args: argparse.Namespace) -> int:
         args.run, samples=args.samples, horizons=args.horizons, quick=args.quick,
         model_config=config,
     )  # fmt: skip
-    table = result.markdown()
-    if args.out:
-        write_text(args.out, table)
+    return _show(result.markdown(), args.out)
+
+
+def _show(table: str, out: Path | None) -> int:
+    """Print a benchmark's Markdown, written to ``out`` as well where given."""
+    from ..fileio import write_text
+
+    if out:
+        write_text(out, table)
     print(table)
     return 0

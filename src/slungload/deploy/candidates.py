@@ -35,7 +35,7 @@ from ..layout import STATE_DIM
 from ..models.prediction import PHYSICS, PhysicsModel
 from ..state import with_unit_quaternion
 from . import onboard
-from .onnx import OPSET, OnnxModelError, _check_model_path, _load, _version, export_name
+from .onnx import OPSET, OnnxModelError, _check_model_path, _load, export_name, export_record
 from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
 
 CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
@@ -157,14 +157,7 @@ def export_for_mpc(
             "variant": src.variant,
             "configs": src.configs,
             "source": src.source,
-            "export": {
-                "opset": opset,
-                "torch": _version("torch"),
-                "onnx": _version("onnx"),
-                "onnxruntime": ort.__version__,
-                "max_abs_diff_vs_torch": diff,
-                "checked_candidates": list(CHECK_CANDIDATES),
-            },
+            "export": {**export_record(opset, diff), "checked_candidates": list(CHECK_CANDIDATES)},
         },
     )
     return MPCExportResult(out, sidecar, horizon, m, opset, diff, time.perf_counter() - start)

@@ -42,6 +42,7 @@ from ..fileio import atomic_path, write_json
 from ..layout import HISTORY_DIM, STATE_COLUMNS
 from ..models.checkpoints import load_checkpoint
 from ..models.registry import require_architecture
+from ..reporting import versions
 from ..state import (
     GROUP_UNITS,
     GROUPS,
@@ -209,7 +210,7 @@ def export(
         {
             "format": FORMAT,
             "format_version": FORMAT_VERSION,
-            "package_version": _package_version(),
+            "package_version": __version__,
             "model_file": out.name,
             "model_sha256": digest,
             "history": m,
@@ -219,13 +220,7 @@ def export(
             "variant": predictor.variant,
             "configs": configs,
             "source": source,
-            "export": {
-                "opset": opset,
-                "torch": _version("torch"),
-                "onnx": _version("onnx"),
-                "onnxruntime": ort.__version__,
-                "max_abs_diff_vs_torch": diff,
-            },
+            "export": export_record(opset, diff),
         },
     )
     return ExportResult(out, sidecar, n, m, opset, diff, time.perf_counter() - start)
@@ -432,11 +427,9 @@ def read_sidecar(model_path: str | Path) -> dict[str, Any]:
     )
 
 
-def _package_version() -> str:
-    return __version__
-
-
-def _version(module: str) -> str:
-    import importlib
-
-    return str(getattr(importlib.import_module(module), "__version__", "unknown"))
+def export_record(opset: int, diff: float) -> dict[str, Any]:
+    """The sidecar's "export" entry: the opset, the exporting libraries' versions and the
+    largest |onnx - torch| of the export-time check."""
+    found = versions("torch", "onnx", "onnxruntime")
+    return {"opset": opset, **{k: found[k] for k in ("torch", "onnx", "onnxruntime")},
+            "max_abs_diff_vs_torch": diff}  # fmt: skip
