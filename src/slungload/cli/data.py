@@ -151,14 +151,16 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def add_split(sub: Any) -> None:
-    from ..data.split import SPLIT_FRACTIONS  # light: no torch, no numpy
+    from ..data.split import SPLIT_FRACTIONS, WINDOW_STEPS  # light: no torch, no numpy
 
     p = new_command(
         sub,
         "split",
         "write the split lists of a folder of flights",
-        "Write train.txt, val.txt and test.txt (by flight): name the validation and test "
-        "flights, or give their shares for a seeded random draw; every other flight trains.",
+        "Write train.txt, val.txt and test.txt by recording (the pieces of one imported log "
+        "stay together): name the validation and test flights, or give their shares for a "
+        "seeded random draw; every other flight trains. With one or two recordings, --blocks "
+        "cuts each in time instead.",
     )
     p.add_argument("data", type=Path, help="dataset folder")
     p.add_argument(
@@ -177,6 +179,21 @@ def add_split(sub: Any) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the random draw (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace existing split lists")
+    p.add_argument(
+        "--blocks",
+        action="store_true",
+        help="cut each recording in time into a train, a val and a test block (the paper's "
+        "shares of its steps, in that order): rewrites the folder, NAME -> NAME_train, "
+        "NAME_val, NAME_test",
+    )
+    p.add_argument(
+        "--gap",
+        type=int,
+        default=WINDOW_STEPS,
+        metavar="STEPS",
+        help="steps left out between blocks, at least the M + N of the training windows "
+        f"(default {WINDOW_STEPS})",
+    )
     p.set_defaults(func=cmd_split)
 
 
@@ -188,8 +205,12 @@ def _share_or_names(text: str) -> float | list[str]:
 
 
 def cmd_split(args: argparse.Namespace) -> int:
-    from ..data.split import split_dataset
+    from ..data.split import split_blocks, split_dataset
 
+    if args.blocks:
+        splits = split_blocks(args.data, gap=args.gap)
+        print(", ".join(f"{s}: {', '.join(names)}" for s, names in splits.items()))
+        return 0
     splits = split_dataset(
         args.data, val=args.val, test=args.test, seed=args.seed, overwrite=args.overwrite
     )
@@ -291,14 +312,23 @@ def _add_import_resampling(p: argparse.ArgumentParser) -> None:
 def _add_import_output(p: argparse.ArgumentParser) -> None:
     """How the flights are split into train/val/test, the vehicle constants and the run's
     output."""
-    from ..data.split import shares_text
+    from ..data.split import WINDOW_STEPS, shares_text
 
     p.add_argument(
         "--split",
-        choices=("seeded", "train"),
+        choices=("seeded", "train", "blocks"),
         default="seeded",
-        help=f"a seeded split by flight toward {shares_text()} %% of windows (default), or all in "
-        "train",
+        help=f"a seeded split by recording (the pieces of one log together) toward "
+        f"{shares_text()} %% of windows (default; all in train with fewer than 3 recordings), "
+        "all in train, or each recording cut in time into train, val and test blocks",
+    )
+    p.add_argument(
+        "--block-gap",
+        type=int,
+        default=WINDOW_STEPS,
+        metavar="STEPS",
+        help="steps left out between time blocks (--split blocks), at least the M + N of the "
+        f"training windows (default {WINDOW_STEPS})",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the split (default 0)")
     p.add_argument(
@@ -343,6 +373,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         min_duration=args.min_duration,
         commands=args.commands,
         split=args.split,
+        block_gap=args.block_gap,
         seed=args.seed,
         force=args.force,
     )

@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from .consistency import ConsistencyLimits
+from .split import WINDOW_STEPS
 
 
 @dataclass(frozen=True)
@@ -19,7 +20,8 @@ class ImportOptions:
     on_gap: str = "split"  # "split" the flight at a longer gap, or "error"
     min_duration: float = 1.0  # s, shorter pieces are dropped
     commands: str = "hold"  # "hold" the last set-point, or "linear"
-    split: str = "seeded"  # "seeded" draw by flight, or "train" (every flight in train.txt)
+    split: str = "seeded"  # "seeded" draw by recording, "train" (all), or "blocks" in time
+    block_gap: int = WINDOW_STEPS  # steps left out between time blocks, at least M + N
     seed: int = 0
     force: bool = False  # import flights outside the consistency limits (noted, recorded)
     limits: ConsistencyLimits = field(default_factory=ConsistencyLimits)
@@ -36,12 +38,14 @@ class ImportOptions:
                 raise ValueError("give the hover throttle or the newtons per throttle, not both")
         if not self.max_gap > 0:
             raise ValueError(f"max gap must be > 0 s, got {self.max_gap}")
+        if self.block_gap < 1:
+            raise ValueError(f"block gap must be >= 1 step, got {self.block_gap}")
         if self.min_duration < 0:
             raise ValueError(f"min duration must be >= 0 s, got {self.min_duration}")
         for name, known in (
             ("on_gap", ("split", "error")),
             ("commands", ("hold", "linear")),
-            ("split", ("seeded", "train")),
+            ("split", ("seeded", "train", "blocks")),
         ):
             if getattr(self, name) not in known:
                 raise ValueError(f"{name} must be one of {known}, got {getattr(self, name)!r}")

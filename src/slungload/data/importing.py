@@ -44,7 +44,7 @@ from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
 from .readers.logs import LogError, RawLog
 from .readers.npz import from_arrays
 from .resample import backward_velocity, resample_log
-from .split import split_flights
+from .split import split_flights, time_blocks
 from .writer import DatasetWriter
 
 __all__ = ["ImportOptions", "ImportResult", "backward_velocity", "find_logs", "import_logs",
@@ -163,10 +163,7 @@ def import_logs(
     _check_flights(flights, params)
     checks = _consistency(flights, params, options, own_cable, notes)
 
-    names = [f.name for f in flights]
-    splits = split_by_flight(names, [f.steps for f in flights], options)
-    if options.split == "seeded" and len(flights) < 3:
-        notes.append(f"{len(flights)} flight(s): all in train.txt (a split needs 3 or more)")
+    flights, splits = split_by_recording(flights, options, params, notes)
     with writer:
         for f in flights:
             writer.write_flight(f.name, f.arrays)
@@ -289,7 +286,15 @@ def _about(
             "newtons_per_throttle",
             "options": {
                 k: getattr(options, k)
-                for k in ("max_gap", "on_gap", "min_duration", "split", "seed", "force")
+                for k in (
+                    "max_gap",
+                    "on_gap",
+                    "min_duration",
+                    "split",
+                    "block_gap",
+                    "seed",
+                    "force",
+                )
             },
             "logs": settings,
             "flights": {
@@ -302,13 +307,50 @@ def _about(
 # --- splits -----------------------------------------------------------------------------
 
 
-def split_by_flight(
-    names: list[str], steps: list[int], options: ImportOptions
-) -> dict[str, list[str]]:
-    """Whole flights per split: all in train, or the seeded draw of ``split.split_flights``
-    (each flight, longest first, goes to the split furthest below its share of the windows,
-    ``SPLIT_FRACTIONS``; every split gets one when there are three or more)."""
-    if options.split == "train" or len(names) < 3:
-        return {"train": sorted(names), "val": [], "test": []}
-    splits = split_flights(names, steps, np.random.default_rng(options.seed))
-    return {s: list(v) for s, v in splits.items()}
+def split_by_recording(
+    flights: list[ImportedFlight], options: ImportOptions, params: VehicleParams, notes: list[str]
+) -> tuple[list[ImportedFlight], dict[str, list[str]]]:
+    """The flights and their split lists: all in train; the seeded draw of
+    ``split.split_flights`` by recording (the pieces of one log stay in one split; each
+    recording, largest first, goes to the split furthest below its share of the windows,
+    ``SPLIT_FRACTIONS``; every split gets one when there are three or more); or each recording
+    cut in time (``split.time_blocks``: the flights become ``NAME_train``, ``NAME_val``,
+    ``NAME_test``)."""
+    names = [f.name for f in flights]
+    logs = [str(f.log) for f in flights]
+    count = len(set(logs))
+    if options.split == "blocks":
+        return _time_blocks(flights, options, params)
+    if options.split == "train" or count < 3:
+        if options.split == "seeded":
+            notes.append(
+                f"{count} recording(s) ({len(flights)} flight(s)): all in train.txt; a split by "
+                "recording needs 3 or more. Cut each recording in time instead: --split blocks "
+                "(or slungload split --blocks on the dataset)"
+            )
+        return flights, {"train": sorted(names), "val": [], "test": []}
+    steps = [f.steps for f in flights]
+    rng = np.random.default_rng(options.seed)
+    splits = split_flights(names, steps, rng, recordings=logs)
+    return flights, {s: list(v) for s, v in splits.items()}
+
+
+def _time_blocks(
+    flights: list[ImportedFlight], options: ImportOptions, params: VehicleParams
+) -> tuple[list[ImportedFlight], dict[str, list[str]]]:
+    out: list[ImportedFlight] = []
+    splits: dict[str, list[str]] = {s: [] for s in SPLITS}
+    for log in dict.fromkeys(f.log for f in flights):
+        pieces = [f for f in flights if f.log == log]
+        try:
+            blocks = time_blocks([f.steps for f in pieces], options.block_gap)
+        except ValueError as exc:
+            raise LogError(f"{log}: {exc}") from None
+        for i, a, b, split in blocks:
+            f = pieces[i]
+            arrays = {k: v[a:b] for k, v in f.arrays.items()}
+            arrays["time"] = arrays["time"] - arrays["time"][0]
+            name = f"{f.name}_{split}"
+            out.append(ImportedFlight(name, log, f.start + a * params.dt, arrays))
+            splits[split].append(name)
+    return out, splits

@@ -104,7 +104,9 @@ class WindowData(L.LightningDataModule):
         super().__init__()
         if len(train) == 0 or len(val) == 0:
             raise ValueError(
-                f"training needs windows in both splits; got train {len(train)}, val {len(val)}"
+                f"training needs windows in both splits; got train {len(train)}, val {len(val)}: "
+                "write the split lists with slungload split (by recording; --blocks cuts one "
+                "or two recordings in time), or import with --split blocks"
             )
         self.train_windows, self.config = train, config
         if val_windows is not None and val_windows < len(val):
