@@ -306,7 +306,7 @@ BAD_BAGS = {
         ["--on-gap", "error"],
     ),
     "stamps out of order": (_out_of_order, [LOAD, "out of order at message 41"], []),
-    "load never seen": (_never_seen, [LOAD, "load is never seen"], []),
+    "load never seen": (_never_seen, [LOAD, "load is never seen", "300 messages but none"], []),
     "load topic empty": (_no_load_messages, [LOAD, "load is never seen", "no message"], []),
     "rates ignored": (_ignored_rates, [CMD, "type_mask 7", "body rates"], []),
 }

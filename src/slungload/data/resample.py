@@ -242,8 +242,9 @@ def _pieces(
                     "flight there instead)"
                 )
             holes.append((a, b, s.source))
+    holes = sorted(set(holes))  # a topic that feeds two streams has its gaps twice
     pieces, cursor = [], start
-    for a, b, _ in sorted(holes):
+    for a, b, _ in holes:
         if a > cursor:
             pieces.append((cursor, a))
         cursor = max(cursor, b)
@@ -270,7 +271,7 @@ def _no_piece(
 ) -> str:
     """Why no piece is left: the streams with gaps, each with its median step, and the options."""
     rates = []
-    for s in streams.values():
+    for s in {s.source: s for s in streams.values()}.values():  # position and velocity share one
         if any(source == s.source for _, _, source in holes):
             step = float(np.median(np.diff(s.time))) if len(s.time) > 1 else 0.0
             rates.append(f"{s.source} is sampled every {step:.3f} s (median)")

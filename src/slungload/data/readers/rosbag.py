@@ -155,6 +155,12 @@ def read_bag(
     path = Path(path)
     settings = bag_settings(mapping, str(path))
     topics = {key: settings[key] for key in TOPIC_TYPES if settings[key]}
+    if topics.get("load_pose") == topics.get("vehicle_pose"):
+        raise LogError(
+            f"{path}: the load is mapped to the vehicle's own topic {topics['load_pose']} "
+            "(mapping keys 'load_pose' and 'vehicle_pose'): |pL - p| would be 0; map "
+            "load_pose to the load's motion-capture topic"
+        )
     notes: list[str] = []
     try:
         reader = AnyReader([path], default_typestore=_fallback_typestore())
@@ -210,8 +216,14 @@ def _connections(reader: Any, topics: dict[str, str], path: Path) -> dict[str, l
     for key, topic in topics.items():
         if topic not in by_topic:
             have = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items()))
+            hint = (
+                '; velocity = "" takes the velocity from finite differences of the pose'
+                if key == "velocity"
+                else ""
+            )
             raise LogError(
-                f"{path}: no topic {topic!r} (mapping key {key!r}); the bag has: {have or 'none'}"
+                f"{path}: no topic {topic!r} (mapping key {key!r}); the bag has: "
+                f"{have or 'none'}{hint}"
             )
         conns = by_topic[topic]
         types = sorted({c.msgtype for c in conns})
@@ -232,9 +244,12 @@ def _collect(reader: Any, conns: dict[str, list], path: Path, progress: bool) ->
     from rosbags.highlevel import AnyReaderError
     from tqdm.auto import tqdm
 
-    key_of = {c.id: key for key, cs in conns.items() for c in cs}
+    keys_of: dict[int, list[str]] = {}  # a topic may serve two keys (Odometry: pose, twist)
+    for key, cs in conns.items():
+        for c in cs:
+            keys_of.setdefault(c.id, []).append(key)
     out: dict[str, tuple[str, list]] = {key: (cs[0].msgtype, []) for key, cs in conns.items()}
-    chosen = [c for cs in conns.values() for c in cs]
+    chosen = list({c.id: c for cs in conns.values() for c in cs}.values())
     total = sum(c.msgcount for c in chosen)
     bar = tqdm(total=total, desc=path.name, unit="msg", disable=not progress, leave=False)
     try:
@@ -246,7 +261,8 @@ def _collect(reader: Any, conns: dict[str, list], path: Path, progress: bool) ->
                     f"{path}: topic {conn.topic}: a {conn.msgtype} message cannot be decoded "
                     f"({exc})"
                 ) from None
-            out[key_of[conn.id]][1].append((timestamp * 1e-9, msg))
+            for key in keys_of[conn.id]:
+                out[key][1].append((timestamp * 1e-9, msg))
             bar.update()
     finally:
         bar.close()

@@ -11,7 +11,8 @@ Topics (the mapping keys, defaults in ``ULOG_DEFAULTS``; ``name`` or ``name:inst
 - ``load``: the load's position, from a logged motion-capture topic (``x y z`` or
   ``position[0..2]``, NED), e.g. ``vehicle_mocap_odometry:1`` when a second rigid body is
   streamed to PX4. PX4 logs no load by itself: without ``load`` the import stops with an
-  error that lists the logged topics that carry a position.
+  error that lists the logged topics that carry a position (``position[0..2]``, or ``x y z``
+  beside ``vx vy vz``); ``load`` naming the ``position`` topic is refused by name.
 
 The load's position must be in the same local frame as the vehicle's: with a motion-capture
 system fused by the EKF, ``vehicle_local_position`` and the mocap frame share their axes but
@@ -78,13 +79,17 @@ def ulog_streams(
     settings = merge_settings(ULOG_DEFAULTS, mapping, str(path))
     notes: list[str] = []
     if not settings["load"]:
-        carriers = sorted(
-            name for name, data in topics.items() if _fields(data, _POSITION_FIELDS) is not None
-        )
+        carriers = sorted(name for name, data in topics.items() if _carries_position(data))
         raise LogError(
             f"{path}: the log holds no load position: name the topic that carries it with the "
             f"mapping key 'load' (name or name:instance); topics with a position: "
             f"{', '.join(carriers) or 'none'}"
+        )
+    if _instance(settings["load"]) == _instance(settings["position"]):
+        raise LogError(
+            f"{path}: the load is mapped to the vehicle's own position topic "
+            f"{_instance(settings['load'])} (mapping keys 'load' and 'position'): |pL - p| "
+            "would be 0; map 'load' to the load's motion-capture topic"
         )
     log = _Topics(topics, settings, path)
     streams = _motion_streams(log, notes)
@@ -113,8 +118,13 @@ class _Topics:
         name = spec if ":" in spec else f"{spec}:0"
         if name not in self.topics:
             have = ", ".join(sorted(self.topics)) or "none"
+            hint = (
+                '; velocity = "" takes the velocity from finite differences of the position'
+                if key == "velocity"
+                else ""
+            )
             raise LogError(
-                f"{self.path}: no topic {spec!r} (mapping key {key!r}); the log has: {have}"
+                f"{self.path}: no topic {spec!r} (mapping key {key!r}); the log has: {have}{hint}"
             )
         return name, self.topics[name]
 
@@ -139,6 +149,12 @@ def _motion_streams(log: _Topics, notes: list[str]) -> dict[str, Stream]:
     streams: dict[str, Stream] = {}
     name, t, pos, data = log.series("position", _POSITION_FIELDS, "position")
     keep = _valid(data, ("xy_valid", "z_valid"))
+    if len(keep) and not keep.any():
+        raise LogError(
+            f"{path}: topic {name} (position) has {len(keep)} samples, all flagged invalid "
+            "(xy_valid or z_valid = 0: the estimator had no position); map 'position' to a "
+            "motion-capture topic, e.g. vehicle_mocap_odometry:0"
+        )
     if not keep.all():
         notes.append(f"{path}: topic {name}: {int((~keep).sum())} samples flagged invalid dropped")
     streams["position"] = Stream(f"topic {name}", t[keep], frames.world_vectors(pos[keep], "ned"))
@@ -172,6 +188,22 @@ def _thrust(
     else:
         raise LogError(f"{path}: no thrust: set the mapping key 'thrust' to a set-point topic")
     return name, t, thrust
+
+
+def _instance(spec: str) -> str:
+    """``name`` or ``name:instance`` -> ``name:instance``."""
+    spec = str(spec)
+    return spec if ":" in spec else f"{spec}:0"
+
+
+def _carries_position(data: dict[str, np.ndarray]) -> bool:
+    """A topic with a position: ``position[0..2]``, or ``x y z`` beside a velocity ``vx vy
+    vz`` (as the local position and its set-point); accelerometers, gyroscopes,
+    magnetometers and sticks also have ``x y z``, but no velocity."""
+    return _fields(data, _POSITION_FIELDS[1:]) is not None or (
+        _fields(data, _POSITION_FIELDS[:1]) is not None
+        and _fields(data, _VELOCITY_FIELDS[:1]) is not None
+    )
 
 
 def _fields(data: dict[str, np.ndarray], options: tuple[tuple[str, ...], ...]):
