@@ -13,8 +13,11 @@ Flight files (one ``.npz`` per flight, the authors' published format)::
     w_ref     (T, 3)  commanded body rates, rad/s
     T_ref     (T, 1)  commanded total thrust, N
 
-Optional: ``t_sampling``; ignored: the MATLAB conversion keys ``__header__``, ``__version__``,
-``__globals__``.
+Optional: ``t_sampling``; the flight's own constants where they differ from flight to flight
+(simulated varied loads), 0-d float arrays named as the ``config.VehicleParams`` fields:
+``mass_quad`` (kg), ``mass_load`` (kg), ``cable_length`` (m, effective: vehicle centre of mass
+to load centre); ignored: the MATLAB conversion keys ``__header__``, ``__version__``,
+``__globals__``. The authors' loader reads only the keys above, so it ignores the optional ones.
 """
 
 from __future__ import annotations
@@ -40,7 +43,8 @@ FLIGHT_KEYS: dict[str, tuple[int, ...] | None] = {
     "w_ref": (3,),
     "T_ref": (1,),
 }  # key -> trailing shape after the time axis
-OPTIONAL_KEYS = ("t_sampling",)
+CONSTANT_KEYS = ("mass_quad", "mass_load", "cable_length")  # optional per-flight constants
+OPTIONAL_KEYS = ("t_sampling", *CONSTANT_KEYS)
 IGNORED_KEYS = ("__header__", "__version__", "__globals__")
 SPLITS = ("train", "val", "test")
 

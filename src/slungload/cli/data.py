@@ -51,6 +51,7 @@ def add_simulate(sub: Any) -> None:
         metavar="S",
         help="correlation time of the perturbations, s (default 0.15)",
     )
+    _add_load_options(p)
     effects = p.add_argument_group("unmodelled effects (all on by default; docs/simulator.md)")
     for name in _effect_names():
         effects.add_argument(
@@ -61,6 +62,44 @@ def add_simulate(sub: Any) -> None:
         )
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_simulate)
+
+
+def _add_load_options(p: argparse.ArgumentParser) -> None:
+    """One option per ``sim.config.LoadRanges`` field: a value for every flight, or a range."""
+    from dataclasses import fields
+
+    from ..sim.config import LoadRanges, SimConfig
+
+    group = p.add_argument_group(
+        "vehicle and load",
+        "X: one value for every flight; LO:HI: drawn per flight and recorded in its file, the "
+        "midpoint in vehicle.json and for the controller (docs/simulator.md)",
+    )
+    for f in fields(LoadRanges):
+        # Not --mass-quad: the other commands' --mass-quad ... set the model's constants
+        # (config.VehicleParams), these the simulated plant.
+        flag = "--vehicle-mass" if f.name == "mass_quad" else f"--{f.name.replace('_', '-')}"
+        group.add_argument(
+            flag,
+            dest=f.name,
+            type=_value_or_range,
+            metavar="X|LO:HI",
+            help=f"{f.metadata['text']}, {f.metadata['unit']} "
+            f"(default {SimConfig().value(f.name):g})",
+        )
+
+
+def _value_or_range(text: str) -> float | tuple[float, float]:
+    """``0.1`` (one value) or ``0.05:0.3`` (a range), positive numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(":"))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 2) or min(values) <= 0 or values[0] > values[-1]:
+        raise argparse.ArgumentTypeError(
+            f"expected a positive number or a range LO:HI with 0 < LO <= HI, got {text!r}"
+        )
+    return values[0] if len(values) == 1 else values  # type: ignore[return-value]
 
 
 def _excitation(text: str) -> tuple[float, float, float, float]:
@@ -85,6 +124,7 @@ def _effect_names() -> tuple[str, ...]:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ..data.summary import summarize
     from ..sim import Effects, Excitation, SimConfig, simulate_dataset
+    from ..sim.config import LoadRanges
 
     off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
     excitation = Excitation()
@@ -95,7 +135,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         args.out,
         flights=args.flights,
         seed=args.seed,
-        config=SimConfig(effects=Effects().without(*off), excitation=excitation),
+        config=SimConfig(effects=Effects().without(*off), excitation=excitation).with_loads(
+            **{name: getattr(args, name) for name in LoadRanges.names()}
+        ),
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.quiet,

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import VehicleParams, WindowConfig, load_vehicle
+from ..config import VehicleParams, WindowConfig, load_vehicle, to_dict
 from ..fileio import SPLITS
 from .cache import cache_key, default_cache_dir, load_cache, save_cache
 from .flight import DatasetError, DataWarning, Flight
@@ -220,13 +220,21 @@ def _to_payload(dataset: Dataset) -> dict:
     flights = {
         n: {k: torch.from_numpy(getattr(f, k)) for k in _ARRAYS} for n, f in dataset.flights.items()
     }
+    for n, f in dataset.flights.items():
+        if f.constants is not None:  # the flight's own constants (varied loads)
+            flights[n]["constants"] = to_dict(f.constants)
     members = {s: list(dataset.splits[s].names) for s in SPLITS}  # the flights, in order
     return {"flights": flights, "splits": members, "notes": list(dataset.notes)}
 
 
+def _constants(cached: dict) -> VehicleParams | None:
+    constants = cached.get("constants")
+    return None if constants is None else VehicleParams(**constants)
+
+
 def _from_payload(payload: dict, common: dict, paths: dict[str, Path], cache_path: Path) -> Dataset:
     flights = {
-        name: Flight(name, paths[name], *(f[k].numpy() for k in _ARRAYS))
+        name: Flight(name, paths[name], *(f[k].numpy() for k in _ARRAYS), _constants(f))
         for name, f in payload["flights"].items()
     }
     splits = {

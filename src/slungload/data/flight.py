@@ -5,10 +5,14 @@ applies (time steps, quaternions, finite numbers). The unmeasured load state is 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
+
+from ..config import VehicleParams
+from ..fileio import CONSTANT_KEYS
 
 DT_TOLERANCE = 0.2  # each time step must be within this fraction of params.dt
 QUAT_NORM_TOLERANCE = 0.1  # | |q| - 1 | allowed before renormalising
@@ -33,6 +37,9 @@ class Flight:
     time (T,) s; states (T, 13) = p, v, q (w-x-y-z, unit, sign-continuous), pL;
     inputs (T, 4) = commanded thrust T_ref (N), commanded body rates w_ref (rad/s);
     aux (T, 6) = estimated vL (m/s), Omega_L (rad/s), see ``estimate_load_state``.
+    constants: the flight's own constants where its file records them (simulated varied loads,
+    ``fileio.CONSTANT_KEYS``): the dataset's constants with the recorded ones in place; None
+    for a flight of the dataset's constants. ``aux`` uses the dataset's constants either way.
     """
 
     name: str
@@ -41,6 +48,7 @@ class Flight:
     states: np.ndarray
     inputs: np.ndarray
     aux: np.ndarray
+    constants: VehicleParams | None = None
 
     def __len__(self) -> int:
         return len(self.time)
@@ -49,6 +57,22 @@ class Flight:
     def duration(self) -> float:
         """Seconds from the first to the last sample."""
         return float(self.time[-1] - self.time[0])
+
+
+def recorded_constants(
+    raw: Mapping[str, np.ndarray], params: VehicleParams, path: Path
+) -> VehicleParams | None:
+    """``params`` with the constants a flight file records (``fileio.CONSTANT_KEYS``: one
+    number each) in place, or None when it records none; a recorded constant that is not a
+    single positive number is a ``FlightFormatError`` naming it."""
+    found = {}
+    for key in CONSTANT_KEYS:
+        if key in raw:
+            value = _numeric(np.asarray(raw[key]), key, path)
+            if value.size != 1 or not np.isfinite(value).all() or not value.item() > 0:
+                raise FlightFormatError(f"{path}: {key} must be one positive number, got {value}")
+            found[key] = value.item()
+    return replace(params, **found) if found else None
 
 
 def _numeric(arr: np.ndarray, key: str, path: Path) -> np.ndarray:

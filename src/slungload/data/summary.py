@@ -163,8 +163,10 @@ def summarize(
 
 
 def _flight_checks(f: Flight, params: VehicleParams, own_cable: bool) -> tuple[Check, ...]:
+    """The flight's figures, held to its own constants where its file records them."""
     p, _, q, p_load = split_state(f.states)
-    return flight_checks(p, q, p_load, f.inputs[:, THRUST][:, 0], params, own_cable=own_cable)
+    thrust = f.inputs[:, THRUST][:, 0]
+    return flight_checks(p, q, p_load, thrust, f.constants or params, own_cable=own_cable)
 
 
 def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
@@ -174,10 +176,12 @@ def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
         mine = [(name, c) for name, c in found if c.quantity == quantity]
         values = [c.value for _, c in mine]
         bad = [(name, c) for name, c in mine if not c.ok]
+        limits = [c.limit for _, c in mine]  # per flight where flights have their own constants
+        limit = limits[0] if len(set(limits)) == 1 else f"{limits[0].split(' = ')[0]} per flight"
         out[quantity] = CheckSummary(
             min(values),
             max(values),
-            mine[0][1].limit,
+            limit,
             tuple(name for name, _ in bad),
             bad[0][1].cause if bad else "",
         )

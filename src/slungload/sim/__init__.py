@@ -10,7 +10,7 @@ from __future__ import annotations
 from .._lazy import lazy_exports
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
-    "config": ("Effects", "Excitation", "SimConfig"),
+    "config": ("Effects", "Excitation", "LoadRanges", "SimConfig"),
     "controller": ("Controller", "Measurement", "PIDController"),
     "dataset": ("SimulatedDataset", "simulate_dataset", "vehicle_params"),
     "flight": ("Flight", "simulate_flight"),

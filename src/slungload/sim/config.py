@@ -9,6 +9,12 @@ turn one effect off at a time. Where each magnitude comes from is written in ``d
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from typing import TYPE_CHECKING
+
+from ..config import VehicleParams
+
+if TYPE_CHECKING:  # numpy is not imported by the command line's help
+    import numpy as np
 
 
 @dataclass(frozen=True)
@@ -87,6 +93,49 @@ class Excitation:
         return self.thrust_std > 0 or max(self.rate_std) > 0
 
 
+def _ranged(unit: str, text: str):
+    """A field of ``LoadRanges``: no range by default; its unit and description as metadata (the
+    command line's help is made from them)."""
+    return field(default=None, metadata={"unit": unit, "text": text})
+
+
+@dataclass(frozen=True)
+class LoadRanges:
+    """Ranges (low, high) of the vehicle and load constants, drawn per flight (none by default).
+
+    A quantity without a range keeps ``SimConfig``'s single value in every flight (the flights
+    are then those of a config without ``LoadRanges``, byte for byte). With a range, each flight
+    draws its value uniformly from its own random stream and records it in its file
+    (``fileio.CONSTANT_KEYS``); the nominal value, which ``vehicle.json`` holds and the PID
+    controller is built for, is the range's midpoint (``SimConfig.nominal``). The names are the
+    ``SimConfig`` quantities they vary; ``cable_length`` is the effective length, vehicle centre
+    of mass -> load centre (the string is that less the attachment and half the cube).
+    """
+
+    mass_quad: tuple[float, float] | None = _ranged("kg", "vehicle mass")
+    load_mass: tuple[float, float] | None = _ranged("kg", "load mass")
+    cable_length: tuple[float, float] | None = _ranged(
+        "m", "effective cable length, vehicle centre of mass to load centre"
+    )
+
+    def __post_init__(self) -> None:
+        for name in self.names():
+            bounds = getattr(self, name)
+            if bounds is not None and not (len(bounds) == 2 and 0 < bounds[0] <= bounds[1]):
+                raise ValueError(
+                    f"LoadRanges.{name} must be (low, high) with 0 < low <= high, got {bounds}"
+                )
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    @property
+    def active(self) -> bool:
+        """Whether any quantity varies from flight to flight."""
+        return any(getattr(self, name) is not None for name in self.names())
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Constants of the simulated quadrotor, cable, load, air, actuators, sensors and controller.
@@ -96,6 +145,7 @@ class SimConfig:
 
     effects: Effects = field(default_factory=Effects)
     excitation: Excitation = field(default_factory=Excitation)  # of the commands; off
+    loads: LoadRanges = field(default_factory=LoadRanges)  # per-flight vehicle and load; none
     # --- timing
     control_dt: float = 0.03  # s, h: control and recording period (the paper's sampling time)
     substeps: int = 15  # MuJoCo steps per control period (timestep 2 ms)
@@ -158,6 +208,12 @@ class SimConfig:
             raise ValueError(f"SimConfig.substeps must be >= 1, got {self.substeps}")
         if self.latency < 0 or self.latency >= self.control_dt:
             raise ValueError(f"SimConfig.latency must be in [0, control_dt), got {self.latency}")
+        shortest = self.attach_below + 0.5 * self.load_size
+        if self.loads.cable_length is not None and self.loads.cable_length[0] <= shortest:
+            raise ValueError(
+                f"SimConfig.loads.cable_length must start above the attachment and half the "
+                f"load, {shortest:g} m, got {self.loads.cable_length}"
+            )
 
     @property
     def timestep(self) -> float:
@@ -174,21 +230,92 @@ class SimConfig:
         """mQ + mL, kg."""
         return self.mass_quad + self.load_mass
 
+    def value(self, name: str) -> float:
+        """The single value of a ``LoadRanges`` quantity (its field, or the ``cable_length``
+        property), the one every flight flies without a range."""
+        if name not in LoadRanges.names():
+            raise ValueError(f"unknown load quantity {name!r}; known: {list(LoadRanges.names())}")
+        return float(getattr(self, name))
+
+    def with_load(self, **values: float) -> SimConfig:
+        """A copy flying these single values (``LoadRanges`` names; the cable length through the
+        string length) with no ranges left: one flight's plant, or the nominal vehicle."""
+        unknown = set(values) - set(LoadRanges.names())
+        if unknown:
+            raise ValueError(f"unknown load quantities {sorted(unknown)}")
+        fixed = {k: float(v) for k, v in values.items() if k != "cable_length"}
+        if "cable_length" in values:
+            ends = self.attach_below + 0.5 * self.load_size  # attachment and half the cube
+            fixed["string_length"] = values["cable_length"] - ends
+        return replace(self, loads=LoadRanges(), **fixed)
+
+    def with_loads(self, **values: float | tuple[float, float] | None) -> SimConfig:
+        """A copy with ``LoadRanges`` quantities set: a number (or a range of zero width) is a
+        single value for every flight, (low, high) a range drawn per flight, None unchanged."""
+        fixed, ranges = {}, {}
+        for name, value in values.items():
+            if value is None:
+                continue
+            if isinstance(value, tuple) and value[0] != value[1]:
+                ranges[name] = (float(value[0]), float(value[1]))
+            else:
+                fixed[name] = float(value[0] if isinstance(value, tuple) else value)
+        kept = {n: getattr(self.loads, n) for n in LoadRanges.names() if n not in fixed}
+        return replace(self.with_load(**fixed), loads=LoadRanges(**{**kept, **ranges}))
+
+    @property
+    def nominal(self) -> SimConfig:
+        """The config with each ranged quantity at its range's midpoint and no ranges: the
+        vehicle ``vehicle.json`` describes and the default controller is built for (``self``
+        when nothing varies)."""
+        if not self.loads.active:
+            return self
+        mids = {n: 0.5 * sum(r) for n in LoadRanges.names() if (r := getattr(self.loads, n))}
+        return self.with_load(**mids)
+
+    def drawn(self, rng: np.random.Generator) -> SimConfig:
+        """One flight's config: each ranged quantity drawn uniformly, rounded to 1e-9 (the
+        precision of the MuJoCo model's text). Three uniforms are always drawn, in
+        ``LoadRanges`` order, so one range does not change another's draw; ``self`` (and
+        ``rng`` untouched) when nothing varies."""
+        if not self.loads.active:
+            return self
+        u = rng.uniform(0.0, 1.0, size=len(LoadRanges.names()))
+        draws = {}
+        for name, ui in zip(LoadRanges.names(), u, strict=True):
+            bounds = getattr(self.loads, name)
+            if bounds is not None:
+                draws[name] = round(bounds[0] + float(ui) * (bounds[1] - bounds[0]), 9)
+        return self.with_load(**draws)
+
     @classmethod
     def from_dict(cls, data: dict) -> SimConfig:
         """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
         data = dict(data)
         effects = Effects(**data.pop("effects", {}))
         excitation = Excitation(**_tuples(data.pop("excitation", {})))
+        loads = LoadRanges(**_tuples(data.pop("loads", None) or {}))
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
-        return cls(effects=effects, excitation=excitation, **_tuples(data))
+        return cls(effects=effects, excitation=excitation, loads=loads, **_tuples(data))
 
     def with_effects(self, effects: Effects) -> SimConfig:
         """A copy with other effect switches."""
         return replace(self, effects=effects)
+
+
+def vehicle_params(cfg: SimConfig) -> VehicleParams:
+    """The paper-model constants matching the simulated geometry (of one flight, or of the
+    nominal vehicle: ``vehicle_params(cfg.nominal)``)."""
+    return VehicleParams(
+        mass_quad=cfg.mass_quad,
+        mass_load=cfg.load_mass,
+        cable_length=round(cfg.cable_length, 9),  # 0.05 + 0.6 + 0.05 without float dust
+        dt=cfg.control_dt,
+        gravity=cfg.gravity,
+    )
 
 
 def _tuples(data: dict) -> dict:

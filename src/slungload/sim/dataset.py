@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
-from ..config import VehicleParams, to_dict
+from ..config import to_dict
 from ..data.split import split_flights
 from ..data.writer import DatasetWriter
 from ..fileio import write_npz
 from ..workers import run_jobs
-from .config import SimConfig
+from .config import SimConfig, vehicle_params
 from .flight import simulate_flight
 from .maneuvers import MANEUVERS
 
@@ -109,23 +109,17 @@ def simulate_dataset(
         lengths = [steps[n] for n in names]
         families = [family for family, _ in plan]
         splits = split_flights(names, lengths, np.random.default_rng(split_seed), families)
-        out = writer.finish(splits, vehicle_params(cfg), _about(cfg, seed, flights))
+        out = writer.finish(splits, vehicle_params(cfg.nominal), _about(cfg, seed, flights))
     return SimulatedDataset(
         out, tuple(names), tuple(lengths), splits, seed, time.perf_counter() - start
     )
 
 
-def vehicle_params(cfg: SimConfig) -> VehicleParams:
-    """The paper-model constants matching the simulated geometry."""
-    return VehicleParams(
-        mass_quad=cfg.mass_quad,
-        mass_load=cfg.load_mass,
-        cable_length=round(cfg.cable_length, 9),  # 0.05 + 0.6 + 0.05 without float dust
-        dt=cfg.control_dt,
-        gravity=cfg.gravity,
-    )
-
-
 def _about(cfg: SimConfig, seed: int, flights: int) -> dict:
-    """What made the data, for ``vehicle.json`` beside the constants."""
-    return {"sim": to_dict(cfg), "seed": seed, "flights": flights, "version": __version__}
+    """What made the data, for ``vehicle.json`` beside the constants. The load ranges are
+    written only when set, so a dataset without them has the bytes it had before they existed
+    (``SimConfig.from_dict`` reads their absence as none)."""
+    sim = to_dict(cfg)
+    if not cfg.loads.active:
+        del sim["loads"]
+    return {"sim": sim, "seed": seed, "flights": flights, "version": __version__}

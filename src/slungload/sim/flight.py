@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..fileio import CONSTANT_KEYS
 from ..frames import rotation_matrix
 from .aero import ou_wind
-from .config import SimConfig
+from .config import SimConfig, vehicle_params
 from .controller import Controller, Measurement, PIDController, excitation_signal
 from .maneuvers import Maneuver, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
@@ -24,13 +25,16 @@ class Flight:
     p_load, w_ref, T_ref) as recorded, i.e. noisy measurements and the *commands*.
     ``truth`` holds what really happened at the same instants: p, v, q (w-x-y-z), p_load,
     v_load, thrust (achieved, N), rates (achieved, rad/s), cable (attachment -> cube top, m),
-    wind (m/s).
+    wind (m/s). ``config`` is the flight's own config: the simulator's, with the vehicle and
+    load drawn for this flight in place when ``SimConfig.loads`` gives ranges (the file then
+    records them, ``fileio.CONSTANT_KEYS``).
     """
 
     maneuver: str
     arrays: dict[str, np.ndarray]
     truth: dict[str, np.ndarray]
     params: PlantParams = field(default_factory=PlantParams)
+    config: SimConfig = field(default_factory=SimConfig)
 
     @property
     def steps(self) -> int:
@@ -52,7 +56,9 @@ def simulate_flight(
     maneuver's length (recorded control steps). controller: what flies it, called once per
     control step as the ``Controller`` contract states (warm-up included); None flies a fresh
     ``PIDController`` of the config (the default flights). A stateful controller should be a
-    fresh one per flight. With ``config.excitation`` active, its random signal is added to
+    fresh one per flight; the default PID is built for ``config.nominal``, while the plant flies
+    the vehicle and load drawn for this flight when ``config.loads`` gives ranges (from a sixth
+    stream of the seed). With ``config.excitation`` active, its random signal is added to
     every command (``controller.excitation_signal``; thrust kept >= 0). Returns a ``Flight``
     with float64 arrays; ``arrays["T_ref"]`` and ``arrays["w_ref"]`` are the commands sent.
 
@@ -61,8 +67,10 @@ def simulate_flight(
     """
     cfg = config or SimConfig()
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    # A fifth stream for the excitation: the first four are the same with or without it.
-    s_man, s_plant, s_wind, s_sens, s_exc = (np.random.default_rng(s) for s in ss.spawn(5))
+    # A fifth stream for the excitation, a sixth for the load: the first streams are the same
+    # with or without them.
+    streams = (np.random.default_rng(s) for s in ss.spawn(6))
+    s_man, s_plant, s_wind, s_sens, s_exc, s_load = streams
     man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
     n = int(steps if steps is not None else man.steps)
     if n < 1:
@@ -72,14 +80,16 @@ def simulate_flight(
     warm = round(cfg.warmup / h)
     total = warm + n
     times = (np.arange(total) - warm) * h  # recording starts at t = 0
-    plant = Plant(cfg, PlantParams.draw(cfg, s_plant))
+    flown = cfg.drawn(s_load)  # the vehicle and load of this flight (cfg when none vary)
+    plant = Plant(flown, PlantParams.draw(flown, s_plant))
     hover = plant.p
     ref = sample_reference(man, times, hover)
     for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
         a.flags.writeable = False  # every step sees the same reference: no controller edits it
     wind = ou_wind(cfg, total, s_wind)
     mocap = Mocap(cfg, s_sens)
-    ctrl = PIDController(cfg) if controller is None else controller
+    # The PID is built for the nominal vehicle: like a real one it does not know the load.
+    ctrl = PIDController(cfg.nominal) if controller is None else controller
     dither = excitation_signal(cfg.excitation, h, total, s_exc)  # (total, 4), zero when off
 
     rec = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3))}
@@ -106,17 +116,28 @@ def simulate_flight(
             truth["wind"][i] = wind[k]
         plant.advance(thrust, rates, wind[k])
 
-    q_rec = rec["q"] / np.linalg.norm(rec["q"], axis=1, keepdims=True)
+    arrays = _published(rec, h, flown if cfg.loads.active else None)
+    return Flight(man.name, arrays, truth, plant.params, flown)
+
+
+def _published(rec: dict[str, np.ndarray], h: float, flown: SimConfig | None) -> dict:
+    """The recorded arrays in the published schema (attitude x-y-z-w); with ``flown`` (loads
+    that vary from flight to flight) also this flight's constants, ``fileio.CONSTANT_KEYS``:
+    without ranges the file is what it always was."""
+    q = rec["q"] / np.linalg.norm(rec["q"], axis=1, keepdims=True)
     arrays = {
-        "time": np.arange(n, dtype=np.float64) * h,
+        "time": np.arange(len(q), dtype=np.float64) * h,
         "p": rec["p"],
         "v": rec["v"],
-        "attitude": np.concatenate([q_rec[:, 1:], q_rec[:, :1]], axis=1),  # x-y-z-w
+        "attitude": np.concatenate([q[:, 1:], q[:, :1]], axis=1),  # x-y-z-w
         "p_load": rec["p_load"],
         "w_ref": rec["w_ref"],
         "T_ref": rec["T_ref"],
     }
-    return Flight(man.name, arrays, truth, plant.params)
+    if flown is not None:
+        constants = vehicle_params(flown)
+        arrays.update({key: np.array(getattr(constants, key)) for key in CONSTANT_KEYS})
+    return arrays
 
 
 def _checked(command: tuple[float, np.ndarray], k: int, warm: int) -> tuple[float, np.ndarray]:

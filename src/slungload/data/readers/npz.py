@@ -5,6 +5,7 @@ release and the simulator write them. See ``docs/data.md``.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,7 @@ from ..flight import (
     _numeric,
     _series,
     _unit_quaternions,
+    recorded_constants,
 )
 
 
@@ -43,7 +45,9 @@ def read(path: Path, params: VehicleParams, notes: list[str]) -> Flight:
     unknown = sorted(set(raw) - set(FLIGHT_KEYS) - set(OPTIONAL_KEYS) - set(IGNORED_KEYS))
     if unknown:
         notes.append(f"{path}: ignoring unknown keys {unknown}")
-    return from_arrays(raw, path, params)
+    flight = from_arrays(raw, path, params)
+    constants = recorded_constants(raw, params, path)  # the flight's own, where recorded
+    return flight if constants is None else replace(flight, constants=constants)
 
 
 def from_arrays(
