@@ -1,0 +1,195 @@
+"""In-flight estimates of the load's constants from a history window: the cable length, the load
+mass and the thrust gain. Causal (a window's samples only), batched over any leading
+dimensions, differentiable, pure torch beside the physics. Measured errors: ``docs/data.md``.
+
+**Cable length**: the mean of |pL - p| over the window. The cable is taut in normal flight and
+the noise averages out; what remains is geometry the paper's model does not have (the
+attachment below the centre of mass, a tumbling load), a few millimetres.
+
+**Load mass**: the momentum balance across the thrust axis. With b the body z axis, P = I - b b^T
+the projection onto the rotor plane and z up, Newton's law for the vehicle and the load,
+summed, is ``mQ (a + g e3) + mL (aL + g e3) = kT T b - c P v + F_wake b`` (the cable's tension
+cancels; the rotor drag c acts in the rotor plane; the rotor wake pushes the load along b), so
+
+    mL P (aL + g e3) + c P v = -mQ P (a + g e3).
+
+Neither the thrust nor its gain, nor the tension, nor the wake on the load appear: a per-flight
+thrust error does not move the estimate. The vehicle mass mQ is taken from the constants (only
+the ratio mL / mQ is identifiable: scaling both masses and the thrust leaves the motion
+unchanged). Each sample's accelerations are second differences of the positions, its velocity
+a central difference, each projected with its own attitude, the drag column scaled by T / mean
+T (rotor drag grows with thrust); the projected balance is then smoothed with a triangular
+kernel (``SMOOTHING_STEPS``), which keeps the equation exact (a sum of exact equations) and
+divides the differentiated position noise by (H + 1)^2. (mL, c) is the least-squares solution
+of the smoothed balance; ``prior_weight`` adds the constants' ``mass_load`` as a prior worth
+that many (m/s^2)^2 per equation, so a window without swing falls back to it.
+
+**Thrust gain**: the axial part of the same balance, ``kT T = b . (mQ (a + g e3) + mL (aL + g e3))``
+smoothed and fitted through zero with the estimated mL. It is the *effective* gain: the wake's
+push on the load counts against the thrust, as it does for the paper's model.
+
+Information comes from the load swinging relative to the thrust axis: a window where the load
+hangs still under a hovering vehicle holds none about mL (the load is then one body with the
+vehicle), and the attitude noise and a steady wind's drag pull such a window's estimate
+towards zero and below. ``pool`` sums the
+least-squares sums of several windows (e.g. a flight's) into one estimate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from .config import VehicleParams
+from .physics import VehicleConstants
+from .state import quat_to_rotmat, split_input, split_state
+
+SMOOTHING_STEPS = 7  # H: half-width of the triangular smoothing of the balance, steps
+ESTIMATED = ("mass_load", "cable_length")  # what ``WindowConstants.vehicle`` replaces by default
+# The least-squares sums of one window, in ``stats``' last dimension (``pool`` adds them up).
+G_BB, G_BV, G_VV, M_B, M_V, T_A, T_B, T_T, LENGTH_SUM, COUNT = range(10)
+
+
+class WindowConstants(NamedTuple):
+    """Constants estimated from windows, each (...,) for states (..., M, 13).
+
+    ``rotor_drag`` is the in-plane drag coefficient fitted beside the mass (not a constant of
+    the paper's model); ``stats`` (..., 10) the sums they are solved from, for ``pool``.
+    """
+
+    cable_length: Tensor  # m, mean |pL - p|
+    mass_load: Tensor  # kg
+    thrust_gain: Tensor  # -, effective achieved / commanded thrust
+    rotor_drag: Tensor  # N/(m/s), in-plane drag at mean thrust
+    stats: Tensor  # (..., 10)
+
+    def vehicle(
+        self, params: VehicleParams, *, estimated: Sequence[str] = ESTIMATED
+    ) -> VehicleConstants:
+        """One set of constants per window for ``physics.step`` / ``rollout`` (as
+        ``VehicleConstants.stack`` gives): the ``estimated`` ones (of ``mass_load``,
+        ``cable_length``, ``thrust_gain``) from here, the rest ``params``', each a tensor
+        shaped like the windows' leading dimensions."""
+        unknown = set(estimated) - {"mass_load", "cable_length", "thrust_gain"}
+        if unknown:
+            raise ValueError(f"cannot estimate {sorted(unknown)}")
+        like = self.mass_load
+        return VehicleConstants(
+            *(
+                getattr(self, name)
+                if name in estimated
+                else torch.full_like(like, float(getattr(params, name)))
+                for name in VehicleConstants._fields
+            )
+        )
+
+
+def estimate_constants(
+    states: Tensor,
+    inputs: Tensor,
+    params: VehicleParams | VehicleConstants,
+    *,
+    smoothing: int = SMOOTHING_STEPS,
+    prior_weight: float = 0.0,
+) -> WindowConstants:
+    """The constants of each window: states (..., M, 13), inputs (..., M, 4) (commanded thrust
+    N, body rates), M >= 2 * smoothing + 3 samples ``params.dt`` apart; ``params`` gives dt,
+    g, the vehicle mass and (with ``prior_weight`` > 0) the prior load mass. Returns tensors
+    (...,) in the states' dtype; gradients reach the states and inputs."""
+    if states.shape[-2] < 2 * smoothing + 3:
+        raise ValueError(
+            f"estimate_constants: a window needs at least 2 * smoothing + 3 = "
+            f"{2 * smoothing + 3} steps, got {states.shape[-2]}"
+        )
+    return _solve(window_stats(states, inputs, params, smoothing, prior_weight))
+
+
+def pool(estimate: WindowConstants, dim: int | tuple[int, ...] = -1) -> WindowConstants:
+    """One estimate from several windows (their least-squares sums added along ``dim`` of the
+    leading dimensions), e.g. all windows of a flight."""
+    dims = (dim,) if isinstance(dim, int) else dim
+    rank = estimate.stats.dim() - 1
+    return _solve(estimate.stats.sum(tuple(d % rank for d in dims)))
+
+
+def window_stats(
+    states: Tensor,
+    inputs: Tensor,
+    params: VehicleParams | VehicleConstants,
+    smoothing: int = SMOOTHING_STEPS,
+    prior_weight: float = 0.0,
+) -> Tensor:
+    """The least-squares sums (..., 10) of each window (``stats``' layout above)."""
+    lateral, axial = _smoothed_balance(states, inputs, params, smoothing)
+    load, drag, vehicle = lateral  # (..., K, 3) each
+    thrust, axial_vehicle, axial_load = axial  # (..., K) each
+    y = -params.mass_quad * vehicle
+    prior = prior_weight * 3 * load.shape[-2]  # per equation: 3 components of K samples
+    p, _, _, p_load = split_state(states)
+    stats = [
+        (load * load).sum((-1, -2)) + prior,
+        (load * drag).sum((-1, -2)),
+        (drag * drag).sum((-1, -2)),
+        (load * y).sum((-1, -2)) + prior * params.mass_load,
+        (drag * y).sum((-1, -2)),
+        (thrust * params.mass_quad * axial_vehicle).sum(-1),
+        (thrust * axial_load).sum(-1),
+        (thrust * thrust).sum(-1),
+        (p_load - p).norm(dim=-1).sum(-1),
+        torch.full_like(thrust[..., 0], float(states.shape[-2])),
+    ]
+    return torch.stack(stats, dim=-1)
+
+
+def _smoothed_balance(
+    states: Tensor, inputs: Tensor, params: VehicleParams | VehicleConstants, smoothing: int
+) -> tuple[tuple[Tensor, Tensor, Tensor], tuple[Tensor, Tensor, Tensor]]:
+    """The balance's columns at samples 1 .. M-2, smoothed: lateral (P (aL + g e3),
+    (T / mean T) P v, P (a + g e3)), each (..., K, 3), and axial (T, b . (a + g e3),
+    b . (aL + g e3)), each (..., K), K = M - 2 - 2 * smoothing."""
+    h = params.dt
+    p, _, q, p_load = split_state(states)
+    thrust = split_input(inputs)[0][..., 1:-1]  # (..., M-2)
+    b = quat_to_rotmat(q[..., 1:-1, :])[..., :, 2]  # body z, (..., M-2, 3)
+    up = torch.zeros(3, dtype=states.dtype, device=states.device)
+    up[2] = params.gravity
+    acc = (p[..., 2:, :] - 2 * p[..., 1:-1, :] + p[..., :-2, :]) / (h * h) + up
+    acc_load = (p_load[..., 2:, :] - 2 * p_load[..., 1:-1, :] + p_load[..., :-2, :]) / (h * h) + up
+    vel = (p[..., 2:, :] - p[..., :-2, :]) / (2 * h)
+    gain = (thrust / thrust.mean(-1, keepdim=True)).unsqueeze(-1)
+    kernel = _triangle(smoothing, states)
+    lateral = tuple(
+        _smooth(x - (x * b).sum(-1, keepdim=True) * b, kernel) for x in (acc_load, vel * gain, acc)
+    )
+    axial = (thrust, (acc * b).sum(-1), (acc_load * b).sum(-1))
+    smoothed = tuple(_smooth(x.unsqueeze(-1), kernel)[..., 0] for x in axial)
+    return lateral, smoothed
+
+
+def _triangle(half: int, like: Tensor) -> Tensor:
+    """Triangular weights (2 half + 1,), summing to 1."""
+    j = torch.arange(-half, half + 1, dtype=like.dtype, device=like.device)
+    w = half + 1 - j.abs()
+    return w / w.sum()
+
+
+def _smooth(y: Tensor, kernel: Tensor) -> Tensor:
+    """(..., K, d) -> (..., K - len(kernel) + 1, d): the kernel's weighted sums along time."""
+    return (y.unfold(-2, len(kernel), 1) * kernel).sum(-1)
+
+
+def _solve(stats: Tensor) -> WindowConstants:
+    """The constants from the sums (..., 10): a 2 x 2 least-squares solve for (mL, c), then kT."""
+    g_bb, g_bv, g_vv = stats[..., G_BB], stats[..., G_BV], stats[..., G_VV]
+    m_b, m_v = stats[..., M_B], stats[..., M_V]
+    tiny = torch.finfo(stats.dtype).eps * (g_bb + g_vv) + torch.finfo(stats.dtype).tiny
+    g_vv = g_vv + tiny  # a window without motion: the drag column is zero
+    det = g_bb * g_vv - g_bv * g_bv
+    mass = (g_vv * m_b - g_bv * m_v) / det
+    drag = (g_bb * m_v - g_bv * m_b) / det
+    gain = (stats[..., T_A] + mass * stats[..., T_B]) / stats[..., T_T]
+    length = stats[..., LENGTH_SUM] / stats[..., COUNT]
+    return WindowConstants(length, mass, gain, drag, stats)
