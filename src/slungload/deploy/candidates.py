@@ -17,7 +17,6 @@ disagreement above ``predictor.PARITY_TOLERANCE`` raises ``OnnxModelError``.
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +34,15 @@ from ..layout import STATE_DIM
 from ..models.prediction import PHYSICS, PhysicsModel
 from ..state import with_unit_quaternion
 from . import onboard
-from .onnx import OPSET, OnnxModelError, _check_model_path, _load, export_name, export_record
+from .onnx import (
+    OPSET,
+    OnnxModelError,
+    _check_model_path,
+    _load,
+    export_name,
+    export_record,
+    trace_to_onnx,
+)
 from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
 
 CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
@@ -128,7 +135,11 @@ def export_for_mpc(
     if out.is_dir():
         out = out / f"{src.name}-n{horizon}{onboard.SUFFIX}"
     with atomic_path(out) as tmp:
-        _trace(src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset)
+        trace_to_onnx(
+            src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
+            ([onboard.X_HIST, onboard.U_PAST, onboard.PLANS], [onboard.STATES]),
+            {onboard.PLANS: {0: "candidates"}, onboard.STATES: {0: "candidates"}},
+        )  # fmt: skip
         session = ort.InferenceSession(str(tmp), onboard.session_options(1), providers=onboard.CPU)
         diff = max(_parity(src, session, k) for k in CHECK_CANDIDATES)
         if not diff <= PARITY_TOLERANCE:
@@ -221,23 +232,6 @@ def hover_inputs(
     plans = hover + rng.standard_normal((k, horizon, 4)) * np.array([1.0, 0.5, 0.5, 0.2])
     arrays = (np.stack([x0, x1]), hover[None], plans)
     return tuple(a.astype(np.float32) for a in arrays)
-
-
-def _trace(net: nn.Module, inputs, path: Path, opset: int) -> None:
-    """TorchScript-based exporter (``dynamo=False``), K declared dynamic."""
-    args = tuple(torch.from_numpy(a) for a in inputs)
-    with warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")  # the tracer's shape-check and deprecation warnings
-        torch.onnx.export(
-            net,
-            args,
-            str(path),
-            dynamo=False,
-            opset_version=opset,
-            input_names=[onboard.X_HIST, onboard.U_PAST, onboard.PLANS],
-            output_names=[onboard.STATES],
-            dynamic_axes={onboard.PLANS: {0: "candidates"}, onboard.STATES: {0: "candidates"}},
-        )
 
 
 def _parity(src: _Source, session, k: int) -> float:

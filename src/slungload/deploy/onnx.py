@@ -29,6 +29,7 @@ from __future__ import annotations
 import copy
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -193,7 +194,11 @@ def export(
     history, future = sample_inputs(predictor, batch=2, horizon=n)
 
     with atomic_path(out) as tmp:
-        _torch_export(net, history, future, tmp, opset)
+        trace_to_onnx(
+            net, (history, future), tmp, opset, ([HISTORY_INPUT, FUTURE_INPUT], [STATES_OUTPUT]),
+            {HISTORY_INPUT: {0: "batch", 1: "history"}, FUTURE_INPUT: {0: "batch"},
+             STATES_OUTPUT: {0: "batch"}},
+        )  # fmt: skip
         session = ort.InferenceSession(str(tmp), session_options(1), providers=_CPU)
         got = session.run(None, {HISTORY_INPUT: history, FUTURE_INPUT: future})[0]
         want = predictor.predict(history, future).astype(np.float32)
@@ -291,33 +296,29 @@ def _read(source: str | Path | Predictor) -> tuple[Predictor, dict[str, Any], st
     return predictor, configs, str(loaded.path)
 
 
-def _torch_export(net: Any, history: np.ndarray, future: np.ndarray, path: Path, opset: int):
-    """TorchScript-based exporter (``dynamo=False``: the dynamo one needs onnxscript).
-
-    The tracer unrolls the decoder loop, so N is fixed by ``future``'s shape; batch and M are
-    declared dynamic.
-    """
+def trace_to_onnx(
+    net: Any,
+    inputs: Sequence[np.ndarray],
+    path: Path,
+    opset: int,
+    names: tuple[Sequence[str], Sequence[str]],
+    dynamic_axes: dict[str, dict[int, str]],
+) -> None:
+    """``net`` traced on ``inputs`` into ``path`` with the TorchScript-based exporter
+    (``dynamo=False``: the dynamo one needs onnxscript); ``names`` = (input names, output
+    names). The tracer unrolls Python loops, so a decoder's N is fixed by the inputs' shapes;
+    ``dynamic_axes`` declares the others."""
     import torch
 
-    args = (torch.from_numpy(history), torch.from_numpy(future))
+    args = tuple(torch.from_numpy(a) for a in inputs)
     with warnings.catch_warnings(), torch.no_grad():
         # The tracer warns about Python-side shape checks and its own deprecation; both are
-        # expected (shapes are declared below, and the result is checked with ONNX Runtime).
+        # expected (shapes are declared, and every export is checked with ONNX Runtime).
         warnings.simplefilter("ignore")
         torch.onnx.export(
-            net,
-            args,
-            str(path),
-            dynamo=False,
-            opset_version=opset,
-            input_names=[HISTORY_INPUT, FUTURE_INPUT],
-            output_names=[STATES_OUTPUT],
-            dynamic_axes={
-                HISTORY_INPUT: {0: "batch", 1: "history"},
-                FUTURE_INPUT: {0: "batch"},
-                STATES_OUTPUT: {0: "batch"},
-            },
-        )
+            net, args, str(path), dynamo=False, opset_version=opset, input_names=list(names[0]),
+            output_names=list(names[1]), dynamic_axes=dynamic_axes,
+        )  # fmt: skip
 
 
 def sample_inputs(
