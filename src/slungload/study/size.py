@@ -17,7 +17,8 @@ measures, per size:
   with the machine's 1-min load average.
 
 The sizes on the Pareto front (no other size both faster and, by the mean over the seeds,
-more accurate) are then trained with ``front_seeds`` too.
+more accurate) are then trained with ``front_seeds`` too, and so is any size that joins the
+front once those seeds are in.
 
 Layout of ``out``: ``runs/<RunConfig.folder()>/``, ``size.csv`` (every run), ``timing.csv``
 (every size), ``size.md`` (the table) and ``size.png`` (the trade-off). Finished runs are
@@ -144,15 +145,17 @@ def study_size(
         for s in sizes
     )
     rows = _evaluate(data, out, run_of, {s: seeds for s in sizes}, horizon)
+    more = tuple(k for k in front_seeds if k not in seeds)
+    given: set[str] = set()  # the sizes trained with ``more`` seeds
     front = pareto_front(rows, timings)
-    extra = {s: tuple(k for k in front_seeds if k not in seeds) for s in front}
-    if any(extra.values()):
+    while more and not set(front) <= given:  # a size that joins the front gets them too
+        given |= set(front)
         if train:
-            later = sorted({k for v in extra.values() for k in v})
-            _train(data, out, run_of, front, later, workers, progress)
-        chosen = {s: tuple(seeds) + (extra[s] if s in front else ()) for s in sizes}
+            _train(data, out, run_of, [s for s in sizes if s in given], more, workers, progress)
+        chosen = {s: tuple(seeds) + (more if s in given else ()) for s in sizes}
         rows = _evaluate(data, out, run_of, chosen, horizon)
-    study = SizeStudy(tuple(rows), timings, pareto_front(rows, timings), horizon)
+        front = pareto_front(rows, timings)
+    study = SizeStudy(tuple(rows), timings, front, horizon)
     write_size_study(study, out)
     return study
 
