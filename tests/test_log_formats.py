@@ -387,3 +387,14 @@ def test_numpy_rotations_match_the_torch_ones():
         np.testing.assert_allclose(got, torch_rotvec(torch.from_numpy(r)).numpy(), atol=1e-15)
         np.testing.assert_allclose(frames.rotate(got, np.eye(3)).T, frames.rotation_matrix(got),
                                    atol=1e-15)  # fmt: skip
+
+
+def test_the_log_map_inverts_the_exponential_map():
+    """``frames.rotvec_from_matrix`` (the PID's attitude error) returns the rotation vector a
+    matrix was made from, for angles below pi and near zero."""
+    rng = np.random.default_rng(5)
+    vectors = [rng.normal(size=3) for _ in range(5)] + [np.array([2e-10, -1e-10, 3e-10])]
+    for r in vectors:
+        r = r * min(1.0, 3.0 / np.linalg.norm(r))  # below pi
+        rot = frames.rotation_matrix(frames.quat_from_rotvec(r))
+        np.testing.assert_allclose(frames.rotvec_from_matrix(rot), r, atol=1e-9)

@@ -59,6 +59,18 @@ def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
     return np.array([math.cos(0.5 * angle), s * r[0], s * r[1], s * r[2]])
 
 
+def rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) rad of a rotation matrix (3, 3) (angles below pi): the log map,
+    the inverse of ``quat_from_rotvec`` followed by ``rotation_matrix``."""
+    cos = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
+    angle = math.acos(cos)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    s = math.sin(angle)
+    if s < 1e-9:
+        return 0.5 * axis
+    return axis * (0.5 * angle / s)
+
+
 def rotation_matrix(q: np.ndarray) -> np.ndarray:
     """(..., 3, 3) body -> world rotation of w-x-y-z quaternions (..., 4), normalised first;
     its columns are the body axes in the world."""

@@ -20,6 +20,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from ..frames import rotvec_from_matrix
 from .config import Excitation, SimConfig
 from .maneuvers import Reference
 from .ou import ou_process
@@ -80,17 +81,6 @@ def excitation_signal(
         return np.zeros((steps, 4))
     std = np.array([excitation.thrust_std, *excitation.rate_std])
     return ou_process(std, excitation.tau, dt, steps, rng)
-
-
-def _rotvec_from_matrix(r: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) of a rotation matrix (3, 3) (angles below pi)."""
-    cos = max(-1.0, min(1.0, 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)))
-    angle = math.acos(cos)
-    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    s = math.sin(angle)
-    if s < 1e-9:
-        return 0.5 * axis
-    return axis * (0.5 * angle / s)
 
 
 class PIDController:
@@ -165,6 +155,6 @@ class PIDController:
         b2 /= math.sqrt(b2 @ b2)
         b1 = np.cross(b2, b3)
         rot_des = np.stack([b1, b2, b3], axis=1)
-        err = _rotvec_from_matrix(rot.T @ rot_des)  # body frame, rad
+        err = rotvec_from_matrix(rot.T @ rot_des)  # body frame, rad
         rates = np.clip(self.k_att * err, -self.max_rate, self.max_rate)
         return thrust, rates
