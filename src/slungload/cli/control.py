@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..control.study_config import CONTROLLERS, DEFAULT_MANEUVERS, StudyConfig
 from .common import choices, comma_ints, comma_names, new_command, seed_range
 
 
@@ -34,31 +35,63 @@ def add_control(sub: Any) -> None:
     p.add_argument(
         "--maneuvers",
         type=comma_names,
-        default=["baf_very_fast", "roll_35", "fast_8_lap_xyz"],
         metavar="NAME,NAME",
-        help="maneuvers (default baf_very_fast,roll_35,fast_8_lap_xyz)",
+        help=f"maneuvers (default {','.join(DEFAULT_MANEUVERS)}; the study "
+        f"{','.join(StudyConfig.maneuvers)})",
     )
     p.add_argument(
-        "--seeds", default="100..102", metavar="SEEDS", help="sim seeds: N, A..B or A,B (default "
-        "100..102; the default dataset is simulated from seed 0)"
+        "--seeds", metavar="SEEDS", help="sim seeds: N, A..B or A,B (default 100..102, the study "
+        "100..104; the default dataset is simulated from seed 0)"
     )  # fmt: skip
     p.add_argument(
         "--samples",
         type=comma_ints,
-        default=[32],
         metavar="K,K",
-        help="MPC samples per step; each model flies once per K (default 32)",
+        help=f"MPC samples per step; each model flies once per K (default 32; the study: the "
+        f"learned model's K, default {StudyConfig.samples})",
     )
     p.add_argument("--horizon", type=int, help="MPC horizon N, steps of 0.03 s (default 15)")
-    p.add_argument("--steps", type=int, help="cut every flight to this many steps (smoke runs)")
+    p.add_argument(
+        "--steps",
+        type=int,
+        help=f"cut every flight to this many recorded steps (default: whole flights; the study "
+        f"{StudyConfig.steps})",
+    )
     p.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     p.add_argument(
         "--backend",
         choices=choices("backends"),
-        default="eager",
         help="what the prediction models run on: eager torch, or compiled kernels (the physics "
         "model in one compiled float64 loop, a network in float32 on compiled kernels and "
-        "torch's BLAS; equal to eager to float32 rounding; docs/deployment.md) (default eager)",
+        "torch's BLAS; equal to eager to float32 rounding; docs/deployment.md) (default "
+        f"eager; the study {StudyConfig.backend})",
+    )
+    study = p.add_argument_group(
+        "the study (--study)",
+        "where the learned model pays: the PID, the payload-aware geometric controller and the "
+        "MPC with the physics model, the --model (one) and the oracle (the simulator itself) "
+        "at several horizons, on every maneuver x seed, and on shifted plants; MPC settings "
+        "chosen on separate tuning seeds, the physics MPC at the learned one's compute; a "
+        "second run flies only what is missing (docs/control.md)",
+    )
+    study.add_argument("--study", action="store_true", help="fly the study instead")
+    study.add_argument(
+        "--controllers",
+        type=comma_names,
+        default=list(CONTROLLERS),
+        metavar="NAME,NAME",
+        help=f"kinds to fly now, e.g. the slow oracle in its own process (default "
+        f"{','.join(CONTROLLERS)})",
+    )
+    study.add_argument(
+        "--horizons",
+        type=comma_ints,
+        default=list(StudyConfig.horizons),
+        metavar="N,N",
+        help=f"MPC horizons (default {','.join(map(str, StudyConfig.horizons))})",
+    )
+    study.add_argument(
+        "--no-tune", action="store_true", help="MPC settings at their defaults (smoke runs)"
     )
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no line per flight")
@@ -66,19 +99,49 @@ def add_control(sub: Any) -> None:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
+    if args.study:
+        return _cmd_study(args)
     from ..control.comparison import compare
 
     result = compare(
         args.model,
-        args.maneuvers,
-        seed_range(args.seeds),
-        args.samples,
+        args.maneuvers or DEFAULT_MANEUVERS,
+        seed_range(args.seeds or "100..102"),
+        args.samples or [32],
         args.out,
         horizon=args.horizon,
         steps=args.steps,
         threads=args.threads,
-        backend=args.backend,
+        backend=args.backend or "eager",
         progress=None if args.quiet else print,
     )
     print(result.out / "report.md")
+    return 0
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..control.study import run_study
+    from ..control.study_report import write_study_report
+
+    if len(args.model) > 1:
+        n = len(args.model)
+        raise ValueError(f"control --study flies one --model (the learned one), got {n}")
+    changes = {"horizons": tuple(args.horizons), "tune": not args.no_tune}
+    if args.samples:
+        changes["samples"] = args.samples[0]
+    if args.backend:
+        changes["backend"] = args.backend  # fmt: skip
+    if args.maneuvers:
+        changes["maneuvers"] = tuple(args.maneuvers)
+    if args.seeds:
+        changes["seeds"] = seed_range(args.seeds)
+    if args.steps:
+        changes["steps"] = args.steps
+    config = replace(StudyConfig(), **changes)
+    learned = args.model[0] if args.model else None
+    rows = run_study(learned, args.out, config, controllers=args.controllers,
+                     progress=None if args.quiet else print)  # fmt: skip
+    print(write_study_report(rows, config, args.out))
     return 0

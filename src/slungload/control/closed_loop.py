@@ -67,6 +67,12 @@ class Guard:
         self.rows: list[dict[str, Any]] = []
         self.planned: int | None = None  # recorded steps of the flight (from the reference)
 
+    def attach(self, plant) -> None:
+        """Pass the flight's plant on to a controller that looks at it (the oracle MPC)."""
+        attach = getattr(self.controller, "attach", None)
+        if attach is not None:
+            attach(plant)
+
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         self.planned = len(reference.yaw) - self.warm
         x = np.concatenate([measurement.p, measurement.v, measurement.q_wxyz, measurement.p_load])

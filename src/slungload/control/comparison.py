@@ -31,10 +31,8 @@ from .closed_loop import Arena, FlightLog, flight_metrics, fly
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 from .report import write_report
 from .results import ControlComparison
+from .study_config import DEFAULT_MANEUVERS
 
-# The simulator's three fastest maneuvers: back and forth along a line at 2.8-3.6 s a cycle,
-# roll doublets of 25-35 degrees, and figure eights that climb and sink.
-DEFAULT_MANEUVERS = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")
 PID = "pid"
 
 

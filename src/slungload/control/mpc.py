@@ -23,6 +23,7 @@ from ..models.prediction import PredictionModel
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
 from .mppi import (
+    CandidateModel,
     InputLimits,
     MPCConfig,
     MPCStats,
@@ -77,7 +78,7 @@ def reference_ahead(ref: Reference, k: int, n: int) -> ReferenceAhead:
 class SamplingMPC:
     """MPPI controller meeting ``sim.controller.Controller``; one per flight.
 
-    model: a ``PredictionModel``; limits:
+    model: a ``PredictionModel`` (torch) or a numpy ``mppi.CandidateModel``; limits:
     the input box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and
     cable length (default ``VehicleParams()``). ``core`` is the ``mppi.MPPIController`` it runs;
     ``stats`` counts steps and fallbacks; ``last_plan`` is the plan after the latest step.
@@ -85,14 +86,22 @@ class SamplingMPC:
 
     def __init__(
         self,
-        model: PredictionModel,
+        model: PredictionModel | CandidateModel,
         limits: InputLimits,
         config: MPCConfig | None = None,
         params: VehicleParams | None = None,
     ) -> None:
         self.model = model
-        numpy_model = TorchCandidates(model)
+        # A torch PredictionModel (it has predict_windows) is converted at the edge; a numpy
+        # CandidateModel (the oracle) is the core's model as it is.
+        numpy_model = TorchCandidates(model) if hasattr(model, "predict_windows") else model
         self.core = MPPIController(numpy_model, limits, config, params)
+
+    def attach(self, plant) -> None:
+        """Pass the flight's plant on to a model that predicts with it (``oracle``)."""
+        attach = getattr(self.core.model, "attach", None)
+        if attach is not None:
+            attach(plant)
 
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         """One control step (the ``Controller`` contract): (thrust N, body rates (3,) rad/s)."""

@@ -108,3 +108,23 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
                 len(both), sum(q is not None and not q["completed"] for _, q in pairs), *means,
             ))  # fmt: skip
     return out
+
+
+# Student's t at 97.5 % for 1 .. 30 degrees of freedom (beyond: the normal's 1.96).
+_T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
+         2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
+         2.060, 2.056, 2.052, 2.048, 2.045, 2.042)  # fmt: skip
+
+
+def paired_interval(differences: Sequence[float]) -> tuple[float, float, float]:
+    """Mean of paired differences and its 95 % t-interval (mean, low, high); NaN for none, the
+    mean alone (an interval of zero width is never claimed) for one."""
+    d = np.asarray([x for x in differences if math.isfinite(x)], dtype=float)
+    if d.size == 0:
+        return math.nan, math.nan, math.nan
+    mean = float(d.mean())
+    if d.size == 1:
+        return mean, math.nan, math.nan
+    t = _T975[d.size - 2] if d.size - 1 <= len(_T975) else 1.96
+    half = t * float(d.std(ddof=1)) / math.sqrt(d.size)
+    return mean, mean - half, mean + half

@@ -63,7 +63,8 @@ class Controller(Protocol):
     achieved thrust to [0, ``SimConfig.max_thrust``]), and the body-rate command omega, (3,)
     rad/s in body axes. Both are held for one period; a non-finite command makes
     ``simulate_flight`` raise ``ValueError``. A controller may keep state (the PID's integral),
-    so use a fresh one per flight.
+    so use a fresh one per flight. Optional: ``attach(plant)``, called once with the flight's
+    ``plant.Plant`` before the first step (benchmarks only: the oracle MPC predicts with it).
     """
 
     def __call__(
@@ -142,7 +143,16 @@ class PIDController:
         np.clip(self.integral, -limit, limit, out=self.integral)
         acc = a_ref + self.kp * e_p + self.kd * e_v + self.ki * self.integral
         force = self.mass * np.array([acc[0], acc[1], acc[2] + self.g])
-        # Tilt limit: keep the vertical component, shrink the horizontal one.
+        return self.force_command(force, rot, yaw_ref)
+
+    def force_command(
+        self, force: np.ndarray, rot: np.ndarray, yaw_ref: float
+    ) -> tuple[float, np.ndarray]:
+        """The desired force (3,) N, world frame (``force`` is changed in place), as a command:
+        its vertical part at least 30 % of hover and its tilt limited (the vertical part kept,
+        the horizontal one shrunk), thrust = force . R e3, and body rates proportional to the
+        attitude error towards the force's direction at yaw ``yaw_ref``. The attitude loop of
+        every controller built on this one (the payload-aware geometric controller too)."""
         force[2] = max(force[2], 0.3 * self.mass * self.g)
         horiz = math.hypot(force[0], force[1])
         max_h = force[2] * math.tan(self.max_tilt)

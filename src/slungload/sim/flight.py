@@ -58,7 +58,10 @@ def simulate_flight(
     ``PIDController`` of the config (the default flights). A stateful controller should be a
     fresh one per flight; the default PID is built for ``config.nominal``, while the plant flies
     the vehicle and load drawn for this flight when ``config.loads`` gives ranges (from a sixth
-    stream of the seed). With ``config.excitation`` active, its random signal is added to
+    stream of the seed). A controller with an ``attach(plant)`` method gets the flight's
+    ``Plant`` once before the first step: a benchmark that predicts with the true plant (the
+    oracle MPC) uses it; a controller of a real vehicle has no such view. With
+    ``config.excitation`` active, its random signal is added to
     every command (``controller.excitation_signal``; thrust kept >= 0). Returns a ``Flight``
     with float64 arrays; ``arrays["T_ref"]`` and ``arrays["w_ref"]`` are the commands sent.
 
@@ -90,6 +93,9 @@ def simulate_flight(
     mocap = Mocap(cfg, s_sens)
     # The PID is built for the nominal vehicle: like a real one it does not know the load.
     ctrl = PIDController(cfg.nominal) if controller is None else controller
+    attach = getattr(ctrl, "attach", None)
+    if attach is not None:  # a benchmark controller that looks at the true plant (the oracle)
+        attach(plant)
     dither = excitation_signal(cfg.excitation, h, total, s_exc)  # (total, 4), zero when off
 
     rec = {k: np.empty((n, d)) for k, d in (("p", 3), ("v", 3), ("q", 4), ("p_load", 3))}

@@ -7,6 +7,7 @@ adds drag, downwash and wind forces before stepping MuJoCo.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -56,6 +57,7 @@ class Plant:
         self.cable = self.model.tendon(CABLE).id
         self.latency_steps = round(cfg.latency / cfg.timestep) if cfg.effects.latency else 0
         self.time = 0.0
+        self.wind = np.zeros(3)  # m/s, the wind of the latest period (what a look-ahead holds)
         hover = cfg.total_mass * cfg.gravity
         self.command = (hover, np.zeros(3))
         self._apply(*self.command)
@@ -153,6 +155,21 @@ class Plant:
                 xfrc[load, 0:3] = aero.load_force(d.qvel[6:9], wind, wake)
             mujoco.mj_step(m, d)
         self.time += self.cfg.control_dt
+        self.wind = wind
+
+    def fork(self) -> Plant:
+        """A twin sharing the model, with its own MuJoCo data at this plant's state: stepping it
+        (``advance``) leaves this plant untouched. ``sync`` brings it back to this plant."""
+        twin = copy.copy(self)
+        twin.data = mujoco.MjData(self.model)
+        twin.sync(self)
+        return twin
+
+    def sync(self, source: Plant) -> None:
+        """Take over ``source``'s whole state (MuJoCo data, time, the command still held for
+        the latency, the wind); both plants share one model (``fork``)."""
+        mujoco.mj_copyData(self.data, self.model, source.data)
+        self.time, self.command, self.wind = source.time, source.command, source.wind
 
     def tilt(self) -> float:
         """Angle between body z and world z, rad."""

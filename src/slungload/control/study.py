@@ -1,0 +1,289 @@
+"""``slungload control --study``: where the learned model pays in closed loop.
+
+One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
+
+- the simulator's PID and the payload-aware geometric controller (``geometric``);
+- the MPC with the physics model, with the learned model and with the oracle (``oracle``: the
+  simulator's own plant, the ceiling), at each horizon N of ``horizons`` (the oracle at
+  ``oracle_horizons``);
+- on each shifted plant of ``shifts`` (``SHIFTS``: heavier load, longer cable, stronger wind,
+  slower thrust) the PID, the geometric controller and both real MPCs at the first horizon, every
+  model built for the nominal vehicle.
+
+Fair by construction: each real MPC's sampling noise and temperature are chosen on the separate
+``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the evaluation
+seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median rollout time
+is within the learned model's at its K (``equal_compute_samples``), per horizon.
+
+Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
+``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
+the same command flies only what is missing, so the expensive oracle can run as its own
+process (``controllers``) beside the rest. ``study_report`` turns the rows into the report.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import VehicleParams
+from ..deploy.compiled.batched import load_model
+from ..deploy.timing import time_calls
+from ..fileio import write_json, write_npz
+from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
+from ..models.prediction import PHYSICS, PredictionModel
+from ..sim.config import SimConfig
+from ..sim.controller import PIDController
+from ..sim.dataset import vehicle_params
+from .closed_loop import FlightLog, flight_metrics, fly
+from .geometric import GEOMETRIC, GeometricLoadController
+from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .oracle import ORACLE, PlantCandidates
+from .study_config import (
+    CONTROLLERS,
+    NOMINAL,
+    PHYSICS_SAMPLES,
+    SHIFTS,
+    TUNING_GRID,
+    StudyConfig,
+)
+
+
+@dataclass(frozen=True)
+class Flown:
+    """One controller of the study on one plant: how to build it for a flight seed."""
+
+    plant: str  # NOMINAL or a SHIFTS name
+    label: str  # the controller's name in the tables, e.g. "mpc-physics N=25"
+    make: Callable[[int], Any]  # seed -> a fresh Controller
+
+
+def run_study(
+    learned: str | Path | None,
+    out: str | Path,
+    config: StudyConfig | None = None,
+    *,
+    controllers: Sequence[str] = CONTROLLERS,
+    progress: Callable[[str], None] | None = print,
+) -> list[dict[str, Any]]:
+    """Fly what is missing of the study into ``out`` and return every row flown so far.
+
+    learned: a trained run folder (None: no learned model, nor its equal-compute matching).
+    controllers: the kinds to fly now (``CONTROLLERS``), e.g. ("oracle",) in its own process.
+    """
+    cfg = config or StudyConfig()
+    unknown = set(controllers) - set(CONTROLLERS)
+    if unknown:
+        raise ValueError(f"unknown controllers {sorted(unknown)}; known: {list(CONTROLLERS)}")
+    out = Path(out)
+    nominal = SimConfig()
+    params = vehicle_params(nominal)
+    limits = InputLimits.from_sim(nominal)
+    models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
+    if learned is not None:
+        models["learned"] = load_model(learned, backend=cfg.backend)
+    real_mpc = {PHYSICS, "learned"} & set(controllers)
+    settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
+    for flown in _plan(cfg, settings, models, params, limits, nominal, controllers):
+        plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
+        for maneuver in cfg.maneuvers:
+            for seed in cfg.seeds:
+                _fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+    return collect_rows(out)
+
+
+def _plan(cfg, settings, models, params, limits, nominal, controllers) -> list[Flown]:
+    """Every (plant, controller) of the study, the cheap ones first."""
+    plans: list[Flown] = []
+    for plant in (NOMINAL, *cfg.shifts):
+        if "pid" in controllers:
+            plans.append(Flown(plant, "pid", lambda seed: PIDController(nominal)))
+        if GEOMETRIC in controllers:
+            plans.append(Flown(plant, GEOMETRIC, lambda seed: GeometricLoadController(nominal)))
+        horizons = cfg.horizons if plant == NOMINAL else cfg.horizons[:1]
+        for kind in (PHYSICS, "learned"):
+            if kind not in controllers or kind not in models:
+                continue
+            for n in horizons:
+                mpc = MPCConfig(**settings["mpc"][kind], horizon=n, knots=_knots(n),
+                                samples=settings["samples"][kind][str(n)])  # fmt: skip
+                plans.append(Flown(plant, f"mpc-{kind} N={n}",
+                                   _mpc(models[kind], limits, mpc, params)))  # fmt: skip
+        if ORACLE in controllers and plant == NOMINAL:
+            for n in cfg.oracle_horizons:
+                mpc = MPCConfig(horizon=n, knots=_knots(n), samples=cfg.oracle_samples)
+                plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
+                                   _mpc(None, limits, mpc, params)))  # fmt: skip
+    return plans
+
+
+def _knots(horizon: int) -> int:
+    """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
+    return min(MPCConfig().knots, horizon)
+
+
+def _mpc(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleParams):
+    """seed -> a fresh MPC over ``model`` (None: a fresh oracle) seeded by the flight."""
+
+    def make(seed: int) -> SamplingMPC:
+        chosen = PlantCandidates() if model is None else model
+        return SamplingMPC(chosen, limits, replace(mpc, seed=seed), params)
+
+    return make
+
+
+def _fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:
+    path = flight_path(out, flown.plant, flown.label, maneuver, seed)
+    if path.with_suffix(".json").exists():
+        return
+    start = time.perf_counter()
+    log = fly(maneuver, seed, flown.make(seed), label=flown.label, config=plant_cfg, steps=steps)
+    row = flight_metrics(log, limits, plant_cfg.cable_length)
+    row.update(plant=flown.plant, wall_s=time.perf_counter() - start)
+    _save(path, log)
+    write_json(path.with_suffix(".json"), row)  # last: its presence means the flight is done
+    if progress:
+        status = "ok" if row["completed"] else f"STOPPED: {row['stopped']}"
+        progress(
+            f"{flown.plant} {maneuver} s{seed} {flown.label}: load {row['load_rmse']:.3f} m, "
+            f"swing {row['swing_rms']:.1f} deg, {row['wall_s']:.0f} s ({status})"
+        )
+
+
+def flight_path(out: Path, plant: str, label: str, maneuver: str, seed: int) -> Path:
+    """Where one flight lands (without suffix: .json row, .npz log)."""
+    safe = lambda s: "".join(c if c.isalnum() or c in "-_." else "_" for c in s)  # noqa: E731
+    return Path(out) / "flights" / safe(plant) / safe(label) / f"{maneuver}_s{seed}"
+
+
+def _save(path: Path, log: FlightLog) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_npz(path.with_suffix(".npz"), {
+        "t": log.t, "states": log.states, "p_ref": log.p_ref, "inputs": log.inputs,
+        "compute": log.compute,
+    })  # fmt: skip
+
+
+def collect_rows(out: str | Path) -> list[dict[str, Any]]:
+    """Every flight row under ``out/flights``, in a stable order."""
+    return [read_json(p) for p in sorted(Path(out).glob("flights/*/*/*.json"))]
+
+
+def load_log(out: str | Path, row: dict[str, Any]) -> FlightLog:
+    """The saved log of a row."""
+    path = flight_path(Path(out), row["plant"], row["controller"], row["maneuver"], row["seed"])
+    with np.load(path.with_suffix(".npz")) as z:
+        arrays = {k: z[k] for k in z.files}
+    return FlightLog(row["maneuver"], row["seed"], row["controller"], row["planned_steps"],
+                     arrays["t"], arrays["states"], arrays["p_ref"], arrays["inputs"],
+                     arrays["compute"], row["stopped"])  # fmt: skip
+
+
+# --- settings: chosen once, written once --------------------------------------------------
+
+
+def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
+    """The MPC settings and Ks of the study (``out/settings.json``): read back when there, so
+    every process of one study flies the same ones; else tuned and matched now."""
+    path = Path(out) / "settings.json"
+    if path.exists():
+        settings = read_json(path)
+        if settings["config"] != _jsonable(asdict(cfg)):
+            raise ValueError(f"{path} was written for another study configuration; use a new "
+                             "--out, or delete it to start over")  # fmt: skip
+        return settings
+    mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
+           for kind, model in models.items()}  # fmt: skip
+    samples = {"learned": {str(n): cfg.samples for n in cfg.horizons}}
+    samples[PHYSICS] = {str(n): cfg.samples for n in cfg.horizons}
+    if "learned" in models:
+        samples[PHYSICS] = {
+            str(n): equal_compute_samples(
+                models[PHYSICS], models["learned"], cfg.samples, n, params
+            )
+            for n in cfg.horizons
+        }
+    settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
+    write_json(path, settings)
+    return settings
+
+
+def read_json(path: str | Path) -> Any:
+    return json.loads(Path(path).read_text())
+
+
+def _jsonable(value: Any) -> Any:
+    """``value`` as JSON gives it back (tuples -> lists), to compare with a file's."""
+    return json.loads(json.dumps(value))
+
+
+def tune_settings(
+    model: PredictionModel,
+    limits: InputLimits,
+    params: VehicleParams,
+    cfg: StudyConfig,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """The sampling noise scale and temperature of ``TUNING_GRID`` that fly the tuning seeds
+    (nominal plant, first horizon, K = ``cfg.samples`` for every model) with the fewest lost
+    flights, then the lowest mean load RMSE: {"temperature", "thrust_std", "rate_std"} for
+    ``MPCConfig``."""
+    nominal, base = SimConfig(), MPCConfig()
+    best, best_score = {}, (np.inf, np.inf)
+    for temperature, scale in TUNING_GRID:
+        choice = {"temperature": temperature, "thrust_std": base.thrust_std * scale,
+                  "rate_std": tuple(r * scale for r in base.rate_std)}  # fmt: skip
+        n = cfg.horizons[0]
+        mpc = MPCConfig(**choice, horizon=n, knots=_knots(n), samples=cfg.samples)
+        rows = [flight_metrics(fly(man, seed, _mpc(model, limits, mpc, params)(seed),
+                                   label="tuning", config=nominal, steps=cfg.steps),
+                               limits, nominal.cable_length)
+                for man in cfg.maneuvers for seed in cfg.tuning_seeds]  # fmt: skip
+        lost = sum(not r["completed"] for r in rows)
+        done = [r["load_rmse"] for r in rows if r["completed"]]
+        score = (lost, float(np.mean(done)) if done else np.inf)
+        if progress:
+            progress(f"tuning {model.name}: temperature {temperature}, noise x{scale}: "
+                     f"{lost} lost, load RMSE {score[1]:.3f} m")  # fmt: skip
+        if score < best_score:
+            best, best_score = choice, score
+    return best
+
+
+def equal_compute_samples(
+    physics: PredictionModel,
+    learned: PredictionModel,
+    k: int,
+    horizon: int,
+    physics_params: VehicleParams,
+    repeats: int = 30,
+) -> int:
+    """The largest K of ``PHYSICS_SAMPLES`` whose median ``predict_candidates`` time is within
+    the learned model's at K = ``k`` (both at ``horizon``; at least ``k``)."""
+    import torch
+
+    rng = np.random.default_rng(0)
+    m = max(physics.history, learned.history)
+    hover = np.zeros(STATE_DIM)  # hanging still 1.5 m up, level, plus a little noise
+    hover[POS], hover[QUAT], hover[LOAD_POS] = (0, 0, 1.5), (1, 0, 0, 0), (0, 0, 0.8)
+    x = hover + 1e-3 * rng.standard_normal((m, STATE_DIM))
+    x[:, QUAT] /= np.linalg.norm(x[:, QUAT], axis=1, keepdims=True)
+    x_hist = torch.from_numpy(x)
+    thrust = (physics_params.mass_quad + physics_params.mass_load) * physics_params.gravity
+
+    def median_ms(model: PredictionModel, samples: int) -> float:
+        u = torch.from_numpy(np.tile([thrust, 0.0, 0.0, 0.0], (samples, horizon, 1)))
+        u_past = u[0, :1].repeat(model.history - 1, 1)
+        wall, _ = time_calls(lambda i: model.predict_candidates(
+            x_hist[-model.history:], u_past, u), repeats, 3)  # fmt: skip
+        return float(np.median(wall))
+
+    budget = median_ms(learned, k)
+    fits = [s for s in PHYSICS_SAMPLES if s >= k and median_ms(physics, s) <= budget]
+    return max(fits, default=k)

@@ -1,0 +1,53 @@
+"""What the control study flies, without importing torch or MuJoCo (the command line's help
+reads it): ``StudyConfig``, the shifted plants, the maneuvers, the controller kinds, the tuning
+grid. ``study`` flies it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from ..sim.config import SimConfig
+
+# The simulator's three fastest maneuvers, what ``slungload control`` flies by default: back and
+# forth along a line at 2.8-3.6 s a cycle, roll doublets of 25-35 degrees, and figure eights
+# that climb and sink.
+DEFAULT_MANEUVERS = ("baf_very_fast", "roll_35", "fast_8_lap_xyz")
+# The study: those and two gentler ones.
+STUDY_MANEUVERS = (*DEFAULT_MANEUVERS, "slow_ellipses_xy", "xy_step")
+NOMINAL = "nominal"
+# Each shifted plant from the nominal config: what the models were not trained on.
+SHIFTS: dict[str, Callable[[SimConfig], SimConfig]] = {
+    "load +50%": lambda c: c.with_load(load_mass=1.5 * c.load_mass),
+    "cable +20%": lambda c: c.with_load(cable_length=1.2 * c.cable_length),
+    "wind x2": lambda c: replace(c, wind_std=2.0 * c.wind_std),
+    "thrust lag x2": lambda c: replace(c, thrust_tau=2.0 * c.thrust_tau),
+}
+# The kinds ``run_study`` may fly: the PID, ``geometric``, the MPC over the physics model, the
+# learned model and the ``oracle``.
+CONTROLLERS = ("pid", "geometric", "physics", "learned", "oracle")
+PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may use
+# (temperature, noise scale) pairs ``tune_settings`` tries
+TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """What the study flies (defaults: the benchmark's; docs/control.md)."""
+
+    maneuvers: tuple[str, ...] = STUDY_MANEUVERS
+    seeds: tuple[int, ...] = (100, 101, 102, 103, 104)  # evaluation
+    tuning_seeds: tuple[int, ...] = (200, 201)  # MPC settings are chosen on these only
+    horizons: tuple[int, ...] = (15, 25, 50)  # N, steps of 0.03 s
+    samples: int = 256  # K of the learned model's MPC
+    oracle_samples: int = 32  # K of the oracle's MPC (it is not real time)
+    oracle_horizons: tuple[int, ...] = (15,)
+    shifts: tuple[str, ...] = tuple(SHIFTS)
+    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
+    tune: bool = True  # choose each MPC's noise and temperature on the tuning seeds
+    backend: str = "compiled"  # what the real models predict on
+
+    def __post_init__(self) -> None:
+        unknown = set(self.shifts) - set(SHIFTS)
+        if unknown:
+            raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")

@@ -1,0 +1,281 @@
+"""The control study's report (``study.run_study``'s rows): ``study.md`` and its figures.
+
+- the nominal plant: every controller's means (completed flights) and lost flights;
+- error against horizon (``horizons.png``): load RMSE and swing RMS of each MPC model per N;
+- paired differences (``paired.png`` and tables): the learned MPC against the physics MPC at
+  each N, against itself at N = 15, against the geometric controller; means over the flights
+  both flew to the end with a 95 % t-interval;
+- the share of the physics-to-oracle gap the learned model closes, per maneuver at the first
+  horizon;
+- the shifted plants: lost flights and errors per controller;
+- the paths of the first seed of each maneuver (``paths_3d.png``, ``report.plot_paths``).
+
+Results only; the acceptance rule lives in docs/BENCHMARKS.md.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..fileio import write_text
+from ..reporting import markdown_table, model_colors, save_figure
+from .report import plot_paths
+from .results import paired_interval
+from .study import load_log, read_json
+from .study_config import NOMINAL, StudyConfig
+
+KEYS = (
+    ("load_rmse", "load RMSE (m)", "{:.3f}"),
+    ("swing_rms", "swing RMS (deg)", "{:.1f}"),
+    ("swing_max", "swing max (deg)", "{:.1f}"),
+    ("vehicle_rmse", "vehicle RMSE (m)", "{:.3f}"),
+)
+
+
+def _horizon(label: str) -> int | None:
+    found = re.search(r" N=(\d+)$", label)
+    return int(found.group(1)) if found else None
+
+
+def _model(label: str) -> str:
+    return re.sub(r"^mpc-| N=\d+$", "", label)
+
+
+def _fmt(value: float, spec: str) -> str:
+    return "-" if value is None or not math.isfinite(value) else spec.format(value)
+
+
+def _by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, Any]]:
+    return {
+        (r["maneuver"], r["seed"]): r
+        for r in rows
+        if r["plant"] == plant and r["controller"] == label
+    }
+
+
+def means_table(rows: list[dict[str, Any]], plant: str) -> str:
+    """Per controller on ``plant``: means over its completed flights, lost / flown, compute."""
+    labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == plant))
+    table = []
+    for label in labels:
+        group = list(_by_flight(rows, plant, label).values())
+        done = [r for r in group if r["completed"]]
+        table.append(
+            [
+                label,
+                *(_fmt(_mean(done, k), spec) for k, _, spec in KEYS),
+                f"{len(group) - len(done)} / {len(group)}",
+                _fmt(float(np.median([r["compute_median"] for r in group])), "{:.1f}"),
+            ]
+        )
+    return markdown_table(["controller", *(h for _, h, _ in KEYS), "lost", "compute (ms)"], table)
+
+
+def _mean(rows: Sequence[dict[str, Any]], key: str) -> float:
+    values = [r[key] for r in rows if math.isfinite(r[key])]
+    return float(np.mean(values)) if values else math.nan
+
+
+def paired(rows, plant: str, a: str, b: str, key: str) -> tuple[int, tuple[float, float, float]]:
+    """a - b of ``key`` over the flights both flew to the end: (pairs, (mean, low, high))."""
+    ra, rb = _by_flight(rows, plant, a), _by_flight(rows, plant, b)
+    both = [k for k in ra if k in rb and ra[k]["completed"] and rb[k]["completed"]]
+    return len(both), paired_interval([ra[k][key] - rb[k][key] for k in both])
+
+
+def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
+    out = []
+    for a, b in pairs:
+        cells = []
+        for key, _, spec in KEYS:
+            n, (mean, lo, hi) = paired(rows, plant, a, b, key)
+            cells.append(f"{_fmt(mean, spec)} [{_fmt(lo, spec)}, {_fmt(hi, spec)}]")
+        out.append([f"{a} - {b}", n, *cells])
+    return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
+
+
+def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[list[str]]:
+    """Per maneuver: means over the seeds all three flew to the end, and (physics - learned) /
+    (physics - oracle)."""
+    sets = [_by_flight(rows, NOMINAL, label) for label in (physics, learned, oracle)]
+    out = []
+    for maneuver in dict.fromkeys(m for m, _ in sets[0]):
+        keys = [
+            k
+            for k in sets[0]
+            if k[0] == maneuver and all(k in s and s[k]["completed"] for s in sets)
+        ]
+        if not keys:
+            out.append([maneuver, "0", "-", "-", "-", "-"])
+            continue
+        p, learn, o = (float(np.mean([s[k][key] for k in keys])) for s in sets)
+        gap = (p - learn) / (p - o) if abs(p - o) > 1e-12 else math.nan
+        out.append(
+            [
+                maneuver,
+                str(len(keys)),
+                f"{p:.3f}",
+                f"{learn:.3f}",
+                f"{o:.3f}",
+                _fmt(100 * gap, "{:.0f} %"),
+            ]
+        )
+    return out
+
+
+def plot_horizons(rows, path: Path) -> Path:
+    """Load RMSE and swing RMS (means over completed nominal flights) against N per model."""
+    mpc = [r for r in rows if r["plant"] == NOMINAL and _horizon(r["controller"])]
+    models = list(dict.fromkeys(_model(r["controller"]) for r in mpc))
+    colors = model_colors(models)
+    fig = Figure(figsize=(9.0, 3.4))
+    for i, (key, head, _) in enumerate(KEYS[:2]):
+        ax = fig.add_subplot(1, 2, i + 1)
+        for model in models:
+            labels = sorted(
+                {r["controller"] for r in mpc if _model(r["controller"]) == model}, key=_horizon
+            )
+            ns = [_horizon(label) * 0.03 for label in labels]
+            ys = [
+                _mean([r for r in _by_flight(rows, NOMINAL, lb).values() if r["completed"]], key)
+                for lb in labels
+            ]
+            ax.plot(ns, ys, "o-", color=colors[model], label=model)
+        ax.set_xlabel("MPC horizon (s)")
+        ax.set_ylabel(head)
+        ax.grid(alpha=0.3)
+    fig.axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_paired(rows, pairs: Sequence[tuple[str, str]], path: Path) -> Path:
+    """The paired differences of the load RMSE and swing RMS with their 95 % intervals."""
+    fig = Figure(figsize=(9.0, 0.5 + 0.45 * len(pairs)))
+    for i, (key, head, _) in enumerate(KEYS[:2]):
+        ax = fig.add_subplot(1, 2, i + 1)
+        for j, (a, b) in enumerate(pairs):
+            _, (mean, lo, hi) = paired(rows, NOMINAL, a, b, key)
+            if math.isfinite(mean):
+                err = [[mean - lo], [hi - mean]] if math.isfinite(lo) else None
+                ax.errorbar(mean, j, xerr=err, fmt="o", color="C0", capsize=3)
+        ax.axvline(0.0, color="grey", lw=0.8)
+        ax.set_yticks(range(len(pairs)))
+        ax.set_yticklabels([f"{a} - {b}" for a, b in pairs] if i == 0 else [], fontsize=7)
+        ax.set_xlabel(f"difference in {head}")
+        ax.invert_yaxis()
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def write_study_report(rows: list[dict[str, Any]], config: StudyConfig, out: Path) -> Path:
+    """study.md and the figures into ``out`` (the MPC settings from its settings.json when a
+    real MPC was flown); returns study.md's path."""
+    out = Path(out)
+    settings = read_json(out / "settings.json") if (out / "settings.json").exists() else {}
+    labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == NOMINAL))
+    horizons = sorted({_horizon(lb) for lb in labels if _horizon(lb)})
+    has = set(labels).__contains__
+    first = horizons[0] if horizons else None
+    versus = [
+        (f"mpc-learned N={n}", f"mpc-physics N={n}")
+        for n in horizons
+        if has(f"mpc-learned N={n}") and has(f"mpc-physics N={n}")
+    ]
+    longer = [
+        (f"mpc-{m} N={n}", f"mpc-{m} N={first}")
+        for m in ("learned", "physics")
+        for n in horizons[1:]
+        if has(f"mpc-{m} N={n}") and has(f"mpc-{m} N={first}")
+    ]
+    classic = [
+        (f"mpc-learned N={first}", c)
+        for c in ("geometric", "pid")
+        if has(c) and has(f"mpc-learned N={first}")
+    ]
+    pairs = versus + longer + classic
+    parts = [
+        "# Closed-loop control study",
+        "",
+        _settings_line(config, settings),
+        "",
+        "Means over the flights each controller flew to the end; `lost`: flights that left the "
+        "arena or went non-finite. Differences: paired by maneuver and seed over the flights "
+        "both flew to the end, mean [95 % t-interval].",
+        "",
+        "## Nominal plant",
+        "",
+        means_table(rows, NOMINAL),
+        "",
+        "![error against horizon](horizons.png)",
+        "",
+        "## Paired differences",
+        "",
+        paired_table(rows, NOMINAL, pairs) if pairs else "(no pair flown)",
+        "",
+        "![paired differences](paired.png)",
+        "",
+    ]
+    oracle = f"mpc-oracle N={first}"
+    if has(oracle) and has(f"mpc-learned N={first}") and has(f"mpc-physics N={first}"):
+        parts += [
+            "## The gap to the oracle",
+            "",
+            f"(physics - learned) / (physics - oracle) at N = {first}, per maneuver.",
+            "",
+        ]
+        for key, head, _ in KEYS[:2]:
+            table = gap_closed(
+                rows, f"mpc-physics N={first}", f"mpc-learned N={first}", oracle, key
+            )
+            parts += [
+                f"{head}:",
+                "",
+                markdown_table(
+                    ["maneuver", "seeds", "physics", "learned", "oracle", "gap closed"], table
+                ),
+                "",
+            ]
+    for plant in dict.fromkeys(r["plant"] for r in rows):
+        if plant != NOMINAL:
+            parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
+    write_text(out / "study.md", "\n".join(parts))
+    plot_horizons(rows, out / "horizons.png")
+    if pairs:
+        plot_paired(rows, pairs, out / "paired.png")
+    seed = min(r["seed"] for r in rows)
+    shown = [
+        r
+        for r in rows
+        if r["plant"] == NOMINAL
+        and r["seed"] == seed
+        and _horizon(r["controller"]) in (None, first)
+    ]
+    plot_paths([load_log(out, r) for r in shown], out / "paths_3d.png")
+    return out / "study.md"
+
+
+def _settings_line(config: StudyConfig, settings: dict[str, Any]) -> str:
+    cfg = asdict(config)
+    mpc, samples = settings.get("mpc", {}), settings.get("samples", {})
+    tuned = "; ".join(
+        f"{k}: {', '.join(f'{n} {v}' for n, v in s.items()) or 'defaults'}" for k, s in mpc.items()
+    )
+    ks = "; ".join(
+        f"{k}: " + ", ".join(f"N={n} K={v}" for n, v in s.items()) for k, s in samples.items()
+    )
+    return (
+        f"Maneuvers {', '.join(cfg['maneuvers'])}; evaluation seeds "
+        f"{', '.join(map(str, cfg['seeds']))}; MPC settings chosen on seeds "
+        f"{', '.join(map(str, cfg['tuning_seeds']))} ({tuned}); samples ({ks}; the oracle "
+        f"K={cfg['oracle_samples']}); {cfg['steps'] or 'all'} recorded steps per flight; "
+        f"backend {cfg['backend']}; every unmodelled effect on."
+    )

@@ -1,0 +1,257 @@
+"""The control study's parts: the oracle (the plant as the MPC's model), the payload-aware
+geometric controller, the shifted plants, the paired statistics, and the study command that
+flies, resumes and reports (docs/control.md, "The control study")."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from slungload.control.closed_loop import flight_metrics, fly, swing_angle
+from slungload.control.geometric import GeometricGains, GeometricLoadController
+from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
+from slungload.control.oracle import PlantCandidates
+from slungload.control.results import paired_interval
+from slungload.control.study import collect_rows, run_study
+from slungload.control.study_config import SHIFTS, StudyConfig
+from slungload.control.study_report import gap_closed, write_study_report
+from slungload.frames import rotation_matrix
+from slungload.layout import LOAD_POS, POS, QUAT, VEL
+from slungload.sim.config import Effects, SimConfig
+from slungload.sim.controller import Measurement, PIDController
+from slungload.sim.dataset import vehicle_params
+from slungload.sim.maneuvers import Reference
+from slungload.sim.plant import Plant
+
+NOMINAL = SimConfig()
+LIMITS = InputLimits.from_sim(NOMINAL)
+
+
+def _truth(plant: Plant) -> np.ndarray:
+    x = np.empty(13)
+    x[POS], x[VEL], x[QUAT], x[LOAD_POS] = plant.p, plant.v, plant.q, plant.p_load
+    return x
+
+
+# --- the oracle ------------------------------------------------------------------------
+
+
+def test_a_fork_steps_apart_and_sync_brings_it_back():
+    plant = Plant(NOMINAL)
+    twin = plant.fork()
+    before = _truth(plant)
+    for _ in range(5):
+        twin.advance(20.0, np.array([1.0, 0.0, 0.0]), np.array([1.0, 0.0, 0.0]))
+    assert np.array_equal(_truth(plant), before)  # the plant did not move
+    assert not np.allclose(_truth(twin), before)
+    twin.sync(plant)
+    assert np.array_equal(_truth(twin), before)
+
+
+@pytest.mark.parametrize("effects", [Effects(), Effects.none()], ids=["every effect", "none"])
+def test_the_oracle_predicts_what_the_plant_then_does(effects):
+    # In still air the oracle's prediction of a plan is what the plant flies under that plan,
+    # bit for bit: the same MuJoCo state, latency, thrust scale, lag and forces.
+    cfg = replace(SimConfig(effects=effects), wind_std=0.0)
+    plant = Plant(cfg)
+    plant.advance(14.0, np.array([0.3, -0.2, 0.1]), np.zeros(3))  # not at rest, a command held
+    oracle = PlantCandidates()
+    oracle.attach(plant)
+    rng = np.random.default_rng(0)
+    plans = np.tile([14.2, 0.0, 0.0, 0.0], (3, 6, 1)) + rng.normal(0, [1, 0.5, 0.5, 0.2], (3, 6, 4))
+    states = oracle.predict_candidates(np.zeros((2, 13)), np.zeros((1, 4)), plans)
+    for u in plans[1]:
+        plant.advance(float(u[0]), u[1:], np.zeros(3))
+    assert np.array_equal(states[1, -1], _truth(plant))
+    assert not np.allclose(states[0, -1], states[1, -1])  # another plan, another outcome
+
+
+def test_the_oracle_needs_its_plant():
+    with pytest.raises(RuntimeError, match="attach"):
+        PlantCandidates().predict_candidates(
+            np.zeros((2, 13)), np.zeros((1, 4)), np.zeros((2, 3, 4))
+        )
+
+
+def test_the_oracle_mpc_flies_with_the_flights_plant_handed_through_the_guard():
+    mpc = SamplingMPC(
+        PlantCandidates(), LIMITS, MPCConfig(samples=4, horizon=4, knots=2), vehicle_params(NOMINAL)
+    )
+    log = fly("roll_35", 100, mpc, label="oracle", config=NOMINAL, steps=5)
+    assert log.stopped is None and mpc.stats.fallback_steps == 0
+    assert mpc.core.model.plant is not None
+
+
+# --- the geometric controller ------------------------------------------------------------
+
+
+def _hover_swing(controller, cfg: SimConfig, steps: int = 100) -> tuple[float, float]:
+    """Largest swing (deg) in the first and the last second after starting 25 deg out."""
+    plant = Plant(cfg)
+    p, angle = plant.p, math.radians(25.0)
+    plant.set_state(p_load=p + cfg.cable_length * np.array([math.sin(angle), 0, -math.cos(angle)]))
+    pos = np.tile(p, (steps, 1))
+    ref = Reference(pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros(steps))
+    swing = []
+    for k in range(steps):
+        m = Measurement(
+            k * cfg.control_dt, plant.p, plant.v, plant.q, rotation_matrix(plant.q), plant.p_load
+        )
+        thrust, rates = controller(m, ref, k)
+        plant.advance(thrust, rates, np.zeros(3))
+        swing.append(float(np.degrees(swing_angle(_truth(plant)[None]))[0]))
+    return max(swing[:33]), max(swing[-33:])
+
+
+def test_the_geometric_law_damps_a_swing_the_pid_only_rides():
+    # The cable loop's physics on the ideal plant, with a damping gain and an attitude loop
+    # fast enough for it (the defaults, chosen on the tuning flights with every effect on, lose
+    # no flight there but damp less: docs/control.md).
+    cfg = SimConfig(effects=Effects.none())
+    gains = GeometricGains(kq=12.0, kw=8.0, k_att=(12.0, 12.0, 3.0))
+    first, last = _hover_swing(GeometricLoadController(cfg, gains), cfg)
+    _, pid_last = _hover_swing(PIDController(cfg), cfg)
+    assert first > 20.0 and last < 0.2 * first
+    assert last < 0.5 * pid_last
+    wrong = GeometricGains(kq=12.0, kw=-8.0, k_att=(12.0, 12.0, 3.0))  # the damping reversed
+    assert _hover_swing(GeometricLoadController(cfg, wrong), cfg)[1] > first
+
+
+def test_the_geometric_controller_hovers_with_the_weight_and_no_rates():
+    # Known solution: the load hanging still under the vehicle at its reference.
+    cfg = SimConfig()
+    ctrl = GeometricLoadController(cfg)
+    p = np.array([0.0, 0.0, 1.5])
+    m = Measurement(
+        0.0, p, np.zeros(3), np.array([1.0, 0, 0, 0]), np.eye(3), p - [0, 0, cfg.cable_length]
+    )
+    ref = Reference(p[None], np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1))
+    thrust, rates = ctrl(m, ref, 0)
+    assert thrust == pytest.approx(cfg.total_mass * cfg.gravity, rel=1e-9)
+    assert np.allclose(rates, 0.0, atol=1e-12)
+
+
+def test_the_geometric_controller_tracks_a_gentle_maneuver():
+    log = fly(
+        "slow_ellipses_xy",
+        200,
+        GeometricLoadController(NOMINAL),
+        label="g",
+        config=NOMINAL,
+        steps=200,
+    )
+    row = flight_metrics(log, LIMITS, NOMINAL.cable_length)
+    assert row["completed"] and row["load_rmse"] < 0.25 and row["swing_max"] < 20.0
+
+
+# --- shifts and statistics -------------------------------------------------------------
+
+
+def test_each_shift_changes_what_it_names_and_nothing_else():
+    shifted = {name: shift(NOMINAL) for name, shift in SHIFTS.items()}
+    assert shifted["load +50%"].load_mass == pytest.approx(0.15)
+    assert shifted["cable +20%"].cable_length == pytest.approx(0.84)
+    assert shifted["wind x2"].wind_std == pytest.approx(0.30)
+    assert shifted["thrust lag x2"].thrust_tau == pytest.approx(0.08)
+    assert shifted["load +50%"].cable_length == NOMINAL.cable_length
+    assert shifted["cable +20%"].load_mass == NOMINAL.load_mass
+    with pytest.raises(ValueError, match="unknown plant shifts"):
+        StudyConfig(shifts=("gravity x2",))
+
+
+def test_paired_interval_is_the_t_interval():
+    mean, lo, hi = paired_interval([1.0, 2.0, 3.0])
+    assert mean == 2.0 and hi - mean == pytest.approx(4.303 / math.sqrt(3))
+    assert lo == pytest.approx(2.0 - 4.303 / math.sqrt(3))
+    assert math.isnan(paired_interval([1.0])[1]) and paired_interval([1.0])[0] == 1.0
+    assert all(math.isnan(v) for v in paired_interval([]))
+    many = paired_interval(np.r_[np.zeros(50), np.ones(50)])
+    assert many[2] - many[0] == pytest.approx(
+        1.96 * np.std(np.r_[np.zeros(50), np.ones(50)], ddof=1) / 10
+    )
+
+
+def _row(controller, maneuver, seed, load, completed=True):
+    return dict(
+        plant="nominal",
+        controller=controller,
+        maneuver=maneuver,
+        seed=seed,
+        load_rmse=load,
+        completed=completed,
+    )
+
+
+def test_gap_closed_is_measured_on_the_flights_all_three_finished():
+    rows = [
+        _row("p", "m", 1, 0.3),
+        _row("l", "m", 1, 0.2),
+        _row("o", "m", 1, 0.1),
+        _row("p", "m", 2, 0.9),
+        _row("l", "m", 2, 0.1, completed=False),
+        _row("o", "m", 2, 0.1),
+    ]
+    assert gap_closed(rows, "p", "l", "o", "load_rmse") == [
+        ["m", "1", "0.300", "0.200", "0.100", "50 %"]
+    ]
+
+
+# --- the study ---------------------------------------------------------------------------
+
+TINY = StudyConfig(
+    maneuvers=("roll_35",),
+    seeds=(100,),
+    tuning_seeds=(200,),
+    horizons=(3, 4),
+    oracle_samples=3,
+    oracle_horizons=(3,),
+    shifts=("wind x2",),
+    steps=6,
+    tune=False,
+    samples=4,
+)
+
+
+def test_the_study_flies_resumes_and_reports(tmp_path):
+    out = tmp_path / "study"
+    lines: list[str] = []
+    rows = run_study(None, out, TINY, progress=lines.append)
+    flown = {(r["plant"], r["controller"]) for r in rows}
+    assert flown == {
+        ("nominal", "pid"),
+        ("nominal", "geometric"),
+        ("nominal", "mpc-physics N=3"),
+        ("nominal", "mpc-physics N=4"),
+        ("nominal", "mpc-oracle N=3"),
+        ("wind x2", "pid"),
+        ("wind x2", "geometric"),
+        ("wind x2", "mpc-physics N=3"),
+    }
+    assert len(lines) == len(rows) == 8
+    lines.clear()
+    again = run_study(None, out, TINY, progress=lines.append)  # nothing left to fly
+    assert lines == [] and again == collect_rows(out) and len(again) == 8
+    report = write_study_report(again, TINY, out).read_text()
+    for part in (
+        "## Nominal plant",
+        "| mpc-oracle N=3 |",
+        "mpc-physics N=4 - mpc-physics N=3",
+        "## Shifted plant: wind x2",
+    ):
+        assert part in report
+    assert all((out / name).stat().st_size > 0 for name in ("horizons.png", "paths_3d.png"))
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["samples"]["physics"] == {"3": 4, "4": 4}
+    with pytest.raises(ValueError, match="another study configuration"):
+        run_study(None, out, replace(TINY, seeds=(101,)), progress=None)
+
+
+def test_the_study_command_refuses_two_models(run_cli, tmp_path):
+    code, _, err = run_cli(
+        "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"
+    )
+    assert code == 2 and "one --model" in err
