@@ -92,9 +92,9 @@ class SamplingMPC:
         params: VehicleParams | None = None,
     ) -> None:
         self.model = model
-        # A torch PredictionModel (it has predict_windows) is converted at the edge; a numpy
-        # CandidateModel (the oracle) is the core's model as it is.
-        numpy_model = TorchCandidates(model) if hasattr(model, "predict_windows") else model
+        # A torch model is converted at the edge; a model that says it takes numpy arrays
+        # (``numpy = True``: the oracle) is the core's model as it is.
+        numpy_model = model if getattr(model, "numpy", False) else TorchCandidates(model)
         self.core = MPPIController(numpy_model, limits, config, params)
 
     def attach(self, plant) -> None:

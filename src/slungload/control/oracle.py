@@ -29,6 +29,7 @@ class PlantCandidates:
 
     name = ORACLE
     history = 2  # it reads the true state, not the measured history
+    numpy = True  # numpy in and out: ``mpc.SamplingMPC`` takes it as it is
 
     def __init__(self) -> None:
         self.plant: Plant | None = None
