@@ -143,5 +143,5 @@ def _cmd_study(args: argparse.Namespace) -> int:
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers,
                      progress=None if args.quiet else print)  # fmt: skip
-    print(write_study_report(rows, config, args.out))
+    print(write_study_report(rows, config, args.out, str(learned) if learned else None))
     return 0

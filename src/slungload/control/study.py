@@ -111,7 +111,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers) -> list[F
             if kind not in controllers or kind not in models:
                 continue
             for n in horizons:
-                mpc = MPCConfig(**settings["mpc"][kind], horizon=n, knots=_knots(n),
+                mpc = MPCConfig(**_tuples(settings["mpc"][kind]), horizon=n, knots=_knots(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
                 plans.append(Flown(plant, f"mpc-{kind} N={n}",
                                    _mpc(models[kind], limits, mpc, params)))  # fmt: skip
@@ -121,6 +121,11 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers) -> list[F
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
                                    _mpc(None, limits, mpc, params)))  # fmt: skip
     return plans
+
+
+def _tuples(values: dict[str, Any]) -> dict[str, Any]:
+    """Settings read back from JSON with their lists as the tuples ``MPCConfig`` holds."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
 def _knots(horizon: int) -> int:

@@ -49,6 +49,18 @@ def _model(label: str) -> str:
     return re.sub(r"^mpc-| N=\d+$", "", label)
 
 
+def _ordered(labels) -> list[str]:
+    """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
+    order = ("pid", "geometric", "physics", "learned", "oracle")
+
+    def rank(label: str) -> tuple[int, str, int]:
+        model = _model(label)
+        return (order.index(model) if model in order else len(order), model,
+                _horizon(label) or 0)  # fmt: skip
+
+    return sorted(labels, key=rank)
+
+
 def _fmt(value: float, spec: str) -> str:
     return "-" if value is None or not math.isfinite(value) else spec.format(value)
 
@@ -63,7 +75,7 @@ def _by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, 
 
 def means_table(rows: list[dict[str, Any]], plant: str) -> str:
     """Per controller on ``plant``: means over its completed flights, lost / flown, compute."""
-    labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == plant))
+    labels = _ordered({r["controller"] for r in rows if r["plant"] == plant})
     table = []
     for label in labels:
         group = list(_by_flight(rows, plant, label).values())
@@ -176,9 +188,12 @@ def plot_paired(rows, pairs: Sequence[tuple[str, str]], path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def write_study_report(rows: list[dict[str, Any]], config: StudyConfig, out: Path) -> Path:
+def write_study_report(
+    rows: list[dict[str, Any]], config: StudyConfig, out: Path, learned: str | None = None
+) -> Path:
     """study.md and the figures into ``out`` (the MPC settings from its settings.json when a
-    real MPC was flown); returns study.md's path."""
+    real MPC was flown; ``learned``: the learned model's run folder, named in the report);
+    returns study.md's path."""
     out = Path(out)
     settings = read_json(out / "settings.json") if (out / "settings.json").exists() else {}
     labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == NOMINAL))
@@ -206,6 +221,8 @@ def write_study_report(rows: list[dict[str, Any]], config: StudyConfig, out: Pat
         "# Closed-loop control study",
         "",
         _settings_line(config, settings),
+        "",
+        f"The learned model: `{learned}`." if learned else "No learned model was flown.",
         "",
         "Means over the flights each controller flew to the end; `lost`: flights that left the "
         "arena or went non-finite. Differences: paired by maneuver and seed over the flights "
@@ -244,6 +261,8 @@ def write_study_report(rows: list[dict[str, Any]], config: StudyConfig, out: Pat
                 ),
                 "",
             ]
+    if has("geometric"):
+        parts += ["## Swings past 60 deg", "", _past_60(rows, labels), ""]
     for plant in dict.fromkeys(r["plant"] for r in rows):
         if plant != NOMINAL:
             parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
@@ -261,6 +280,20 @@ def write_study_report(rows: list[dict[str, Any]], config: StudyConfig, out: Pat
     ]
     plot_paths([load_log(out, r) for r in shown], out / "paths_3d.png")
     return out / "study.md"
+
+
+def _past_60(rows, labels: Sequence[str], limit: float = 60.0) -> str:
+    """Per MPC: flights whose swing passed ``limit`` deg where the geometric controller's did
+    not (the same maneuver and seed; a lost flight counts with the swing it reached)."""
+    geo = _by_flight(rows, NOMINAL, "geometric")
+    lines = []
+    for label in _ordered(lb for lb in labels if lb.startswith("mpc-")):
+        mine = _by_flight(rows, NOMINAL, label)
+        worse = [f"{m} s{seed}" for (m, seed), r in mine.items() if (m, seed) in geo
+                 and r["swing_max"] > limit >= geo[(m, seed)]["swing_max"]]  # fmt: skip
+        lines.append(f"- {label}: {len(worse)} of {len(mine)}" + (f" ({', '.join(worse)})"
+                     if worse else ""))  # fmt: skip
+    return "\n".join(lines)
 
 
 def _settings_line(config: StudyConfig, settings: dict[str, Any]) -> str:
