@@ -255,3 +255,11 @@ def test_the_study_command_refuses_two_models(run_cli, tmp_path):
         "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"
     )
     assert code == 2 and "one --model" in err
+
+
+def test_the_study_flies_only_the_plants_and_controllers_asked(tmp_path):
+    rows = run_study(None, tmp_path, TINY, controllers=("pid",), plants=("wind x2",), progress=None)
+    assert [(r["plant"], r["controller"]) for r in rows] == [("wind x2", "pid")]
+    assert not (tmp_path / "settings.json").exists()  # no real MPC: nothing tuned or timed
+    with pytest.raises(ValueError, match="unknown plants"):
+        run_study(None, tmp_path, TINY, plants=("moon",), progress=None)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..control.study_config import CONTROLLERS, DEFAULT_MANEUVERS, StudyConfig
+from ..control.study_config import CONTROLLERS, DEFAULT_MANEUVERS, NOMINAL, SHIFTS, StudyConfig
 from .common import choices, comma_ints, comma_names, new_command, seed_range
 
 
@@ -84,6 +84,14 @@ def add_control(sub: Any) -> None:
         f"{','.join(CONTROLLERS)})",
     )
     study.add_argument(
+        "--plants",
+        type=lambda text: [name.strip() for name in text.split(",") if name.strip()],
+        metavar="NAME,NAME",
+        help=f"plants to fly now, e.g. one per process (default all: {NOMINAL},"
+        + ",".join(SHIFTS).replace("%", "%%")  # argparse formats help with %
+        + ")",
+    )
+    study.add_argument(
         "--horizons",
         type=comma_ints,
         default=list(StudyConfig.horizons),
@@ -141,7 +149,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         changes["steps"] = args.steps
     config = replace(StudyConfig(), **changes)
     learned = args.model[0] if args.model else None
-    rows = run_study(learned, args.out, config, controllers=args.controllers,
+    rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
                      progress=None if args.quiet else print)  # fmt: skip
     print(write_study_report(rows, config, args.out, str(learned) if learned else None))
     return 0

@@ -70,17 +70,23 @@ def run_study(
     config: StudyConfig | None = None,
     *,
     controllers: Sequence[str] = CONTROLLERS,
+    plants: Sequence[str] | None = None,
     progress: Callable[[str], None] | None = print,
 ) -> list[dict[str, Any]]:
     """Fly what is missing of the study into ``out`` and return every row flown so far.
 
     learned: a trained run folder (None: no learned model, nor its equal-compute matching).
-    controllers: the kinds to fly now (``CONTROLLERS``), e.g. ("oracle",) in its own process.
+    controllers: the kinds to fly now (``CONTROLLERS``), e.g. ("oracle",) in its own process;
+    plants: the plants to fly now (NOMINAL and the config's shifts; default all), likewise.
     """
     cfg = config or StudyConfig()
     unknown = set(controllers) - set(CONTROLLERS)
     if unknown:
         raise ValueError(f"unknown controllers {sorted(unknown)}; known: {list(CONTROLLERS)}")
+    every = (NOMINAL, *cfg.shifts)
+    plants = every if plants is None else tuple(plants)
+    if set(plants) - set(every):
+        raise ValueError(f"unknown plants {sorted(set(plants) - set(every))}; known: {list(every)}")
     out = Path(out)
     nominal = SimConfig()
     params = vehicle_params(nominal)
@@ -90,7 +96,7 @@ def run_study(
         models["learned"] = load_model(learned, backend=cfg.backend)
     real_mpc = {PHYSICS, "learned"} & set(controllers)
     settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
-    for flown in _plan(cfg, settings, models, params, limits, nominal, controllers):
+    for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
         plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
         for maneuver in cfg.maneuvers:
             for seed in cfg.seeds:
@@ -98,10 +104,10 @@ def run_study(
     return collect_rows(out)
 
 
-def _plan(cfg, settings, models, params, limits, nominal, controllers) -> list[Flown]:
-    """Every (plant, controller) of the study, the cheap ones first."""
+def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -> list[Flown]:
+    """Every (plant, controller) to fly, plant by plant, the cheap controllers first."""
     plans: list[Flown] = []
-    for plant in (NOMINAL, *cfg.shifts):
+    for plant in plants:
         if "pid" in controllers:
             plans.append(Flown(plant, "pid", lambda seed: PIDController(nominal)))
         if GEOMETRIC in controllers:
