@@ -326,8 +326,8 @@ def test_every_log_suffix_dispatches_to_its_reader(tmp_path, monkeypatch):
     calls = []
 
     def fake(name):
-        def read(path, mapping, *, progress=False):
-            calls.append((name, path.name, mapping, progress))
+        def read(path, mapping, *, progress=False, roles=None):
+            calls.append((name, path.name, mapping, progress, roles))
             return name
 
         return read
@@ -349,7 +349,7 @@ def test_every_log_suffix_dispatches_to_its_reader(tmp_path, monkeypatch):
             settings = dict(mapping[reader.section])
             if reader.presets:
                 settings["preset"] = "px4"
-            assert calls[-1] == (reader.function, path.name, settings, True)
+            assert calls[-1] == (reader.function, path.name, settings, True, None)
     assert claimed == {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog",
                        ".csv": "csv"}  # fmt: skip
     bag2 = tmp_path / "bag2"

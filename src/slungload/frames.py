@@ -84,6 +84,27 @@ def rotation_matrix(q: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
+def quat_from_matrix(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion w-x-y-z (4,) of a rotation matrix (3, 3), any angle up to pi
+    (Shepperd: from the largest of w, x, y, z, so no division by a small number); the
+    inverse of ``rotation_matrix``, up to sign."""
+    r = np.asarray(r, float)
+    trace = r[0, 0] + r[1, 1] + r[2, 2]
+    diagonal = 2.0 * np.diag(r) - trace
+    squares = 1.0 + np.array([trace, *diagonal])  # 4 w^2, 4 x^2, 4 y^2, 4 z^2
+    k = int(np.argmax(squares))
+    big = 0.5 * math.sqrt(max(squares[k], 0.0))  # the largest component, >= 1/2
+    sums = {  # 4 times the products of the largest component with the others
+        0: (r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]),
+        1: (r[2, 1] - r[1, 2], r[0, 1] + r[1, 0], r[0, 2] + r[2, 0]),
+        2: (r[0, 2] - r[2, 0], r[0, 1] + r[1, 0], r[1, 2] + r[2, 1]),
+        3: (r[1, 0] - r[0, 1], r[0, 2] + r[2, 0], r[1, 2] + r[2, 1]),
+    }[k]
+    others = [s / (4 * big) for s in sums]
+    q = np.array(others[:k] + [big] + others[k:])
+    return q / np.linalg.norm(q)
+
+
 def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
 

@@ -272,6 +272,7 @@ def add_import(sub: Any) -> None:
         "flights').",
     )
     _add_import_sources(p)
+    _add_import_second(p)
     _add_import_resampling(p)
     _add_import_output(p)
     add_vehicle_options(p)
@@ -300,6 +301,56 @@ def _add_import_sources(p: argparse.ArgumentParser) -> None:
         "--preset",
         choices=("mavros", "px4"),
         help="default topics of a bag: MAVROS (default) or PX4 over ROS 2",
+    )
+
+
+def _add_import_second(p: argparse.ArgumentParser) -> None:
+    """A second log (motion capture beside a PX4 ULog) and how it is aligned to each log."""
+    from dataclasses import fields
+
+    from ..data.consistency import ConsistencyLimits  # light: no numpy
+    from ..data.import_options import ROTATIONS, SecondLog
+
+    default = {f.name: f.default for f in fields(SecondLog)}
+    g = p.add_argument_group(
+        "a second log",
+        "streams of every flight (the load by default) from a second log, e.g. a motion-capture "
+        "bag or CSV beside a PX4 ULog: its clock and world frame are fitted to each LOG on the "
+        "vehicle track both hold, and the import refused when they disagree (docs/data.md)",
+    )
+    g.add_argument("--second", type=Path, metavar="LOG", help="the second log (any LOG format)")
+    g.add_argument(
+        "--second-map",
+        type=Path,
+        metavar="FILE",
+        help="topics / columns / frames of the second log, as --map (default: --map's)",
+    )
+    g.add_argument(
+        "--from-second",
+        type=comma_names,
+        metavar="ROLE,ROLE",
+        help="streams taken from the second log: load, position, velocity, attitude, rates, "
+        f"thrust (default {','.join(default['roles'])})",
+    )
+    g.add_argument(
+        "--time-offset",
+        type=float,
+        metavar="S",
+        help="seconds added to the second log's stamps to put them on LOG's clock (default: "
+        "estimated from the vehicle track; the frame is fitted either way)",
+    )
+    g.add_argument(
+        "--align",
+        choices=ROTATIONS,
+        help="the frames differ by a rotation about z (yaw: both z up) or any rotation (full) "
+        f"(default {default['rotation']})",
+    )
+    g.add_argument(
+        "--align-tolerance",
+        type=float,
+        metavar="M",
+        help="largest RMS vehicle position mismatch after alignment, m (default "
+        f"{ConsistencyLimits().align_residual:g})",
     )
 
 
@@ -399,7 +450,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
 
     from ..config import VehicleParams, read_vehicle
-    from ..data.importing import ImportOptions, import_logs
+    from ..data.consistency import ConsistencyLimits
+    from ..data.importing import ImportOptions, SecondLog, import_logs
     from ..data.readers.logs import load_mapping
 
     overrides = vehicle_overrides(args)
@@ -418,7 +470,18 @@ def cmd_import(args: argparse.Namespace) -> int:
         block_gap=args.block_gap,
         seed=args.seed,
         force=args.force,
+        limits=ConsistencyLimits(
+            **({} if args.align_tolerance is None else {"align_residual": args.align_tolerance})
+        ),
     )
+    given = {"roles": args.from_second, "time_offset": args.time_offset, "rotation": args.align}
+    given = {k: v for k, v in given.items() if v is not None}
+    second = None
+    if args.second is not None:
+        own = load_mapping(args.second_map) if args.second_map is not None else None
+        second = SecondLog(args.second, mapping=own, **given)
+    elif given or args.second_map is not None:
+        raise ValueError("--second-map, --from-second, --time-offset and --align need --second LOG")
     result = import_logs(
         args.logs,
         args.out,
@@ -426,6 +489,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         mapping=load_mapping(args.map) if args.map is not None else None,
         preset=args.preset,
         options=options,
+        second=second,
         overwrite=args.overwrite,
         progress=not args.quiet,
     )

@@ -4,7 +4,8 @@
 per source format, flight files and logs), ``dataset`` (a folder with split lists:
 ``load_dataset``), ``windows`` (``make_windows``), ``cache`` (prepared flights on disk),
 ``summary`` (``slungload inspect``), ``split`` (the split policy), ``writer`` (the one dataset
-writer), ``importing`` (``slungload import``).
+writer), ``importing`` (``slungload import``), ``alignment`` (a second log on the first's
+clock and frame).
 
 The names below are resolved on first use (PEP 562), so that the CLI's help can read the split
 policy without loading torch.

@@ -53,6 +53,11 @@ class ConsistencyLimits:
     thrust_high: float = 2.0  # -, and at most
     min_step: float = 1e-4  # s, median time step of a logged stream at least
     max_step: float = 0.5  # s, and at most
+    # a second log (data.alignment): its vehicle track against the first log's
+    align_residual: float = 0.05  # m, RMS vehicle position mismatch after alignment at most
+    align_extent: float = 0.2  # m, RMS spread of the vehicle's path the frame is fitted on
+    align_overlap: float = 0.5  # -, share of the shorter vehicle track both logs cover, at least
+    align_duration: float = 5.0  # s, and at least this long
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -60,6 +65,10 @@ class ConsistencyLimits:
                 raise ValueError(f"ConsistencyLimits.{f.name} is {getattr(self, f.name)}")
         if not (self.thrust_low < self.thrust_high and self.min_step < self.max_step):
             raise ValueError("ConsistencyLimits: each lower limit must be below its upper one")
+        if not 0.0 < self.align_overlap <= 1.0:
+            raise ValueError(
+                f"ConsistencyLimits.align_overlap is {self.align_overlap}, not in (0, 1]"
+            )
 
     def describe(self) -> str:
         """The limits in words, for the command line's help and messages."""
@@ -69,7 +78,9 @@ class ConsistencyLimits:
             f"the mean cable direction within {math.degrees(self.mean_swing):.0f} deg of "
             f"straight down; the vehicle upright on average; quaternion norms within "
             f"{self.quat_norm:g} of 1; median thrust {self.thrust_low:g} to {self.thrust_high:g} "
-            f"times hover; median time step {self.min_step:g} to {self.max_step:g} s"
+            f"times hover; median time step {self.min_step:g} to {self.max_step:g} s; a second "
+            f"log's vehicle positions within {self.align_residual:g} m (RMS) of the first's "
+            f"after alignment, on a path of at least {self.align_extent:g} m (RMS spread)"
         )
 
 

@@ -1,10 +1,14 @@
 """The options of ``slungload import`` (``importing.import_logs``), one frozen record: the
 thrust map, the gaps, the resampling, the split and the consistency checks (``resample`` and
-``importing`` read them; defaults here only)."""
+``importing`` read them; defaults here only); and ``SecondLog``, a second log that gives some
+streams of every flight (``alignment``)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from .consistency import ConsistencyLimits
 from .split import WINDOW_STEPS
@@ -49,3 +53,35 @@ class ImportOptions:
         ):
             if getattr(self, name) not in known:
                 raise ValueError(f"{name} must be one of {known}, got {getattr(self, name)!r}")
+
+
+ROTATIONS = ("yaw", "full")
+
+
+@dataclass(frozen=True)
+class SecondLog:
+    """A second log (typically motion capture: a bag or a CSV) that gives ``roles`` of every
+    flight, aligned in time and frame to each first log on the vehicle track both hold
+    (``alignment.align_tracks``; the tolerances are ``ConsistencyLimits.align_*``)."""
+
+    path: Path
+    roles: tuple[str, ...] = ("load",)  # streams taken from it (readers.logs.ROLES)
+    mapping: dict[str, Any] | None = field(default=None, compare=False)  # None: the import's
+    time_offset: float | None = None  # s added to its stamps for the first's clock; None: fit
+    rotation: str = "yaw"  # its frame differs by a rotation about z ("yaw") or any ("full")
+
+    def __post_init__(self) -> None:
+        from .readers.logs import ROLES  # numpy: only once a second log is named
+
+        object.__setattr__(self, "path", Path(self.path).expanduser())
+        object.__setattr__(self, "roles", tuple(self.roles))
+        unknown = [r for r in self.roles if r not in ROLES]
+        if not self.roles or unknown:
+            raise ValueError(
+                f"streams from the second log must be some of {', '.join(ROLES)}; got "
+                f"{', '.join(self.roles) or 'none'}"
+            )
+        if self.time_offset is not None and not math.isfinite(self.time_offset):
+            raise ValueError(f"time offset must be a finite number of s, got {self.time_offset}")
+        if self.rotation not in ROTATIONS:
+            raise ValueError(f"rotation must be one of {ROTATIONS}, got {self.rotation!r}")

@@ -13,6 +13,12 @@ upright, the thrust against hover); a piece outside them stops the import with a
 Each log's format comes from ``readers.LOG_READERS`` (by suffix; a rosbag2 folder by its
 ``metadata.yaml``), which also names its reader and its section of a mapping file.
 
+A second log (``SecondLog``: typically motion capture beside a PX4 ULog) gives some streams
+of every flight, the load by default: it is read once, and put on each first log's clock and
+frame by ``alignment.attach_second`` (the time offset and rigid transform fitted on the
+vehicle track both hold, refused when the residual is above
+``ConsistencyLimits.align_residual``) before resampling; ``vehicle.json`` records it.
+
 Then the flights are split by recording (``split``: the pieces of one log stay in one split)
 and written by ``writer.DatasetWriter`` in the authors' release layout (``OUT/data/NAME.npz``,
 ``OUT/train.txt`` ... naming files with ``.npz``, ``OUT/vehicle.json`` with the constants and
@@ -22,6 +28,7 @@ imported raises ``LogError`` (a ``ValueError``) naming the file and the topic or
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +38,7 @@ import numpy as np
 from .._version import __version__
 from ..config import VehicleParams
 from ..fileio import SPLITS
+from .alignment import attach_second
 from .consistency import (
     ConsistencyError,
     ConsistencyLimits,
@@ -39,16 +47,16 @@ from .consistency import (
     refusal,
 )
 from .flight import FlightFormatError
-from .import_options import ImportOptions
+from .import_options import ImportOptions, SecondLog
 from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
-from .readers.logs import LogError, RawLog
+from .readers.logs import ROLES, LogError, RawLog
 from .readers.npz import from_arrays
 from .resample import backward_velocity, resample_log
 from .split import split_flights, time_blocks
 from .writer import DatasetWriter
 
-__all__ = ["ImportOptions", "ImportResult", "backward_velocity", "find_logs", "import_logs",
-           "read_log", "resample_log"]  # fmt: skip
+__all__ = ["ImportOptions", "ImportResult", "SecondLog", "backward_velocity", "find_logs",
+           "import_logs", "read_log", "resample_log"]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -123,11 +131,12 @@ def read_log(
     *,
     preset: str | None = None,
     progress: bool = False,
+    roles: Collection[str] | None = None,
 ) -> RawLog:
     """One log's streams by its format (``readers.LOG_READERS``). ``mapping`` holds the
     source's settings, or sections "ros", "ulog", "csv" of them; ``preset`` names the bags'
-    defaults ("mavros", "px4")."""
-    return LOG_READERS[kind].read(path, mapping, preset=preset, progress=progress)
+    defaults ("mavros", "px4"); ``roles``: the streams to read (None: every one)."""
+    return LOG_READERS[kind].read(path, mapping, preset=preset, progress=progress, roles=roles)
 
 
 def import_logs(
@@ -138,6 +147,7 @@ def import_logs(
     mapping: dict[str, Any] | None = None,
     preset: str | None = None,
     options: ImportOptions = ImportOptions(),  # noqa: B008 (frozen)
+    second: SecondLog | None = None,
     overwrite: bool = False,
     progress: bool = True,
 ) -> ImportResult:
@@ -146,6 +156,7 @@ def import_logs(
     ``params``: the vehicle constants (``dt`` is the dataset step; the masses and gravity enter
     the thrust map); None uses the paper's, with a note. ``mapping``: topics, columns and frames
     (``load_mapping`` reads a file), ``preset``: the bags' defaults ("mavros" or "px4").
+    ``second``: a second log giving some streams of every flight, aligned to each log.
     Refuses a non-empty ``out`` unless ``overwrite``. Nothing is written unless every log
     imports.
     """
@@ -159,7 +170,9 @@ def import_logs(
             f"no vehicle constants given: the paper's are used and written to vehicle.json "
             f"({params}); the cable length |pL - p| is checked only for its spread"
         )
-    flights, settings = _import_flights(logs, params, mapping, preset, options, progress, notes)
+    flights, settings = _import_flights(
+        logs, params, mapping, preset, options, second, progress, notes
+    )
     _check_flights(flights, params)
     checks = _consistency(flights, params, options, own_cable, notes)
 
@@ -186,29 +199,66 @@ def _import_flights(
     mapping: dict[str, Any] | None,
     preset: str | None,
     options: ImportOptions,
+    second: SecondLog | None,
     progress: bool,
     notes: list[str],
 ) -> tuple[list[ImportedFlight], dict[str, Any]]:
-    """Every log read and resampled into flights (named after the log, with ``_00``, ``_01``
-    ... when it splits into pieces), and each log's import settings by path; the logs' notes
-    are appended to ``notes``."""
+    """Every log read (with the second log's streams, aligned) and resampled into flights
+    (named after the log, with ``_00``, ``_01`` ... when it splits into pieces), and each
+    log's import settings by path; the logs' notes are appended to ``notes``."""
     from tqdm.auto import tqdm
 
     flights: list[ImportedFlight] = []
     settings: dict[str, Any] = {}
+    roles: Collection[str] | None = None
+    other = None
+    if second is not None:
+        logs, other = _read_second(logs, second, mapping, preset, progress, notes)
+        roles = [r for r in ROLES if r not in second.roles or r == "position"]  # p aligns
     bar = tqdm(logs, desc="importing logs", unit="log", disable=not progress or len(logs) < 2)
     for path, kind in bar:
-        raw = read_log(path, kind, mapping, preset=preset, progress=progress)
+        raw = read_log(path, kind, mapping, preset=preset, progress=progress, roles=roles)
+        record = None
+        if other is not None:
+            raw, record = attach_second(raw, other, second, options, notes)
         got = resample_log(raw, params, options)
         notes += raw.notes + got.notes
         settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map}
         if got.forced:
             settings[str(path)]["forced"] = got.forced
+        if record is not None:
+            settings[str(path)]["second"] = record
         stem = path.stem if path.is_file() else path.name
         for k, (start, arrays) in enumerate(got.pieces):
             name = stem if len(got.pieces) == 1 else f"{stem}_{k:02d}"
             flights.append(ImportedFlight(name, path, start, arrays))
     return flights, settings
+
+
+def _read_second(
+    logs: list[tuple[Path, str]],
+    second: SecondLog,
+    mapping: dict[str, Any] | None,
+    preset: str | None,
+    progress: bool,
+    notes: list[str],
+) -> tuple[list[tuple[Path, str]], RawLog]:
+    """The first logs without the second (a folder may hold both) and the second log's
+    streams: the vehicle's position (to align on) and ``second.roles``."""
+    found = find_logs([second.path])
+    if len(found) != 1:
+        raise LogError(f"{second.path}: the second log must be one log, not {len(found)}")
+    path, kind = found[0]
+    first = [(p, k) for p, k in logs if p.resolve() != path.resolve()]
+    if not first:
+        raise LogError(f"{path}: the second log is the only log given; name the first as well")
+    if len(first) < len(logs):
+        notes.append(f"{path}: the second log is not imported on its own")
+    own = second.mapping if second.mapping is not None else mapping
+    raw = read_log(path, kind, own, preset=preset, progress=progress,
+                   roles=("position", *second.roles))  # fmt: skip
+    notes += raw.notes
+    return first, raw
 
 
 def _check_flights(flights: list[ImportedFlight], params: VehicleParams) -> None:

@@ -11,14 +11,15 @@ folder or under ``data/`` (the authors' release layout). A new source is a modul
 CSV), which are recordings to convert rather than dataset files: a format name -> the suffixes
 it claims, its section of a mapping file and its reader, named as ``module:function`` and
 imported on first use (so rosbags and pyulog load only when such a log is read). A new log
-format is a module here with ``read(path, mapping, *, progress) -> logs.RawLog`` and one entry.
+format is a module here with ``read(path, mapping, *, progress, roles) -> logs.RawLog`` (``roles``:
+the streams wanted, ``logs.ROLES``, None for all; a second log is read for a few) and one entry.
 """
 
 from __future__ import annotations
 
 import importlib
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -122,7 +123,7 @@ class LogReader:
 
     suffixes: tuple[str, ...]  # lower case, with the dot
     section: str  # the mapping file's section that holds this format's settings
-    function: str  # "module:function" in this package: (path, mapping, *, progress) -> RawLog
+    function: str  # "module:function" here: (path, mapping, *, progress, roles) -> RawLog
     folder_marker: str | None = None  # a folder holding this file is one log (rosbag2)
     presets: bool = False  # takes the bags' default topics (--preset)
 
@@ -138,15 +139,17 @@ class LogReader:
         *,
         preset: str | None = None,
         progress: bool = False,
+        roles: Collection[str] | None = None,
     ) -> RawLog:
         """One log's streams. ``mapping`` holds this format's settings, or sections ("ros",
-        "ulog", "csv") of every format's; ``preset`` is ignored by formats without presets."""
+        "ulog", "csv") of every format's; ``preset`` is ignored by formats without presets;
+        ``roles``: the streams to read (``logs.ROLES``; None: every one)."""
         mapping = dict(mapping or {})
         if any(isinstance(mapping.get(r.section), dict) for r in LOG_READERS.values()):
             mapping = dict(mapping.get(self.section, {}))
         if preset is not None and self.presets:
             mapping["preset"] = preset
-        return self.load()(path, mapping, progress=progress)
+        return self.load()(path, mapping, progress=progress, roles=roles)
 
 
 LOG_READERS: dict[str, LogReader] = {

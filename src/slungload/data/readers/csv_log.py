@@ -19,13 +19,14 @@ neither blank nor a number is an error naming the row and the column.
 from __future__ import annotations
 
 import csv
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ... import frames
-from .logs import LogError, RawLog, Stream, choice, merge_settings
+from .logs import ROLES, LogError, RawLog, Stream, choice, merge_settings
 
 
 def _cols(key: str, axes: str) -> list[str]:
@@ -59,10 +60,17 @@ _ROLE = {
 
 
 def read_csv(
-    path: str | Path, mapping: dict[str, Any] | None = None, *, progress: bool = False
+    path: str | Path,
+    mapping: dict[str, Any] | None = None,
+    *,
+    progress: bool = False,
+    roles: Collection[str] | None = None,
 ) -> RawLog:
-    """The streams of one CSV log (``progress`` is unused: one quick pass)."""
+    """The streams of one CSV log (``progress`` is unused: one quick pass); only the columns
+    of ``roles`` (None: every role) are read, so a motion-capture CSV of positions alone
+    serves as a second log."""
     path = Path(path)
+    wanted = set(ROLES if roles is None else roles)
     what = str(path)
     settings = merge_settings(CSV_DEFAULTS, mapping, what)
     world = choice(settings, "world", frames.WORLD_FRAMES, what)
@@ -76,7 +84,9 @@ def read_csv(
     def numbers(name: str, key: str) -> np.ndarray:
         return _numbers(path, header, body_rows, name, key)
 
-    if _columns(settings, "p_load", path) == _columns(settings, "p", path):
+    if {"load", "position"} <= wanted and _columns(settings, "p_load", path) == _columns(
+        settings, "p", path
+    ):
         raise LogError(
             f"{path}: the load's columns (mapping key 'p_load') are the vehicle's own ('p': "
             f"{', '.join(_columns(settings, 'p', path) or [])}): |pL - p| would be 0; map "
@@ -92,6 +102,8 @@ def read_csv(
     stamped = np.isfinite(time)
     streams: dict[str, Stream] = {}
     for key, role in _ROLE.items():
+        if role not in wanted:
+            continue
         names = _columns(settings, key, path)
         if key == "v":  # optional: absent default columns, or "", mean finite differences
             explicit = bool((mapping or {}).get("v"))

@@ -28,13 +28,14 @@ definitions in ``MSG_DEFINITIONS`` (MAVROS 2.x, PX4 v1.14) are registered.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ... import frames
-from .logs import LogError, RawLog, Stream, choice, merge_settings
+from .logs import ROLES, LogError, RawLog, Stream, choice, merge_settings
 
 PRESETS: dict[str, dict[str, str]] = {
     "mavros": {  # ROS 1 or 2 with MAVROS, mocap through vrpn_client_ros
@@ -127,6 +128,12 @@ TOPIC_TYPES = {  # mapping key -> accepted message types
     "velocity": VELOCITY_TYPES,
     "command": COMMAND_TYPES,
 }
+KEY_ROLES = {  # mapping key -> the roles (readers.logs.ROLES) its topic gives
+    "vehicle_pose": ("position", "attitude"),
+    "load_pose": ("load",),
+    "velocity": ("velocity",),
+    "command": ("rates", "thrust"),
+}
 _IGNORE_RATES = 1 | 2 | 4
 _IGNORE_THRUST = 64
 
@@ -147,15 +154,26 @@ def bag_settings(mapping: dict[str, Any] | None, what: str) -> dict[str, Any]:
 
 
 def read_bag(
-    path: str | Path, mapping: dict[str, Any] | None = None, *, progress: bool = False
+    path: str | Path,
+    mapping: dict[str, Any] | None = None,
+    *,
+    progress: bool = False,
+    roles: Collection[str] | None = None,
 ) -> RawLog:
-    """The streams of one bag (ROS 1 ``.bag``; ROS 2 folder, ``.mcap`` or ``.db3``)."""
+    """The streams of one bag (ROS 1 ``.bag``; ROS 2 folder, ``.mcap`` or ``.db3``); only the
+    topics that give ``roles`` (None: every role) are read, so a motion-capture bag without
+    commands serves as a second log (``data.alignment``)."""
     from rosbags.highlevel import AnyReader, AnyReaderError
 
     path = Path(path)
     settings = bag_settings(mapping, str(path))
-    topics = {key: settings[key] for key in TOPIC_TYPES if settings[key]}
-    if topics.get("load_pose") == topics.get("vehicle_pose"):
+    wanted = set(ROLES if roles is None else roles)
+    topics = {
+        key: settings[key]
+        for key in TOPIC_TYPES
+        if settings[key] and wanted.intersection(KEY_ROLES[key])
+    }
+    if "load_pose" in topics and topics["load_pose"] == topics.get("vehicle_pose"):
         raise LogError(
             f"{path}: the load is mapped to the vehicle's own topic {topics['load_pose']} "
             "(mapping keys 'load_pose' and 'vehicle_pose'): |pL - p| would be 0; map "
@@ -179,8 +197,9 @@ def read_bag(
     for key, topic in topics.items():
         msgtype, rows = samples[key]
         stamps = _stamps(rows, settings["stamps"], topic, notes, path)
-        streams.update(_convert(key, msgtype, topic, rows, stamps, settings, path))
-    if "velocity" not in topics:
+        got = _convert(key, msgtype, topic, rows, stamps, settings, path)
+        streams.update({role: s for role, s in got.items() if role in wanted})
+    if "velocity" in wanted and "velocity" not in topics:
         notes.append(f"{path}: no velocity topic: the velocity is a finite difference of the pose")
     return RawLog(path, kind, streams, True, settings, notes)
 

@@ -24,13 +24,14 @@ throttle of the thrust map is the log's ``MPC_THR_HOVER`` parameter unless given
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ... import frames
-from .logs import LogError, RawLog, Stream, merge_settings
+from .logs import ROLES, LogError, RawLog, Stream, merge_settings
 
 ULOG_DEFAULTS: dict[str, str] = {
     "position": "vehicle_local_position",
@@ -50,9 +51,15 @@ _THRUST_FIELDS = (("xyz[2]",), ("thrust_body[2]",))
 
 
 def read_ulog(
-    path: str | Path, mapping: dict[str, Any] | None = None, *, progress: bool = False
+    path: str | Path,
+    mapping: dict[str, Any] | None = None,
+    *,
+    progress: bool = False,
+    roles: Collection[str] | None = None,
 ) -> RawLog:
-    """The streams of one ``.ulg`` file (``progress`` is unused: pyulog reads it at once)."""
+    """The streams of one ``.ulg`` file (``progress`` is unused: pyulog reads it at once);
+    only ``roles`` (None: every role), so a log whose load comes from a second log needs no
+    ``load`` topic."""
     from pyulog import ULog
 
     path = Path(path)
@@ -63,7 +70,7 @@ def read_ulog(
         raise LogError(msg) from None
     topics = {f"{d.name}:{d.multi_id}": d.data for d in log.data_list}
     hover = log.initial_parameters.get(HOVER_PARAMETER)
-    return ulog_streams(topics, path, mapping, hover_throttle=hover)
+    return ulog_streams(topics, path, mapping, hover_throttle=hover, roles=roles)
 
 
 def ulog_streams(
@@ -72,36 +79,51 @@ def ulog_streams(
     mapping: dict[str, Any] | None = None,
     *,
     hover_throttle: float | None = None,
+    roles: Collection[str] | None = None,
 ) -> RawLog:
     """Streams from a ULog's topics as arrays: ``"name:instance"`` -> field -> (n,) values
-    (``timestamp`` in microseconds), as ``pyulog`` gives them. The conversion is tested on
-    arrays; ``read_ulog`` feeds it a parsed file."""
+    (``timestamp`` in microseconds), as ``pyulog`` gives them; only ``roles`` (None: every
+    role). The conversion is tested on arrays; ``read_ulog`` feeds it a parsed file."""
     settings = merge_settings(ULOG_DEFAULTS, mapping, str(path))
+    wanted = set(ROLES if roles is None else roles)
     notes: list[str] = []
+    if "load" in wanted:
+        _check_load(topics, settings, path)
+    log = _Topics(topics, settings, path)
+    streams = _motion_streams(log, wanted, notes)
+    if "attitude" in wanted:
+        name, t, q, _ = log.series("attitude", _QUAT_FIELDS, "quaternion")
+        streams["attitude"] = Stream(f"topic {name}", t, frames.attitudes(q, "ned", "frd"))
+    if "rates" in wanted:
+        name, t, rates, _ = log.series("rates", _RATE_FIELDS, "body rate")
+        streams["rates"] = Stream(f"topic {name}", t, frames.body_vectors(rates, "frd"))
+    if "thrust" in wanted:
+        name, t, thrust = _thrust(log, notes)
+        streams["thrust"] = Stream(f"topic {name}", t, -thrust)  # body z is down in FRD
+    if "load" in wanted:
+        name, t, load, _ = log.series("load", _POSITION_FIELDS, "position")
+        streams["load"] = Stream(f"topic {name}", t, frames.world_vectors(load, "ned"))
+    return RawLog(path, "ulog", streams, True, settings, notes, hover_throttle=hover_throttle)
+
+
+def _check_load(
+    topics: dict[str, dict[str, np.ndarray]], settings: dict[str, Any], path: Path
+) -> None:
+    """The load's topic is named, and is not the vehicle's own position topic."""
     if not settings["load"]:
         carriers = sorted(name for name, data in topics.items() if _carries_position(data))
         raise LogError(
             f"{path}: the log holds no load position: name the topic that carries it with the "
-            f"mapping key 'load' (name or name:instance); topics with a position: "
-            f"{', '.join(carriers) or 'none'}"
+            f"mapping key 'load' (name or name:instance), or take it from a second log "
+            f"(--second); topics with a position: {', '.join(carriers) or 'none'}"
         )
     if _instance(settings["load"]) == _instance(settings["position"]):
         raise LogError(
             f"{path}: the load is mapped to the vehicle's own position topic "
             f"{_instance(settings['load'])} (mapping keys 'load' and 'position'): |pL - p| "
-            "would be 0; map 'load' to the load's motion-capture topic"
+            "would be 0; map 'load' to the load's motion-capture topic (or take the load "
+            "from a second log: --second)"
         )
-    log = _Topics(topics, settings, path)
-    streams = _motion_streams(log, notes)
-    name, t, q, _ = log.series("attitude", _QUAT_FIELDS, "quaternion")
-    streams["attitude"] = Stream(f"topic {name}", t, frames.attitudes(q, "ned", "frd"))
-    name, t, rates, rates_data = log.series("rates", _RATE_FIELDS, "body rate")
-    streams["rates"] = Stream(f"topic {name}", t, frames.body_vectors(rates, "frd"))
-    name, t, thrust = _thrust(log, rates_data, notes)
-    streams["thrust"] = Stream(f"topic {name}", t, -thrust)  # body z is down in FRD
-    name, t, load, _ = log.series("load", _POSITION_FIELDS, "position")
-    streams["load"] = Stream(f"topic {name}", t, frames.world_vectors(load, "ned"))
-    return RawLog(path, "ulog", streams, True, settings, notes, hover_throttle=hover_throttle)
 
 
 class _Topics:
@@ -142,11 +164,13 @@ class _Topics:
         return name, t, np.stack([np.asarray(data[c], np.float64) for c in cols], axis=1), data
 
 
-def _motion_streams(log: _Topics, notes: list[str]) -> dict[str, Stream]:
+def _motion_streams(log: _Topics, wanted: set[str], notes: list[str]) -> dict[str, Stream]:
     """The vehicle's position and (when mapped) velocity streams, z up, without the samples
-    the EKF flags invalid."""
+    the EKF flags invalid; those of ``wanted``."""
     path = log.path
     streams: dict[str, Stream] = {}
+    if "position" not in wanted:
+        return streams
     name, t, pos, data = log.series("position", _POSITION_FIELDS, "position")
     keep = _valid(data, ("xy_valid", "z_valid"))
     if len(keep) and not keep.any():
@@ -158,6 +182,8 @@ def _motion_streams(log: _Topics, notes: list[str]) -> dict[str, Stream]:
     if not keep.all():
         notes.append(f"{path}: topic {name}: {int((~keep).sum())} samples flagged invalid dropped")
     streams["position"] = Stream(f"topic {name}", t[keep], frames.world_vectors(pos[keep], "ned"))
+    if "velocity" not in wanted:
+        return streams
     if log.settings["velocity"]:
         name, t, vel, data = log.series("velocity", _VELOCITY_FIELDS, "velocity")
         keep = _valid(data, ("v_xy_valid", "v_z_valid"))
@@ -169,12 +195,11 @@ def _motion_streams(log: _Topics, notes: list[str]) -> dict[str, Stream]:
     return streams
 
 
-def _thrust(
-    log: _Topics, rates_data: dict[str, np.ndarray], notes: list[str]
-) -> tuple[str, np.ndarray, np.ndarray]:
+def _thrust(log: _Topics, notes: list[str]) -> tuple[str, np.ndarray, np.ndarray]:
     """(topic name, (n,) times in s, (n, 1) normalised thrust, FRD: negative up) from the
     thrust set-point topic, or from the rates set-point's ``thrust_body[2]`` (older PX4)."""
     path = log.path
+    rates_data = log.topics.get(_instance(log.settings["rates"]), {})
     thrust_spec = str(log.settings["thrust"])
     thrust_name = thrust_spec if ":" in thrust_spec else f"{thrust_spec}:0"
     if thrust_spec and thrust_name in log.topics:

@@ -1,0 +1,485 @@
+"""A second log on the first log's clock and frame, from the vehicle track both hold.
+
+The usual real set-up is a PX4 ULog for the vehicle (position, attitude, commands) and a
+separate motion-capture recording (a bag, a CSV) for the load and the vehicle again. The two
+never share a clock (a ULog counts from boot, a bag in Unix time) nor a world frame (both are
+z up once read, but the EKF's origin and heading are not the motion capture's). From the
+vehicle positions both logs hold, ``align_tracks`` estimates
+
+- the time offset tau (s), t_first = t_second + tau: the normalised cross-correlation of the
+  two speeds |v| (blind to frames) on a common grid of step ``GRID_STEP`` or coarser gives
+  candidate offsets, its highest peaks where the tracks share at least
+  ``ConsistencyLimits.align_overlap`` of the shorter one; the peaks are screened by the frame
+  fitted at their offset (a repeated maneuver gives many equal peaks), and the best few refined
+  by Gauss-Newton least squares on the position mismatch (the frame fitted again at each
+  step), to a fraction of a sample period;
+- the rigid transform p_first = R p_second + c on the time-aligned positions: a rotation about
+  z (``rotation="yaw"``, the default: both frames are z up, gravity fixes the vertical) or any
+  rotation (``"full"``, Kabsch), and a translation;
+- the residual: the RMS of |p_first - (R p_second(t - tau) + c)| over the first log's samples
+  in the overlap (in m), and the RMS spread of the vehicle's path there (the rotation is only
+  as good as the path is wide).
+
+The candidate with the smallest residual wins. Another offset that also fits within
+``align_residual`` means the track cannot tell them apart (a repeated maneuver, a vehicle that
+hardly moves): an error naming both, which ``time_offset`` (``--time-offset``) settles; a
+given offset is used as it is, and the frame is still fitted.
+
+``attach_second`` checks the residual and the spread against ``ConsistencyLimits``
+(``ConsistencyError`` naming both files, unless ``force``) and puts the second log's streams
+of the chosen roles into the first log: stamps + tau, positions R p + c, velocities R v,
+attitudes q_R (x) q; body rates and thrust are the same in any world frame. They are then
+cleaned and resampled like every stream (``resample``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from .. import frames
+from .consistency import Check, ConsistencyError, ConsistencyLimits, failures, refusal
+from .import_options import ImportOptions, SecondLog
+from .readers.logs import LogError, RawLog, Stream
+
+GRID_STEP = 0.02  # s, finest grid of the speed cross-correlation (least squares refine it)
+PEAKS = 50  # highest correlation peaks screened by the frame fitted at their offset
+CANDIDATES = 5  # of those, the best fits refined by least squares
+PEAK_SEPARATION = 1.0  # s, correlation peaks (and refined offsets) closer than this are one
+ITERATIONS = 30  # Gauss-Newton steps at most; each moves tau by one grid step at most
+CONVERGED = 1e-7  # s, a Gauss-Newton step below this ends the refinement
+
+RESIDUAL = "alignment residual, RMS (m)"
+SPREAD = "vehicle path spread, RMS (m)"
+
+
+class _Tracks(NamedTuple):
+    """Both vehicle tracks, cleaned: times (n,) s, positions (n, 3) m; the second's velocity."""
+
+    t1: np.ndarray
+    p1: np.ndarray
+    t2: np.ndarray
+    p2: np.ndarray
+    v2: np.ndarray  # (n2, 3) m/s, for the derivative in the offset
+    rotation: str  # "yaw" or "full"
+    max_gap: float  # s, the second's samples further apart are a gap
+    need: float  # s, the time both must cover at an offset
+
+
+class _Fit(NamedTuple):
+    """The frame fitted at one offset."""
+
+    offset: float  # s
+    rotation: np.ndarray  # (3, 3)
+    translation: np.ndarray  # (3,) m
+    residual: float  # m, RMS
+    spread: float  # m, RMS
+    samples: int
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """A second log put on the first's clock and frame: t_first = t_second + offset,
+    p_first = rotation @ p_second + translation."""
+
+    offset: float  # s
+    rotation: np.ndarray  # (3, 3)
+    translation: np.ndarray  # (3,) m
+    residual: float  # m, RMS vehicle position mismatch over the samples below
+    spread: float  # m, RMS spread of the vehicle's path there (horizontal: "yaw")
+    overlap: float  # s, the time both vehicle tracks cover
+    samples: int  # samples of the first log in the fit
+    estimated: bool  # the offset was estimated (False: given)
+    others: tuple[tuple[float, float], ...] = ()  # (offset s, residual m) of other candidates
+
+    @property
+    def yaw(self) -> float:
+        """rad, the rotation's heading change about z."""
+        return math.atan2(self.rotation[1, 0], self.rotation[0, 0])
+
+    @property
+    def tilt(self) -> float:
+        """rad, the angle the rotation turns z by (0 for a rotation about z)."""
+        return math.acos(max(-1.0, min(1.0, float(self.rotation[2, 2]))))
+
+    def describe(self) -> str:
+        """One line: the offset, the transform and the residual."""
+        how = "estimated" if self.estimated else "given"
+        tilt = f", tilt {math.degrees(self.tilt):.2f} deg" if self.tilt > 1e-9 else ""
+        c = ", ".join(f"{x:.3f}" for x in self.translation)
+        return (
+            f"time offset {self.offset:.4f} s ({how}), rotation {math.degrees(self.yaw):.2f} "
+            f"deg about z{tilt}, translation ({c}) m; vehicle positions differ by "
+            f"{1000 * self.residual:.1f} mm RMS over {self.overlap:.1f} s ({self.samples} "
+            "samples)"
+        )
+
+    def record(self) -> dict[str, Any]:
+        """For ``vehicle.json``: units in the names."""
+        return {
+            "time_offset_s": self.offset,
+            "time_offset_from": "estimated" if self.estimated else "given",
+            "rotation": np.round(self.rotation, 12).tolist(),
+            "yaw_deg": math.degrees(self.yaw),
+            "tilt_deg": math.degrees(self.tilt),
+            "translation_m": self.translation.tolist(),
+            "residual_m": self.residual,
+            "spread_m": self.spread,
+            "overlap_s": self.overlap,
+            "samples": self.samples,
+            "other_offsets_s_residual_m": [list(o) for o in self.others],
+        }
+
+
+def align_tracks(
+    first: Stream,
+    second: Stream,
+    *,
+    rotation: str = "yaw",
+    time_offset: float | None = None,
+    limits: ConsistencyLimits = ConsistencyLimits(),  # noqa: B008 (frozen)
+    max_gap: float = 0.1,
+    what: str = "",
+) -> Alignment:
+    """The offset and transform that put the vehicle positions ``second`` (n, 3) on ``first``
+    (m, 3), both in m, z up (see the module's docstring). ``time_offset`` (s): given, not
+    estimated; ``max_gap`` (s): the second's samples further apart are a gap, not interpolated
+    across; ``what`` names the logs in errors (``LogError``)."""
+    t1, p1 = _track(first, what)
+    t2, p2 = _track(second, what)
+    # a short stretch fits almost anything: both must cover a good share of the shorter track
+    shorter = min(t1[-1] - t1[0], t2[-1] - t2[0])
+    if shorter < limits.align_duration:
+        source = first.source if t1[-1] - t1[0] == shorter else second.source
+        raise LogError(
+            f"{what}: the vehicle track ({source}) covers {shorter:.2f} s, shorter than the "
+            f"{limits.align_duration:g} s an alignment needs (ConsistencyLimits.align_duration)"
+        )
+    need = max(limits.align_overlap * shorter, limits.align_duration)
+    track = _Tracks(t1, p1, t2, p2, np.gradient(p2, t2, axis=0), rotation, max_gap, need)
+    if time_offset is not None:
+        fit = _fit(track, time_offset)
+        if fit is None:
+            common = _overlap(track, time_offset)
+            raise LogError(
+                f"{what}: with the time offset {time_offset:g} s the vehicle tracks "
+                + ("do not overlap" if common <= 0 else f"share only {common:.2f} s")
+                + f" (the first covers {t1[0]:.3f} to {t1[-1]:.3f} s, the second "
+                f"{t2[0] + time_offset:.3f} to {t2[-1] + time_offset:.3f} s on the first's "
+                f"clock; at least {need:.2f} s are needed); leave --time-offset out to "
+                "estimate it"
+            )
+        return _alignment(fit, track, estimated=False)
+    step = max(GRID_STEP, _median_step(t1), _median_step(t2))
+    # a repeated maneuver gives many equal peaks: screen them by the fit, refine the best
+    screened = [_fit(track, tau) for tau in _peaks(track, step, limits, what)]
+    screened = [f for f in screened if f is not None]
+    starts = [f.offset for f in sorted(screened, key=lambda f: f.residual)[:CANDIDATES]]
+    fits = sorted(
+        (f for f in (_refine(track, tau, step) for tau in starts) if f is not None),
+        key=lambda f: f.residual,
+    )
+    if not fits:
+        raise LogError(f"{what}: no time offset puts the vehicle tracks side by side")
+    distinct: list[_Fit] = []
+    for f in fits:  # two peaks may converge to one offset
+        if all(abs(f.offset - g.offset) > 0.5 * PEAK_SEPARATION for g in distinct):
+            distinct.append(f)
+    best, others = distinct[0], distinct[1:]
+    rivals = [f for f in others if f.residual <= limits.align_residual]
+    if rivals:
+        fit_list = "; ".join(
+            f"{f.offset:.3f} s: {1000 * f.residual:.1f} mm RMS" for f in [best, *rivals]
+        )
+        raise LogError(
+            f"{what}: the vehicle tracks fit at several time offsets ({fit_list}; tolerance "
+            f"{limits.align_residual:g} m): a repeated maneuver or a vehicle that hardly moves "
+            "cannot tell them apart; give the offset, s added to the second log's stamps, with "
+            "--time-offset SECONDS (SecondLog.time_offset)"
+        )
+    return _alignment(best, track, estimated=True, others=[(f.offset, f.residual) for f in others])
+
+
+def fit_rigid(a: np.ndarray, b: np.ndarray, rotation: str = "yaw") -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), c (3,)) minimising sum |a - (R b + c)|^2 over point pairs a, b (n, 3): R
+    about z only ("yaw") or any proper rotation ("full": Kabsch, by the SVD of the
+    cross-covariance, with the sign that excludes a reflection)."""
+    ma, mb = a.mean(axis=0), b.mean(axis=0)
+    h = (b - mb).T @ (a - ma)  # (3, 3): sum of b a^T, centred
+    if rotation == "yaw":
+        angle = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+        cos, sin = math.cos(angle), math.sin(angle)
+        r = np.array([[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]])
+    else:
+        u, _, vt = np.linalg.svd(h)
+        sign = 1.0 if np.linalg.det(vt.T @ u.T) >= 0 else -1.0
+        r = vt.T @ np.diag([1.0, 1.0, sign]) @ u.T
+    return r, ma - r @ mb
+
+
+def transform(role: str, stream: Stream, alignment: Alignment) -> Stream:
+    """One stream of the second log on the first's clock and frame (``logs.ROLES``)."""
+    r, c = alignment.rotation, alignment.translation
+    v = np.asarray(stream.values, float)
+    if role in ("position", "load"):
+        v = v @ r.T + c
+    elif role == "velocity":
+        v = v @ r.T
+    elif role == "attitude":  # body -> second world -> first world
+        v = frames.quat_multiply(frames.quat_from_matrix(r), v)
+    # "rates" (body frame) and "thrust" do not depend on the world frame
+    return Stream(stream.source, np.asarray(stream.time, float) + alignment.offset, v)
+
+
+def attach_second(
+    first: RawLog, second: RawLog, spec: SecondLog, options: ImportOptions, notes: list[str]
+) -> tuple[RawLog, dict[str, Any]]:
+    """``first`` with the streams ``spec.roles`` of ``second`` on its clock and frame, and
+    what to record in ``vehicle.json``. An alignment whose residual or spread is outside
+    ``options.limits`` is refused (``ConsistencyError`` naming both files), or noted under
+    ``options.force``."""
+    missing = [r for r in dict.fromkeys(("position", *spec.roles)) if r not in second.streams]
+    if missing:
+        raise LogError(
+            f"{second.path}: the second log gives no {', '.join(missing)} (its mapping: "
+            f"{second.settings})"
+        )
+    alignment = align_tracks(
+        first.streams["position"],
+        second.streams["position"],
+        rotation=spec.rotation,
+        time_offset=spec.time_offset,
+        limits=options.limits,
+        max_gap=options.max_gap,
+        what=f"{first.path} and {second.path}",
+    )
+    checks = alignment_checks(alignment, options.limits)
+    forced: list[str] = []
+    bad = failures(checks)
+    if bad:
+        line = refusal(f"{first.path} + {second.path} ({alignment.describe()})", bad)
+        if not options.force:
+            raise ConsistencyError(line)
+        forced.append(line)
+        notes.append(f"forced: {line}")
+    notes.append(
+        f"{first.path}: {', '.join(spec.roles)} from {second.path}, {alignment.describe()}"
+    )
+    streams = dict(first.streams)
+    start = min(float(s.time[0]) for s in first.streams.values() if len(s.time))
+    end = max(float(s.time[-1]) for s in first.streams.values() if len(s.time))
+    for role in spec.roles:
+        moved = _within(transform(role, second.streams[role], alignment), start, end)
+        streams[role] = Stream(f"{moved.source} of {second.path}", moved.time, moved.values)
+    thrust = "thrust" in spec.roles  # whether it is a throttle goes with the stream
+    merged = RawLog(
+        first.path,
+        first.format,
+        streams,
+        second.thrust_normalized if thrust else first.thrust_normalized,
+        first.settings,
+        first.notes,
+        second.hover_throttle if thrust else first.hover_throttle,
+    )
+    record = {
+        "log": str(second.path),
+        "format": second.format,
+        "settings": second.settings,
+        "roles": list(spec.roles),
+        "rotation": spec.rotation,
+        "alignment": alignment.record(),
+        "checks": {c.quantity: round(c.value, 6) for c in checks},
+        "forced": forced,
+    }
+    return merged, record
+
+
+def _within(stream: Stream, start: float, end: float) -> Stream:
+    """The samples in [start, end] (s) and one on each side: a motion-capture recording that
+    runs on before and after the first log does not end the flight early (``resample``'s note
+    on streams that end before the others)."""
+    t = stream.time
+    a = max(int(np.searchsorted(t, start, side="left")) - 1, 0)
+    b = int(np.searchsorted(t, end, side="right")) + 1
+    return Stream(stream.source, t[a:b], stream.values[a:b])
+
+
+def alignment_checks(alignment: Alignment, limits: ConsistencyLimits) -> tuple[Check, Check]:
+    """The residual and the path's spread against their limits."""
+    how = "the estimated" if alignment.estimated else "the given"
+    return (
+        Check(
+            RESIDUAL,
+            alignment.residual,
+            f"<= {limits.align_residual:g}",
+            alignment.residual <= limits.align_residual,
+            "the two logs hold different flights, or vehicle positions that differ by more "
+            "than a rigid transform (an EKF position without motion capture, a frame mapping "
+            f"such as 'world'), or {how} time offset is wrong; --align-tolerance M "
+            "(ConsistencyLimits.align_residual) accepts a larger mismatch",
+        ),
+        Check(
+            SPREAD,
+            alignment.spread,
+            f">= {limits.align_extent:g}",
+            alignment.spread >= limits.align_extent,
+            "a vehicle that hardly moves while both logs record: its path cannot fix the "
+            "rotation between their frames; record a flight that moves",
+        ),
+    )
+
+
+# --- the estimate -------------------------------------------------------------------------
+
+
+def _track(stream: Stream, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) increasing times and (n, 3) positions of a position stream, without NaN rows
+    (mocap dropouts) or repeated stamps; the streams' own checks come later (``resample``)."""
+    t, p = np.asarray(stream.time, float), np.asarray(stream.values, float)
+    good = np.isfinite(t) & np.isfinite(p).all(axis=1)
+    t, first = np.unique(t[good], return_index=True)
+    if len(t) < 3:
+        raise LogError(f"{what}: {stream.source} has {len(t)} valid samples, too few to align")
+    return t, p[good][first]
+
+
+def _median_step(t: np.ndarray) -> float:
+    return float(np.median(np.diff(t)))
+
+
+def _speed(t: np.ndarray, p: np.ndarray, h: float, max_gap: float) -> tuple[np.ndarray, ...]:
+    """(speed (k,) m/s on the grid t[0] + h i, valid (k,) 0 or 1): central differences of the
+    linearly interpolated positions, invalid next to a gap longer than ``max_gap``."""
+    grid = t[0] + h * np.arange(int((t[-1] - t[0]) / h) + 1)
+    j = np.clip(np.searchsorted(t, grid, side="right"), 1, len(t) - 1)
+    ok = (t[j] - t[j - 1] <= max_gap) | (grid == t[j - 1])
+    pos = np.stack([np.interp(grid, t, p[:, k]) for k in range(3)], axis=1)
+    speed = np.zeros(len(grid))
+    valid = np.zeros(len(grid))
+    if len(grid) > 2:
+        speed[1:-1] = np.linalg.norm(pos[2:] - pos[:-2], axis=1) / (2 * h)
+        valid[1:-1] = ok[2:] & ok[:-2]
+    return speed * valid, valid
+
+
+def _peaks(track: _Tracks, h: float, limits: ConsistencyLimits, what: str) -> list[float]:
+    """Offsets (s) at the highest peaks of the normalised cross-correlation of the speeds on
+    grids of step ``h`` (s), over the lags where the tracks share ``limits.align_overlap`` of
+    the shorter one."""
+    t1, t2 = track.t1, track.t2
+    a, ma = _speed(t1, track.p1, h, track.max_gap)
+    b, mb = _speed(t2, track.p2, h, track.max_gap)
+    size = 1 << int(len(a) + len(b) - 1).bit_length()
+
+    def xcorr(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        # sum_n x[n] y[n - k] for k = -(len(b) - 1) ... len(a) - 1, by FFT
+        full = np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(y, size)), size)
+        return full[np.arange(-(len(b) - 1), len(a)) % size]
+
+    n = np.round(xcorr(ma, mb))
+    sa, sb, sab = xcorr(a, mb), xcorr(ma, b), xcorr(a, b)
+    saa, sbb = xcorr(a * a, mb), xcorr(ma, b * b)
+    need = max(3.0, track.need / h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        va, vb = saa - sa * sa / n, sbb - sb * sb / n
+        r = (sab - sa * sb / n) / np.sqrt(va * vb)
+    r[~((n >= need) & (va > 1e-12 * n) & (vb > 1e-12 * n) & np.isfinite(r))] = -np.inf
+    if not np.isfinite(r).any():
+        raise LogError(
+            f"{what}: the vehicle tracks share no stretch of {track.need:.1f} s (a share of "
+            f"{limits.align_overlap:g} of the shorter one) in which the speed varies: no time "
+            "offset can be estimated; check that both logs record the same flight, or give "
+            "--time-offset SECONDS"
+        )
+    left, right = np.r_[-np.inf, r[:-1]], np.r_[r[1:], -np.inf]
+    peaks = np.flatnonzero(np.isfinite(r) & (r >= left) & (r >= right))
+    chosen: list[int] = []
+    for k in peaks[np.argsort(-r[peaks], kind="stable")]:
+        if all(abs(k - c) * h >= PEAK_SEPARATION for c in chosen):
+            chosen.append(int(k))
+        if len(chosen) == PEAKS:
+            break
+    # lag index k pairs a[i] with b[i - k + len(b) - 1]: t1 - t2 = t1[0] - t2[0] + (k - lb + 1) h
+    return [float(t1[0] - t2[0] + (k - len(b) + 1) * h) for k in chosen]
+
+
+def _pairs(track: _Tracks, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(first's positions, second's positions and velocities at those instants minus tau),
+    each (n, 3), over the first's samples inside the second's track and not in its gaps."""
+    t1, p1, t2, p2, v2, _, max_gap, need = track
+    if _overlap(track, tau) < need - 1e-9:
+        return None
+    s = t1 - tau
+    j = np.clip(np.searchsorted(t2, s, side="right"), 1, len(t2) - 1)
+    inside = (s >= t2[0]) & (s <= t2[-1]) & ((t2[j] - t2[j - 1] <= max_gap) | (s == t2[j - 1]))
+    if inside.sum() < 3:
+        return None
+    s = s[inside]
+    b = np.stack([np.interp(s, t2, p2[:, k]) for k in range(3)], axis=1)
+    v = np.stack([np.interp(s, t2, v2[:, k]) for k in range(3)], axis=1)
+    return p1[inside], b, v
+
+
+def _overlap(track: _Tracks, tau: float) -> float:
+    """s, the time both tracks cover at the offset ``tau`` (s); negative: apart."""
+    return float(min(track.t1[-1], track.t2[-1] + tau) - max(track.t1[0], track.t2[0] + tau))
+
+
+def _fit(track: _Tracks, tau: float) -> _Fit | None:
+    """The frame fitted at the offset ``tau`` (s); None where the tracks share less than
+    ``track.need``."""
+    got = _pairs(track, tau)
+    if got is None:
+        return None
+    a, b, _ = got
+    r, c = fit_rigid(a, b, track.rotation)
+    e = a - b @ r.T - c
+    residual = float(np.sqrt(np.mean(np.sum(e * e, axis=1))))
+    return _Fit(float(tau), r, c, residual, _spread(a, track.rotation), len(a))
+
+
+def _refine(track: _Tracks, tau: float, step: float) -> _Fit | None:
+    """``_fit`` at the offset that Gauss-Newton least squares reach from ``tau``: the frame
+    fitted at each step, then tau moved by -sum(e . J) / sum(J . J), e the position mismatch
+    and J = R v_second its derivative in tau (each step at most ``step`` s)."""
+    for _ in range(ITERATIONS):
+        got = _pairs(track, tau)
+        if got is None:
+            return None
+        a, b, v = got
+        r, c = fit_rigid(a, b, track.rotation)
+        e, jac = a - b @ r.T - c, v @ r.T
+        den = float(np.sum(jac * jac))
+        if den <= 0.0:
+            break
+        delta = float(np.clip(-np.sum(e * jac) / den, -step, step))
+        tau += delta
+        if abs(delta) < CONVERGED:
+            break
+    return _fit(track, tau)
+
+
+def _spread(a: np.ndarray, rotation: str) -> float:
+    """RMS spread (m) of positions (n, 3) that fixes the rotation: horizontal about the mean
+    for a yaw; along the second principal axis for any rotation (a straight path leaves the
+    roll about it free)."""
+    centred = a - a.mean(axis=0)
+    if rotation == "yaw":
+        return float(np.sqrt(np.mean(np.sum(centred[:, :2] ** 2, axis=1))))
+    values = np.linalg.eigvalsh(centred.T @ centred / len(a))  # ascending
+    return float(np.sqrt(max(values[1], 0.0)))
+
+
+def _alignment(
+    fit: _Fit,
+    track: _Tracks,
+    *,
+    estimated: bool,
+    others: list[tuple[float, float]] | None = None,
+) -> Alignment:
+    overlap = _overlap(track, fit.offset)
+    return Alignment(fit.offset, fit.rotation, fit.translation, fit.residual, fit.spread, overlap,
+                     fit.samples, estimated, tuple(others or ()))  # fmt: skip
