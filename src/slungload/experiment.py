@@ -57,11 +57,13 @@ class TrainingJob:
     device: str = "cpu"
 
     def __call__(self) -> Run:
+        # A job retried after its worker died (a cluster's retry) continues where it stopped.
+        resume = self.resume or (self.out / "last.ckpt").is_file()
         return train(
             self.data,
             self.run,
             out=self.out,
-            resume=self.resume,
+            resume=resume,
             device=self.device,
             progress=False,
             num_threads=1,
@@ -95,6 +97,7 @@ def reproduce(
     timing: bool = False,
     timing_repeats: int = 100,
     progress: bool = True,
+    cluster: str | None = None,
 ) -> Reproduction:
     """Simulate the default dataset (unless ``data`` is given; ``flights`` and ``sim_seed`` set
     its size and seed), train every variant of the paper's network and every ``beyond`` model
@@ -104,6 +107,8 @@ def reproduce(
     Layout of ``out``: ``data/`` (if simulated), ``runs/<RunConfig.folder()>/`` (the paper's
     network: ``<variant>-s<seed>``), ``report/``.
     Existing finished runs (with a ``run.json``) are kept, so an interrupted call can be re-run.
+    ``cluster``: train on a Ray cluster (``cluster.run_on_ray``; ``out`` and ``data`` on storage
+    every node sees) instead of ``workers`` local processes.
     """
     out = Path(out)
     unknown = [v for v in variants if v not in LOSS_VARIANTS]
@@ -127,7 +132,7 @@ def reproduce(
     templates = [RunConfig(v) for v in variants] + list(beyond)
     runs = [t.scheduled(preset, seed=s) for s in seeds for t in templates]
     run_training_jobs(_training_jobs(out, data, runs, device=device), workers=workers,
-                      progress=progress)  # fmt: skip
+                      progress=progress, cluster=cluster)  # fmt: skip
     run_dirs = tuple(out / "runs" / run.folder() for run in runs)
     seconds["train"] = time.perf_counter() - start
 
@@ -201,12 +206,16 @@ def evaluate_runs(
     return evaluate(runs, timer=timer, device=device, progress=progress, **options)
 
 
-def run_training_jobs(jobs: Sequence[TrainingJob], *, workers: int, progress: bool) -> None:
+def run_training_jobs(
+    jobs: Sequence[TrainingJob], *, workers: int, progress: bool, cluster: str | None = None
+) -> None:
     """Every job, ``workers`` at a time in the package's pool (``workers.run_jobs``: spawned
-    processes, one torch thread each, that stop with their parent); a failed run raises here."""
+    processes, one torch thread each, that stop with their parent), or each a task on the Ray
+    cluster at ``cluster``; a failed run raises here."""
     for _ in run_jobs(
-        _train, jobs, workers=workers, progress=progress, desc="training runs", unit="run"
-    ):
+        _train, jobs, workers=workers, progress=progress, desc="training runs", unit="run",
+        cluster=cluster,
+    ):  # fmt: skip
         pass
 
 

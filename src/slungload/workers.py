@@ -39,10 +39,17 @@ def run_jobs(
     desc: str = "jobs",
     unit: str = "job",
     start: Start = "spawn",
+    cluster: str | None = None,
 ) -> Iterator[R]:
     """``fn(job)`` for every job, ``workers`` at a time (in this process when ``workers`` <= 1
     or there is one job), yielded as each finishes; a failed job raises here. ``fn`` and the
-    jobs must pickle (module-level functions, dataclasses, tuples)."""
+    jobs must pickle (module-level functions, dataclasses, tuples). ``cluster``: a Ray address
+    (``cluster.run_on_ray``): every job a task there, one CPU each, ``workers`` unused."""
+    if cluster is not None:
+        from .cluster import run_on_ray  # Ray only when a cluster is asked for
+
+        yield from run_on_ray(fn, jobs, address=cluster, progress=progress, desc=desc, unit=unit)
+        return
     bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress)
     try:
         if workers <= 1 or len(jobs) <= 1:

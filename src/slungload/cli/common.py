@@ -120,3 +120,15 @@ def resolve_params(folder: Path, args: argparse.Namespace):
     if not overrides:
         return None
     return dataclasses.replace(load_vehicle(folder) or VehicleParams(), **overrides)
+
+
+def add_cluster_option(p: argparse.ArgumentParser) -> None:
+    """``--cluster ADDRESS``: train on a Ray cluster instead of local processes."""
+    p.add_argument(
+        "--cluster",
+        metavar="ADDRESS",
+        help="train each run as a task on a Ray cluster (needs pip install "
+        "'slungload[cluster]'): auto (the cluster RAY_ADDRESS names), local (a Ray instance on "
+        "this machine) or ray://HOST:PORT; the dataset, OUT and the package at the same path on "
+        "every node; a re-run skips finished runs and resumes the rest (docs/cluster.md)",
+    )

@@ -7,7 +7,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from .common import choices, comma_ints, comma_names, new_command, seed_range
+from .common import (
+    add_cluster_option,
+    choices,
+    comma_ints,
+    comma_names,
+    new_command,
+    seed_range,
+)
 
 
 def add_evaluate(sub: Any) -> None:
@@ -116,6 +123,7 @@ def add_reproduce(sub: Any) -> None:
         help="flights to simulate when no --data is given (default 48, the paper's)",
     )
     p.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    add_cluster_option(p)
     p.add_argument(
         "--device",
         default="cpu",
@@ -137,6 +145,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         seeds=seed_range(args.seeds),
         flights=args.flights,
         workers=args.workers,
+        cluster=args.cluster,
         device=args.device,
         timing=args.timing and not args.no_timing,
         timing_repeats=args.timing_repeats,
@@ -195,6 +204,7 @@ def add_study(sub: Any) -> None:
         "--preset", default="default", choices=choices("presets"), help="default: default"
     )
     d.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    add_cluster_option(d)
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_study_size(kinds)
     p.set_defaults(func=cmd_study)
@@ -251,6 +261,7 @@ def _add_study_size(kinds: Any) -> None:
         + " (default compiled, the MPC's fast path)",
     )
     s.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    add_cluster_option(s)
     s.add_argument(
         "--no-train",
         action="store_true",
@@ -277,6 +288,7 @@ def cmd_study(args: argparse.Namespace) -> int:
             backend=args.backend,
             epochs=args.epochs,
             workers=args.workers,
+            cluster=args.cluster,
             train=not args.no_train,
             progress=not args.quiet,
         )
@@ -293,6 +305,7 @@ def cmd_study(args: argparse.Namespace) -> int:
         seeds=seed_range(args.seeds),
         preset=args.preset,
         workers=args.workers,
+        cluster=args.cluster,
         progress=not args.quiet,
     )
     print(args.out / "study.md")

@@ -61,10 +61,12 @@ def study_data(
     sim_seed: int = 0,
     workers: int = 2,
     progress: bool = True,
+    cluster: str | None = None,
 ) -> list[StudyRow]:
     """Train every (architecture, variant, seed) on the first k training flights for each k
     in ``flights`` and evaluate at ``horizon`` on the fixed test flights; writes the table and
-    the figure into ``out`` and returns the rows."""
+    the figure into ``out`` and returns the rows. ``cluster``: train on a Ray cluster
+    (``cluster.run_on_ray``) instead of ``workers`` local processes."""
     sizes = sorted({int(k) for k in flights})
     if not sizes or sizes[0] < 1:
         raise ValueError(f"--flights must be positive counts, got {flights}")
@@ -87,7 +89,7 @@ def study_data(
             run_dir = _run_dir(out / "runs" / f"train{k}", run)
             if not (run_dir / "run.json").is_file():
                 jobs.append(TrainingJob(folder, run_dir, run, (run_dir / "last.ckpt").is_file()))
-    run_training_jobs(jobs, workers=workers, progress=progress)
+    run_training_jobs(jobs, workers=workers, progress=progress, cluster=cluster)
     rows = []
     for k, folder in subsets.items():
         runs = sorted((out / "runs" / f"train{k}").glob("*/run.json"))

@@ -115,6 +115,7 @@ def study_size(
     workers: int = 2,
     train: bool = True,
     progress: bool = True,
+    cluster: str | None = None,
 ) -> SizeStudy:
     """Train ``template`` at every size of ``sizes`` for every seed of ``seeds``, measure
     validation RMSE at ``horizon`` and the batched rollout time, then train the sizes on the
@@ -122,7 +123,8 @@ def study_size(
     With ``train=False`` nothing is trained: the finished runs among those named are
     evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
     ``epochs`` replaces the preset's epoch budget (its schedule fitted to it); ``backend`` is
-    what the rollouts are timed on (``config.PREDICTION_BACKENDS``)."""
+    what the rollouts are timed on (``config.PREDICTION_BACKENDS``); ``cluster``: train on a
+    Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local processes."""
     unknown = [s for s in sizes if s not in MODEL_SIZES]
     if unknown or not sizes:
         raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
@@ -132,7 +134,7 @@ def study_size(
         return size_run(template, size, preset=preset, seed=seed, epochs=epochs)
 
     if train:
-        _train(data, out, run_of, sizes, seeds, workers, progress)
+        _train(data, out, run_of, sizes, seeds, (workers, cluster), progress)
     every = tuple(dict.fromkeys((*seeds, *front_seeds)))
     finished = {s: _finished(out, run_of, s, every) for s in sizes}
     missing = [s for s, runs in finished.items() if not runs]
@@ -151,7 +153,8 @@ def study_size(
     while more and not set(front) <= given:  # a size that joins the front gets them too
         given |= set(front)
         if train:
-            _train(data, out, run_of, [s for s in sizes if s in given], more, workers, progress)
+            chosen_sizes = [s for s in sizes if s in given]
+            _train(data, out, run_of, chosen_sizes, more, (workers, cluster), progress)
         chosen = {s: tuple(seeds) + (more if s in given else ()) for s in sizes}
         rows = _evaluate(data, out, run_of, chosen, horizon)
         front = pareto_front(rows, timings)
@@ -160,10 +163,10 @@ def study_size(
     return study
 
 
-def _train(data, out, run_of, sizes, seeds, workers, progress) -> None:
+def _train(data, out, run_of, sizes, seeds, engine, progress) -> None:
     """The runs of every size and seed not finished yet, seed by seed (so a study cut short
     has every size at its first seed), the sizes in the order given within a seed (the
-    registry's: the largest, slowest to train, first)."""
+    registry's: the largest, slowest to train, first); ``engine``: (workers, cluster)."""
     jobs = []
     for seed in seeds:
         for size in sizes:
@@ -171,7 +174,8 @@ def _train(data, out, run_of, sizes, seeds, workers, progress) -> None:
             run_dir = out / "runs" / run.folder()
             if not (run_dir / "run.json").is_file():
                 jobs.append(TrainingJob(data, run_dir, run, (run_dir / "last.ckpt").is_file()))
-    run_training_jobs(jobs, workers=workers, progress=progress)
+    workers, cluster = engine
+    run_training_jobs(jobs, workers=workers, progress=progress, cluster=cluster)
 
 
 def _finished(out, run_of, size, seeds) -> list[Path]:
