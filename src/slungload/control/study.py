@@ -12,8 +12,9 @@ One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
 
 Fair by construction: each real MPC's sampling noise and temperature are chosen on the separate
 ``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the evaluation
-seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median rollout time
-is within the learned model's at its K (``equal_compute_samples``), per horizon.
+seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median control step
+(sampling, prediction, cost) is within the learned model's at its K (``equal_compute_samples``),
+per horizon.
 
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
@@ -44,6 +45,7 @@ from ..sim.dataset import vehicle_params
 from .closed_loop import FlightLog, flight_metrics, fly
 from .geometric import GEOMETRIC, GeometricLoadController
 from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .mppi import ReferenceAhead
 from .oracle import ORACLE, PlantCandidates
 from .study_config import (
     CONTROLLERS,
@@ -211,15 +213,18 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
         return settings
     mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
            for kind, model in models.items()}  # fmt: skip
-    samples = {"learned": {str(n): cfg.samples for n in cfg.horizons}}
-    samples[PHYSICS] = {str(n): cfg.samples for n in cfg.horizons}
+    samples = {kind: {str(n): cfg.samples for n in cfg.horizons} for kind in models}
     if "learned" in models:
-        samples[PHYSICS] = {
-            str(n): equal_compute_samples(
-                models[PHYSICS], models["learned"], cfg.samples, n, params
+        for n in cfg.horizons:
+
+            def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
+                tuned = _tuples(mpc[kind])
+                return lambda k: _mpc(models[kind], limits, MPCConfig(
+                    **tuned, horizon=n, knots=_knots(n), samples=k), params)(0)  # fmt: skip
+
+            samples[PHYSICS][str(n)] = equal_compute_samples(
+                mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
-            for n in cfg.horizons
-        }
     settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
     write_json(path, settings)
     return settings
@@ -268,33 +273,27 @@ def tune_settings(
 
 
 def equal_compute_samples(
-    physics: PredictionModel,
-    learned: PredictionModel,
+    physics: Callable[[int], SamplingMPC],
+    learned: Callable[[int], SamplingMPC],
     k: int,
-    horizon: int,
-    physics_params: VehicleParams,
     repeats: int = 30,
 ) -> int:
-    """The largest K of ``PHYSICS_SAMPLES`` whose median ``predict_candidates`` time is within
-    the learned model's at K = ``k`` (both at ``horizon``; at least ``k``)."""
-    import torch
-
+    """The largest K of ``PHYSICS_SAMPLES`` whose median whole control step (sampling,
+    prediction, cost, weights: ``MPPIController.step``) takes no longer than the learned
+    model's at K = ``k``; at least ``k``. ``physics`` and ``learned``: K -> a fresh MPC."""
     rng = np.random.default_rng(0)
-    m = max(physics.history, learned.history)
     hover = np.zeros(STATE_DIM)  # hanging still 1.5 m up, level, plus a little noise
     hover[POS], hover[QUAT], hover[LOAD_POS] = (0, 0, 1.5), (1, 0, 0, 0), (0, 0, 0.8)
-    x = hover + 1e-3 * rng.standard_normal((m, STATE_DIM))
-    x[:, QUAT] /= np.linalg.norm(x[:, QUAT], axis=1, keepdims=True)
-    x_hist = torch.from_numpy(x)
-    thrust = (physics_params.mass_quad + physics_params.mass_load) * physics_params.gravity
 
-    def median_ms(model: PredictionModel, samples: int) -> float:
-        u = torch.from_numpy(np.tile([thrust, 0.0, 0.0, 0.0], (samples, horizon, 1)))
-        u_past = u[0, :1].repeat(model.history - 1, 1)
-        wall, _ = time_calls(lambda i: model.predict_candidates(
-            x_hist[-model.history:], u_past, u), repeats, 3)  # fmt: skip
+    def median_s(make: Callable[[int], SamplingMPC], samples: int) -> float:
+        mpc = make(samples)
+        n = mpc.cfg.horizon
+        ref = ReferenceAhead(np.tile(hover[POS], (n, 1)), np.zeros((n, 3)), np.zeros(n))
+        states = hover + 1e-3 * rng.standard_normal((repeats + 3, STATE_DIM))
+        states[:, QUAT] /= np.linalg.norm(states[:, QUAT], axis=1, keepdims=True)
+        wall, _ = time_calls(lambda i: mpc.core.step(states[i], ref), repeats, 3)
         return float(np.median(wall))
 
-    budget = median_ms(learned, k)
-    fits = [s for s in PHYSICS_SAMPLES if s >= k and median_ms(physics, s) <= budget]
+    budget = median_s(learned, k)
+    fits = [s for s in PHYSICS_SAMPLES if s >= k and median_s(physics, s) <= budget]
     return max(fits, default=k)
