@@ -22,6 +22,7 @@ ray = pytest.importorskip("ray")
 @pytest.fixture(scope="module", autouse=True)
 def local_cluster():
     os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
+    os.environ["RAY_worker_niceness"] = "0"  # as cluster.connect: not behind every process
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
@@ -75,3 +76,31 @@ def test_a_task_whose_worker_dies_is_retried_and_finishes(tmp_path):
     markers = [tmp_path / f"m{i}" for i in range(3)]
     results = list(run_on_ray(_dies_once, markers, address="auto", progress=False))
     assert sorted(results) == ["first attempt"] * 3
+
+
+def test_tune_searches_and_its_best_configuration_trains(tmp_path):
+    from slungload.cli import main
+    from slungload.study.tune import run_tune
+    from slungload.tune_config import SearchSpace, TuneSettings
+
+    names = [f"{split}_{i}" for i, split in enumerate(["train", "train", "val", "test"])]
+    splits = {s: [n for n in names if n.startswith(s)] for s in ("train", "val", "test")}
+    data = flights.write_dataset(tmp_path / "long", {n: 60 for n in names}, splits, physics=True)
+    space = SearchSpace(architecture=("lstm-attention",), variant=("proposed", "no-physics"),
+                        steps=("paper",), horizon=(SMALL.horizon,), load_estimate=("difference",),
+                        size=("tiny",), batch_size=(32,), lr=(1e-3, 3e-3))  # fmt: skip
+    settings = TuneSettings(
+        trials=3, preset="quick", epochs=2, final_preset="quick",
+        horizon=SMALL.horizon, grace_epochs=1, history=SMALL.history,
+    )  # fmt: skip
+    rows = run_tune(data, tmp_path / "tune", settings, space, cluster="auto")
+    assert len(rows) == 3
+    assert all(r["epochs"] >= 1 for r in rows)  # every trial reported its epochs
+    assert (tmp_path / "tune" / "trials.csv").read_text().count("\n") == 4
+    text = (tmp_path / "tune" / "tune.md").read_text()
+    assert "outside this search space" in text  # the tiny space excludes reproduce's choice
+    best = tmp_path / "tune" / "best.toml"
+    assert best.is_file() and (tmp_path / "tune" / "tune.png").stat().st_size > 0
+    assert main(["train", "--data", str(data), "--config", str(best), "--epochs", "1",
+                 "--out", str(tmp_path / "retrained"), "--quiet"]) == 0  # fmt: skip
+    assert (tmp_path / "retrained" / "run.json").is_file()

@@ -46,6 +46,9 @@ def connect(address: str) -> bool:
     if ray.is_initialized():
         return False
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    # Ray starts its workers at niceness 15; a training task then waits behind every other
+    # process of the machine. At 0 it runs as the local process pool's workers do.
+    os.environ.setdefault("RAY_worker_niceness", "0")
     options = {"include_dashboard": False, "log_to_driver": False}
     if address == LOCAL:
         ray.init(**options)

@@ -18,7 +18,7 @@ from .._version import __version__
 from .control import add_control
 from .data import add_import, add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
-from .evaluate import add_evaluate, add_reproduce, add_study
+from .evaluate import add_evaluate, add_reproduce, add_study, add_tune
 from .train import add_identify, add_train
 
 USER_ERRORS = (
@@ -52,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_import(sub)
     add_identify(sub)
     add_study(sub)
+    add_tune(sub)
     add_control(sub)
     return parser
 

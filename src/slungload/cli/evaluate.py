@@ -310,3 +310,73 @@ def cmd_study(args: argparse.Namespace) -> int:
     )
     print(args.out / "study.md")
     return 0
+
+
+def add_tune(sub: Any) -> None:
+    from ..tune_config import SearchSpace, TuneSettings
+
+    space, settings = SearchSpace(), TuneSettings()
+    p = new_command(
+        sub,
+        "tune",
+        "search for the training configuration that suits a dataset (Ray Tune)",
+        "A configuration search on the validation flights: Optuna's TPE proposes trials over "
+        + "; ".join(
+            f"{name} {'/'.join(map(str, getattr(space, name)))}"
+            for name in (
+                "architecture",
+                "variant",
+                "steps",
+                "horizon",
+                "load_estimate",
+                "size",
+                "batch_size",
+            )
+        )  # fmt: skip
+        + f"; learning rate {space.lr[0]:g}-{space.lr[1]:g} (log-uniform), the first trial "
+        "being reproduce's configuration; ASHA stops poor trials early on each epoch's "
+        "validation loss; a finished trial scores combined RMSE at N = 50 on the validation "
+        "flights, mean of two seeds. Writes trials.csv, tune.md, tune.png and best.toml "
+        "(`slungload train --config best.toml` retrains the winner). Needs Ray (pip install "
+        "'slungload[cluster]'); docs/cluster.md.",
+    )
+    p.add_argument("--data", required=True, type=Path, help="dataset folder")
+    p.add_argument("--out", required=True, type=Path, help="output folder")
+    p.add_argument("--trials", type=int, default=settings.trials,
+                   help=f"trials (default {settings.trials})")  # fmt: skip
+    p.add_argument(
+        "--preset", default=settings.preset, choices=choices("presets"),
+        help=f"the search budget's schedule (default {settings.preset})",
+    )  # fmt: skip
+    p.add_argument("--epochs", type=int, default=settings.epochs,
+                   help=f"epochs per trial, the preset's schedule fitted to them (default "
+                   f"{settings.epochs})")  # fmt: skip
+    p.add_argument(
+        "--final-preset", default=settings.final_preset, choices=choices("presets"),
+        help=f"best.toml's schedule, what the winner retrains with (default "
+        f"{settings.final_preset})",
+    )  # fmt: skip
+    p.add_argument(
+        "--concurrent", type=int, default=settings.concurrent,
+        help=f"trials at a time, one CPU each (default {settings.concurrent})",
+    )  # fmt: skip
+    p.add_argument(
+        "--cluster", default="local", metavar="ADDRESS",
+        help="where the trials run: local (a Ray instance on this machine; the default), auto "
+        "(the cluster RAY_ADDRESS names) or ray://HOST:PORT; the dataset and OUT on storage "
+        "every node sees",
+    )  # fmt: skip
+    p.set_defaults(func=cmd_tune)
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..study.tune import run_tune
+    from ..tune_config import TuneSettings
+
+    settings = replace(TuneSettings(), trials=args.trials, preset=args.preset, epochs=args.epochs,
+                       final_preset=args.final_preset, concurrent=args.concurrent)  # fmt: skip
+    run_tune(args.data, args.out, settings, cluster=args.cluster)
+    print(args.out / "tune.md")
+    return 0

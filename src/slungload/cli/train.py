@@ -26,6 +26,14 @@ def add_train(sub: Any) -> None:
     p.add_argument("--data", required=True, type=Path, help="dataset folder")
     p.add_argument("--out", required=True, type=Path, help="run folder to create")
     p.add_argument(
+        "--config",
+        type=Path,
+        metavar="RUN_TOML",
+        help="the run's description from a file (a run folder's run.toml, or the best "
+        "configuration `slungload tune` writes) instead of the options below; --seed and "
+        "--epochs still apply",
+    )
+    p.add_argument(
         "--variant",
         default=RUN.variant,
         choices=choices("variants"),
@@ -60,7 +68,7 @@ def add_train(sub: Any) -> None:
     )
     p.add_argument("--devices", type=int, default=1, help="processes for DDP (default 1)")
     p.add_argument(
-        "--seed", type=int, default=RUN.seed, help=f"weights and batch order (default {RUN.seed})"
+        "--seed", type=int, help=f"weights and batch order (default {RUN.seed}, or --config's)"
     )
     p.add_argument("--epochs", type=int, help="override the preset's maximum epochs")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.ckpt")
@@ -90,20 +98,37 @@ def add_train(sub: Any) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
     add_vehicle_options(p)
-    p.set_defaults(func=cmd_train)
+    p.set_defaults(func=cmd_train, run_defaults={d: p.get_default(d) for d in RUN_OPTIONS})
 
 
-def cmd_train(args: argparse.Namespace) -> int:
-    from lightning.pytorch.utilities import rank_zero_only
+# What a --config file describes instead (its options may not be given beside it).
+RUN_OPTIONS = ("variant", "model", "size", "preset", "fit_constants", "steps", "load_estimate",
+               "history", "horizon", "stride")  # fmt: skip
+
+
+def run_from_args(args: argparse.Namespace):
+    """The ``RunConfig`` of ``train``'s options, or of ``--config`` (with --seed, --epochs)."""
+    from dataclasses import replace
 
     from ..config import LossWeights, ModelConfig, WindowConfig
-    from ..run_config import RunConfig
-    from ..training.trainer import train
+    from ..run_config import RunConfig, read_toml
 
-    run = RunConfig.from_preset(
+    if args.config is not None:
+        given = [f"--{d.replace('_', '-')}" for d in RUN_OPTIONS
+                 if getattr(args, d) != args.run_defaults[d]]  # fmt: skip
+        if given:
+            raise ValueError(f"--config {args.config} describes the run: drop {', '.join(given)}")
+        run = read_toml(args.config)
+        train = run.train
+        if args.seed is not None:
+            train = replace(train, seed=args.seed)
+        if args.epochs is not None:
+            train = replace(train, max_epochs=args.epochs)
+        return replace(run, train=train)
+    return RunConfig.from_preset(
         args.preset,
         variant=args.variant,
-        seed=args.seed,
+        seed=RUN.seed if args.seed is None else args.seed,
         max_epochs=args.epochs,
         fit_constants=args.fit_constants,
         model=ModelConfig.sized(
@@ -112,6 +137,14 @@ def cmd_train(args: argparse.Namespace) -> int:
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
     )
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from lightning.pytorch.utilities import rank_zero_only
+
+    from ..training.trainer import train
+
+    run = run_from_args(args)
     result = train(
         args.data,
         run,

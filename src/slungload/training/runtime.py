@@ -12,7 +12,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +63,21 @@ class SaveOnInterrupt(Callback):
         if isinstance(exception, SIGTERMException) and not trainer.sanity_checking:
             trainer.save_checkpoint(self.path)
             self.saved = True
+
+
+class EpochReport(Callback):
+    """Hands ``report(epoch, metrics)`` each finished validation epoch's ``val/...`` metrics
+    (floats; on the global-zero process, not during the sanity check): how a configuration
+    search (``slungload tune``) sees a trial's progress and stops the poor ones early."""
+
+    def __init__(self, report: Callable[[int, dict[str, float]], None]) -> None:
+        self.report = report
+
+    def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.sanity_checking or not trainer.is_global_zero:
+            return
+        metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
+        self.report(trainer.current_epoch, metrics)
 
 
 @contextlib.contextmanager

@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from datetime import timedelta
 from pathlib import Path
@@ -72,6 +73,7 @@ from .identify import identify
 from .module import MONITOR, SlungLoadModule
 from .runtime import (
     AtomicCheckpointIO,
+    EpochReport,
     SaveOnInterrupt,
     _quiet_lightning,
     _ResumableCSVLogger,
@@ -143,6 +145,7 @@ def train(
     params: VehicleParams | None = None,
     progress: bool = True,
     num_threads: int | None = None,
+    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
 ) -> Run:
     """Train the run ``run`` describes (default ``RunConfig()``: the paper's network, the
     proposed loss, the default preset, seed 0) on a dataset folder (or a loaded ``Dataset``)
@@ -154,7 +157,8 @@ def train(
     holds a run is refused. ``num_threads`` sets torch's CPU threads for this process. A run
     whose ``TrainConfig.fit_constants`` is set fits the physics model's constants to the
     training flights first (``identify``) and trains with them. The run folder gets the
-    description as ``run.toml``.
+    description as ``run.toml``. ``on_epoch(epoch, metrics)`` receives each validation epoch's
+    ``val/...`` metrics (``runtime.EpochReport``; a configuration search's progress).
 
     Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
     ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
@@ -194,8 +198,9 @@ def train(
     if _is_global_zero():
         RunConfig.from_meta(meta).write_toml(out / RUN_TOML)
     start = time.perf_counter()
+    extra = (EpochReport(on_epoch),) if on_epoch is not None else ()
     trainer = _fit(
-        module, datamodule, callbacks, out, accelerator, devices, config, progress, resume
+        module, datamodule, callbacks, out, accelerator, devices, config, progress, resume, extra
     )
     seconds = time.perf_counter() - start
 
@@ -335,11 +340,14 @@ def _fit(
     config: TrainConfig,
     progress: bool,
     resume: bool,
+    extra: tuple[Any, ...] = (),
 ) -> L.Trainer:
-    """Fit (from ``last.ckpt`` when resuming); a signal becomes ``TrainingInterrupted``."""
+    """Fit (from ``last.ckpt`` when resuming) with ``callbacks`` and the ``extra`` ones; a
+    signal becomes ``TrainingInterrupted``."""
     last, interrupt_cb = out / LAST, callbacks[-1]
     with _quiet_lightning(), _sigint_as_sigterm() as sigints:
-        trainer = _make_trainer(out, accelerator, devices, config, list(callbacks), progress)
+        every = [*callbacks, *extra]
+        trainer = _make_trainer(out, accelerator, devices, config, every, progress)
         try:
             trainer.fit(
                 module,

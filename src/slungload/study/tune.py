@@ -1,0 +1,260 @@
+"""``slungload tune``: a configuration search with Ray Tune on the validation split.
+
+Every trial is one ``RunConfig`` drawn from ``SearchSpace`` (architecture, loss variant, step
+weighting, training horizon, load estimate, learning rate, network size, batch size) on a
+search budget (``TuneSettings.preset`` with ``epochs``). Optuna's TPE (through Ray Tune's
+``OptunaSearch``) proposes the trials, the first one being reproduce's hand-chosen
+configuration (``experiment.BEYOND_PAPER``), so the search can only match or beat it; ASHA
+stops poor trials early on the validation loss each epoch reports (``train(on_epoch=...)``).
+A trial that runs to the end trains the same configuration with the second seed and reports
+the objective: combined RMSE at N = 50 on the validation flights, mean of the seeds. The
+test flights are never looked at.
+
+Writes into ``out``: ``trials.csv`` (every trial: its choices, epochs, validation loss and
+objective), ``tune.md`` (the table, best first), ``tune.png`` (objective per trial and the best
+so far) and ``best.toml``: the best configuration on the final budget
+(``TuneSettings.final_preset``), which ``slungload train --config best.toml`` retrains. Trial
+runs live in ``out/trials/<trial>/s<seed>``; Ray Tune's own state in ``out/ray``.
+
+Ray (``pip install 'slungload[cluster]'``) runs the trials locally (``cluster="local"``) or on a
+cluster (``cluster.connect``); on this project's machines start it only in a private network
+namespace (docs/cluster.md).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..cluster import connect, require_ray
+from ..config import LossWeights, ModelConfig, WindowConfig
+from ..evaluation.evaluator import evaluate
+from ..evaluation.metrics import COMBINED
+from ..experiment import BEYOND_PAPER
+from ..fileio import write_text
+from ..reporting import markdown_table, save_figure
+from ..run_config import RunConfig
+from ..training.trainer import train
+from ..tune_config import SearchSpace, TuneSettings
+
+OBJECTIVE = "objective"  # combined RMSE at N = 50 on val, mean of the seeds
+VAL_LOSS = "val_loss"  # each epoch's validation loss (ASHA's signal)
+
+
+def choice_run(
+    choice: dict[str, Any], preset: str, seed: int, epochs: int | None, history: int = 50
+) -> RunConfig:
+    """The ``RunConfig`` of one trial's choices (M = ``history``)."""
+    run = RunConfig.from_preset(
+        preset,
+        variant=choice["variant"],
+        seed=seed,
+        max_epochs=epochs,
+        model=ModelConfig.sized(
+            choice["size"],
+            architecture=choice["architecture"],
+            load_estimate=choice["load_estimate"],
+        ),
+        loss=LossWeights(steps=choice["steps"]),
+        window=WindowConfig(history=history, horizon=int(choice["horizon"])),
+    )
+    return replace(
+        run, train=replace(run.train, lr=float(choice["lr"]), batch_size=int(choice["batch_size"]))
+    )
+
+
+def hand_chosen(preset: str) -> dict[str, Any]:
+    """Reproduce's configuration (``BEYOND_PAPER``) as a trial's choices, on ``preset``'s
+    learning rate and batch size."""
+    run = BEYOND_PAPER[0].scheduled(preset, seed=0)
+    return {
+        "architecture": run.model.architecture,
+        "variant": run.variant,
+        "steps": run.loss.steps,
+        "horizon": run.window.horizon,
+        "load_estimate": run.model.load_estimate,
+        "size": run.model.size,
+        "batch_size": run.train.batch_size,
+        "lr": run.train.lr,
+    }
+
+
+def within(choice: dict[str, Any], space: SearchSpace) -> bool:
+    """Whether ``space`` allows every value of ``choice``."""
+    low, high = space.lr
+    return low <= choice["lr"] <= high and all(
+        choice[name] in getattr(space, name) for name in choice if name != "lr"
+    )
+
+
+def _trial(choice: dict[str, Any], data: str, out: str, settings: TuneSettings) -> None:
+    """One trial (a Ray Tune function trainable): seed one reporting every epoch, then the
+    other seeds and the objective."""
+    from ray import tune
+
+    folder = Path(out) / "trials" / tune.get_context().get_trial_id()
+    runs = []
+    for i, seed in enumerate(settings.seeds):
+        run = choice_run(choice, settings.preset, seed, settings.epochs, settings.history)
+
+        def report(epoch: int, metrics: dict[str, float]) -> None:
+            tune.report({VAL_LOSS: metrics.get("val/total", math.nan), "epoch": epoch + 1})
+
+        train(data, run, out=folder / f"s{seed}", progress=False, num_threads=1,
+              on_epoch=report if i == 0 else None)  # fmt: skip
+        runs.append(folder / f"s{seed}")
+    report_ = evaluate(runs, data=data, horizons=(settings.horizon,), include_physics=False,
+                       progress=False, split="val")  # fmt: skip
+    rmse = float(np.mean([r.metrics.rmse[COMBINED] for r in report_.results]))
+    tune.report({OBJECTIVE: rmse, "epoch": settings.epochs or 0})
+
+
+def run_tune(
+    data: str | Path,
+    out: str | Path,
+    settings: TuneSettings | None = None,
+    space: SearchSpace | None = None,
+    *,
+    cluster: str = "local",
+) -> list[dict[str, Any]]:
+    """Search (see the module); returns the trials' rows, best first."""
+    ray = require_ray()
+    from ray import tune
+    from ray.tune.schedulers import ASHAScheduler
+    from ray.tune.search import ConcurrencyLimiter
+    from ray.tune.search.optuna import OptunaSearch
+
+    settings, space = settings or TuneSettings(), space or SearchSpace()
+    data, out = Path(data).resolve(), Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    params = {name: tune.choice(list(getattr(space, name))) for name in
+              ("architecture", "variant", "steps", "horizon", "load_estimate", "size",
+               "batch_size")}  # fmt: skip
+    params["lr"] = tune.loguniform(*space.lr)
+    first = hand_chosen(settings.preset)
+    start = [first] if within(first, space) else None  # a narrower space may exclude it
+    searcher = ConcurrencyLimiter(
+        OptunaSearch(
+            metric=OBJECTIVE, mode="min", points_to_evaluate=start, seed=settings.search_seed
+        ),  # fmt: skip
+        max_concurrent=settings.concurrent,
+    )
+    max_epochs = settings.epochs or RunConfig.from_preset(settings.preset).train.max_epochs
+    scheduler = ASHAScheduler(metric=VAL_LOSS, mode="min", time_attr="epoch",
+                              max_t=max_epochs, grace_period=settings.grace_epochs)  # fmt: skip
+    started = connect(cluster)
+    try:
+        trainable = tune.with_resources(
+            tune.with_parameters(_trial, data=str(data), out=str(out), settings=settings),
+            {"cpu": 1},
+        )
+        tuner = tune.Tuner(
+            trainable,
+            param_space=params,
+            tune_config=tune.TuneConfig(
+                num_samples=settings.trials, search_alg=searcher, scheduler=scheduler
+            ),  # fmt: skip
+            run_config=tune.RunConfig(name="tune", storage_path=str(out / "ray"), verbose=0),
+        )
+        grid = tuner.fit()
+    finally:
+        if started:
+            ray.shutdown()
+    rows = [_row(result) for result in grid]
+    rows.sort(key=lambda r: (not math.isfinite(r[OBJECTIVE]), r[OBJECTIVE], -r["epochs"]))
+    write_tune(rows, first if start else None, settings, out)
+    return rows
+
+
+def _row(result: Any) -> dict[str, Any]:
+    """One trial's choices, epochs trained, last validation loss and objective (NaN if
+    stopped early)."""
+    history = result.metrics_dataframe
+    losses = history[VAL_LOSS].dropna() if VAL_LOSS in history else []
+    objective = result.metrics.get(OBJECTIVE, math.nan)
+    return {
+        "trial": result.metrics.get("trial_id", "?"),
+        **{k: v for k, v in result.config.items()},
+        "epochs": int(len(losses)),
+        VAL_LOSS: float(losses.iloc[-1]) if len(losses) else math.nan,
+        OBJECTIVE: float(objective) if objective is not None else math.nan,
+    }
+
+
+def write_tune(
+    rows: Sequence[dict[str, Any]],
+    first: dict[str, Any] | None,
+    settings: TuneSettings,
+    out: Path,
+) -> Path:
+    """trials.csv, tune.md, tune.png and best.toml (see the module); returns tune.md."""
+    keys = list(rows[0]) if rows else []
+    with open(out / "trials.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    finished = [r for r in rows if math.isfinite(r[OBJECTIVE])]
+    lines = [
+        "# Configuration search",
+        "",
+        f"{len(rows)} trials ({len(finished)} ran to the end, {len(rows) - len(finished)} "
+        f"stopped early by ASHA); search budget: preset {settings.preset!r}, "
+        f"{settings.epochs or 'all its'} epochs; objective: combined RMSE at N = "
+        f"{settings.horizon} on the validation flights, mean of seeds "
+        f"{', '.join(map(str, settings.seeds))}. "
+        + (
+            "The first trial is reproduce's configuration: "
+            + ", ".join(f"{k} {v}" for k, v in first.items())
+            + "."
+            if first
+            else "Reproduce's configuration is outside this search space."
+        ),
+        "",
+        markdown_table(keys, [[_cell(r[k]) for k in keys] for r in rows]),
+        "",
+        "![objective per trial](tune.png)",
+    ]
+    if finished:
+        best = choice_run(finished[0], settings.final_preset, settings.seeds[0], None,
+                          settings.history)  # fmt: skip
+        best.write_toml(out / "best.toml")
+        lines += ["", f"Best: trial {finished[0]['trial']}, objective "
+                  f"{finished[0][OBJECTIVE]:.4f}; `best.toml` (preset "
+                  f"{settings.final_preset!r}): `slungload train --config best.toml`."]  # fmt: skip
+    write_text(out / "tune.md", "\n".join(lines) + "\n")
+    _plot(rows, out / "tune.png")
+    return out / "tune.md"
+
+
+def _cell(value: Any) -> str:
+    if isinstance(value, float):
+        return "-" if not math.isfinite(value) else f"{value:.4g}"
+    return str(value)
+
+
+def _plot(rows: Sequence[dict[str, Any]], path: Path) -> Path:
+    """The objective of each finished trial in trial order, and the best so far."""
+    ordered = sorted(rows, key=lambda r: str(r["trial"]))
+    values = [r[OBJECTIVE] for r in ordered]
+    fig = Figure(figsize=(6.0, 3.2))
+    ax = fig.add_subplot(1, 1, 1)
+    xs = [i for i, v in enumerate(values) if math.isfinite(v)]
+    ax.plot(xs, [values[i] for i in xs], "o", label="trial")
+    best, running = math.inf, []
+    for v in values:
+        best = min(best, v) if math.isfinite(v) else best
+        running.append(best)
+    ax.step(range(len(values)), running, where="post", label="best so far")
+    ax.set_xlabel("trial")
+    ax.set_ylabel("val combined RMSE, N = 50")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return save_figure(fig, path)

@@ -1,0 +1,45 @@
+"""The configuration search's parts that need no Ray (``tune_config``, ``study.tune``) and
+``train --config``; the search itself runs in ``ray_cases.py`` (``test_cluster.py``)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from slungload.experiment import BEYOND_PAPER
+from slungload.run_config import read_toml
+from slungload.study.tune import choice_run, hand_chosen, within
+from slungload.tune_config import SearchSpace, TuneSettings
+
+
+def test_the_first_trial_is_reproduces_configuration():
+    settings = TuneSettings()
+    first = hand_chosen(settings.preset)
+    assert within(first, SearchSpace())
+    run = choice_run(first, settings.preset, 0, None)
+    assert run == BEYOND_PAPER[0].scheduled(settings.preset, seed=0)
+    assert not within({**first, "size": "huge"}, SearchSpace())
+    assert not within({**first, "lr": 1.0}, SearchSpace())
+
+
+def test_train_config_reads_a_run_file_and_refuses_options_beside_it(run_cli, tiny_run, tmp_path):
+    toml = tiny_run.out / "run.toml"
+    code, out, err = run_cli("train", "--data", tiny_run.data, "--config", toml, "--epochs", "1",
+                             "--seed", "3", "--out", tmp_path / "again", "--quiet")  # fmt: skip
+    assert code == 0, err
+    again = read_toml(tmp_path / "again" / "run.toml")
+    first = read_toml(toml)
+    assert again.train.seed == 3 and again.model == first.model and again.window == first.window
+    code, _, err = run_cli("train", "--data", tiny_run.data, "--config", toml, "--variant",
+                           "no-slack", "--out", tmp_path / "x")  # fmt: skip
+    assert code == 2 and "drop --variant" in err
+
+
+def test_tune_help_is_light():
+    code = (
+        "import sys\nfrom slungload.cli import build_parser\n"
+        "try:\n    build_parser().parse_args(['tune', '--help'])\nexcept SystemExit:\n    pass\n"
+        "assert not {'torch', 'ray', 'optuna'} & set(sys.modules), sorted(sys.modules)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
