@@ -86,6 +86,11 @@ def write_json(path: str | Path, data: Any) -> None:
     write_text(path, json.dumps(data, indent=2, sort_keys=True) + "\n")
 
 
+def read_json(path: str | Path) -> Any:
+    """The JSON content of ``path`` (``write_json``'s inverse)."""
+    return json.loads(Path(path).read_text())
+
+
 def write_npz(path: str | Path, arrays: Mapping[str, np.ndarray]) -> None:
     """Write an uncompressed ``.npz`` atomically with fixed member timestamps.
 

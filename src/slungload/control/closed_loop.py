@@ -22,10 +22,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..fileio import write_npz
 from ..layout import LOAD_POS, POS
 from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
@@ -157,6 +159,22 @@ def _stats_dict(stats: Any) -> dict[str, Any]:
         "nonfinite_steps": stats.nonfinite_steps,
         "hover_steps": stats.hover_steps,
     }
+
+
+LOG_ARRAYS = ("t", "states", "p_ref", "inputs", "compute")  # what a saved flight log holds
+
+
+def write_log(path: str | Path, log: FlightLog) -> None:
+    """A flight log's arrays as one ``.npz`` (``read_log`` reads it back)."""
+    write_npz(path, {name: getattr(log, name) for name in LOG_ARRAYS})
+
+
+def read_log(path: str | Path, row: dict[str, Any]) -> FlightLog:
+    """The log ``write_log`` wrote, with its ``flight_metrics`` ``row`` for the rest."""
+    with np.load(path) as z:
+        arrays = [z[name] for name in LOG_ARRAYS]
+    return FlightLog(row["maneuver"], row["seed"], row["controller"], row["planned_steps"],
+                     *arrays, row["stopped"])  # fmt: skip
 
 
 def swing_angle(states: np.ndarray) -> np.ndarray:

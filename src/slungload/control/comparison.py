@@ -20,14 +20,14 @@ import torch
 
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
-from ..fileio import write_json, write_npz
+from ..fileio import write_json
 from ..models.prediction import PHYSICS, PredictionModel
 from ..reporting import machine
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from ..sim.maneuvers import MANEUVERS
-from .closed_loop import Arena, FlightLog, flight_metrics, fly
+from .closed_loop import Arena, FlightLog, flight_metrics, fly, write_log
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 from .report import write_report
 from .results import ControlComparison
@@ -171,10 +171,7 @@ def _mpc_factory(model, limits, mpc_cfg, params):
 
 def _save_log(folder: Path, log: FlightLog) -> None:
     name = f"{log.maneuver}_s{log.seed}_{log.controller.replace(' ', '_').replace('=', '')}.npz"
-    write_npz(folder / name, {
-        "t": log.t, "states": log.states, "p_ref": log.p_ref, "inputs": log.inputs,
-        "compute": log.compute,
-    })  # fmt: skip
+    write_log(folder / name, log)
 
 
 def _progress_line(row: dict[str, Any]) -> str:

@@ -36,13 +36,13 @@ import numpy as np
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
 from ..deploy.timing import time_calls
-from ..fileio import write_json, write_npz
+from ..fileio import read_json, write_json
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
 from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
-from .closed_loop import FlightLog, flight_metrics, fly
+from .closed_loop import FlightLog, flight_metrics, fly, read_log, write_log
 from .geometric import GEOMETRIC, GeometricLoadController
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 from .mppi import ReferenceAhead
@@ -159,7 +159,8 @@ def _fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progr
     log = fly(maneuver, seed, flown.make(seed), label=flown.label, config=plant_cfg, steps=steps)
     row = flight_metrics(log, limits, plant_cfg.cable_length)
     row.update(plant=flown.plant, wall_s=time.perf_counter() - start)
-    _save(path, log)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_log(path.with_suffix(".npz"), log)
     write_json(path.with_suffix(".json"), row)  # last: its presence means the flight is done
     if progress:
         status = "ok" if row["completed"] else f"STOPPED: {row['stopped']}"
@@ -175,14 +176,6 @@ def flight_path(out: Path, plant: str, label: str, maneuver: str, seed: int) -> 
     return Path(out) / "flights" / safe(plant) / safe(label) / f"{maneuver}_s{seed}"
 
 
-def _save(path: Path, log: FlightLog) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_npz(path.with_suffix(".npz"), {
-        "t": log.t, "states": log.states, "p_ref": log.p_ref, "inputs": log.inputs,
-        "compute": log.compute,
-    })  # fmt: skip
-
-
 def collect_rows(out: str | Path) -> list[dict[str, Any]]:
     """Every flight row under ``out/flights``, in a stable order."""
     return [read_json(p) for p in sorted(Path(out).glob("flights/*/*/*.json"))]
@@ -191,11 +184,7 @@ def collect_rows(out: str | Path) -> list[dict[str, Any]]:
 def load_log(out: str | Path, row: dict[str, Any]) -> FlightLog:
     """The saved log of a row."""
     path = flight_path(Path(out), row["plant"], row["controller"], row["maneuver"], row["seed"])
-    with np.load(path.with_suffix(".npz")) as z:
-        arrays = {k: z[k] for k in z.files}
-    return FlightLog(row["maneuver"], row["seed"], row["controller"], row["planned_steps"],
-                     arrays["t"], arrays["states"], arrays["p_ref"], arrays["inputs"],
-                     arrays["compute"], row["stopped"])  # fmt: skip
+    return read_log(path.with_suffix(".npz"), row)
 
 
 # --- settings: chosen once, written once --------------------------------------------------
@@ -228,10 +217,6 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
     settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
     write_json(path, settings)
     return settings
-
-
-def read_json(path: str | Path) -> Any:
-    return json.loads(Path(path).read_text())
 
 
 def _jsonable(value: Any) -> Any:

@@ -25,11 +25,11 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..fileio import write_text
+from ..fileio import read_json, write_text
 from ..reporting import markdown_table, model_colors, save_figure
 from .report import plot_paths
 from .results import paired_interval
-from .study import load_log, read_json
+from .study import load_log
 from .study_config import NOMINAL, StudyConfig
 
 KEYS = (
