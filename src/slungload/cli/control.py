@@ -150,6 +150,6 @@ def _cmd_study(args: argparse.Namespace) -> int:
     config = replace(StudyConfig(), **changes)
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
-                     progress=None if args.quiet else print)  # fmt: skip
+                     threads=args.threads, progress=None if args.quiet else print)  # fmt: skip
     print(write_study_report(rows, config, args.out, str(learned) if learned else None))
     return 0

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
@@ -73,6 +74,7 @@ def run_study(
     *,
     controllers: Sequence[str] = CONTROLLERS,
     plants: Sequence[str] | None = None,
+    threads: int = 1,
     progress: Callable[[str], None] | None = print,
 ) -> list[dict[str, Any]]:
     """Fly what is missing of the study into ``out`` and return every row flown so far.
@@ -80,6 +82,8 @@ def run_study(
     learned: a trained run folder (None: no learned model, nor its equal-compute matching).
     controllers: the kinds to fly now (``CONTROLLERS``), e.g. ("oracle",) in its own process;
     plants: the plants to fly now (NOMINAL and the config's shifts; default all), likewise.
+    threads: torch threads while flying (restored after): one per process, so that processes
+    flying side by side do not oversubscribe the cores, and the compute times are one core's.
     """
     cfg = config or StudyConfig()
     unknown = set(controllers) - set(CONTROLLERS)
@@ -96,13 +100,18 @@ def run_study(
     models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
     if learned is not None:
         models["learned"] = load_model(learned, backend=cfg.backend)
-    real_mpc = {PHYSICS, "learned"} & set(controllers)
-    settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
-    for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
-        plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
-        for maneuver in cfg.maneuvers:
-            for seed in cfg.seeds:
-                _fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        real_mpc = {PHYSICS, "learned"} & set(controllers)
+        settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
+        for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
+            plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
+            for maneuver in cfg.maneuvers:
+                for seed in cfg.seeds:
+                    _fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+    finally:
+        torch.set_num_threads(previous)
     return collect_rows(out)
 
 
@@ -262,7 +271,7 @@ def equal_compute_samples(
     learned: Callable[[int], SamplingMPC],
     k: int,
     repeats: int = 30,
-) -> int:
+) -> int:  # timed on the caller's torch threads (run_study: one)
     """The largest K of ``PHYSICS_SAMPLES`` whose median whole control step (sampling,
     prediction, cost, weights: ``MPPIController.step``) takes no longer than the learned
     model's at K = ``k``; at least ``k``. ``physics`` and ``learned``: K -> a fresh MPC."""

@@ -100,12 +100,15 @@ def _trial(choice: dict[str, Any], data: str, out: str, settings: TuneSettings) 
     from ray import tune
 
     folder = Path(out) / "trials" / tune.get_context().get_trial_id()
-    runs = []
+    # Every report carries the objective (the searcher reads it each time): +inf until the
+    # trial's end, so a trial ASHA stops counts as the worst for TPE.
+    runs, last = [], {VAL_LOSS: math.nan, "epoch": 0, OBJECTIVE: math.inf}
     for i, seed in enumerate(settings.seeds):
         run = choice_run(choice, settings.preset, seed, settings.epochs, settings.history)
 
         def report(epoch: int, metrics: dict[str, float]) -> None:
-            tune.report({VAL_LOSS: metrics.get("val/total", math.nan), "epoch": epoch + 1})
+            last.update({VAL_LOSS: metrics.get("val/total", math.nan), "epoch": epoch + 1})
+            tune.report(dict(last))
 
         train(data, run, out=folder / f"s{seed}", progress=False, num_threads=1,
               on_epoch=report if i == 0 else None)  # fmt: skip
@@ -113,7 +116,7 @@ def _trial(choice: dict[str, Any], data: str, out: str, settings: TuneSettings) 
     report_ = evaluate(runs, data=data, horizons=(settings.horizon,), include_physics=False,
                        progress=False, split="val")  # fmt: skip
     rmse = float(np.mean([r.metrics.rmse[COMBINED] for r in report_.results]))
-    tune.report({OBJECTIVE: rmse, "epoch": settings.epochs or 0})
+    tune.report({**last, OBJECTIVE: rmse})
 
 
 def run_tune(
@@ -147,8 +150,10 @@ def run_tune(
         max_concurrent=settings.concurrent,
     )
     max_epochs = settings.epochs or RunConfig.from_preset(settings.preset).train.max_epochs
+    # max_t one past the last epoch: ASHA stops a trial that reaches max_t, and a trial must
+    # still train its other seeds after its last reported epoch.
     scheduler = ASHAScheduler(metric=VAL_LOSS, mode="min", time_attr="epoch",
-                              max_t=max_epochs, grace_period=settings.grace_epochs)  # fmt: skip
+                              max_t=max_epochs + 1, grace_period=settings.grace_epochs)  # fmt: skip
     started = connect(cluster)
     try:
         trainable = tune.with_resources(
@@ -174,17 +179,18 @@ def run_tune(
 
 
 def _row(result: Any) -> dict[str, Any]:
-    """One trial's choices, epochs trained, last validation loss and objective (NaN if
+    """One trial's choices, epochs trained, last validation loss and objective (+inf if
     stopped early)."""
     history = result.metrics_dataframe
-    losses = history[VAL_LOSS].dropna() if VAL_LOSS in history else []
-    objective = result.metrics.get(OBJECTIVE, math.nan)
+    epochs = history["epoch"].max() if "epoch" in history else 0
+    loss = result.metrics.get(VAL_LOSS, math.nan)
+    objective = result.metrics.get(OBJECTIVE, math.inf)
     return {
         "trial": result.metrics.get("trial_id", "?"),
         **{k: v for k, v in result.config.items()},
-        "epochs": int(len(losses)),
-        VAL_LOSS: float(losses.iloc[-1]) if len(losses) else math.nan,
-        OBJECTIVE: float(objective) if objective is not None else math.nan,
+        "epochs": int(epochs) if epochs == epochs else 0,  # NaN: no epoch reported
+        VAL_LOSS: float(loss),
+        OBJECTIVE: float(objective) if objective is not None else math.inf,
     }
 
 
