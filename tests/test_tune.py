@@ -43,3 +43,12 @@ def test_tune_help_is_light():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_a_trial_without_a_physics_step_trains_the_default_load_estimate():
+    choice = {**hand_chosen("quick"), "architecture": "lstm-attention", "load_estimate": "smoothed"}
+    run = choice_run(choice, "quick", 0, 1)  # no error: the estimate has no meaning there
+    assert run.model.architecture == "lstm-attention"
+    assert run.model.load_estimate == "difference"
+    kept = choice_run({**choice, "architecture": "physics-step"}, "quick", 0, 1)
+    assert kept.model.load_estimate == "smoothed"
