@@ -66,18 +66,19 @@ class SaveOnInterrupt(Callback):
 
 
 class EpochReport(Callback):
-    """Hands ``report(epoch, metrics)`` each finished validation epoch's ``val/...`` metrics
-    (floats; on the global-zero process, not during the sanity check): how a configuration
-    search (``slungload tune``) sees a trial's progress and stops the poor ones early."""
+    """Hands ``report(epoch, metrics, net)`` each finished validation epoch's ``val/...``
+    metrics (floats) and the network being trained (on the global-zero process, not during
+    the sanity check): how a configuration search (``slungload tune``) follows a trial and
+    stops the poor ones early."""
 
-    def __init__(self, report: Callable[[int, dict[str, float]], None]) -> None:
+    def __init__(self, report: Callable[[int, dict[str, float], Any], None]) -> None:
         self.report = report
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.sanity_checking or not trainer.is_global_zero:
             return
         metrics = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}
-        self.report(trainer.current_epoch, metrics)
+        self.report(trainer.current_epoch, metrics, pl_module.net)
 
 
 @contextlib.contextmanager

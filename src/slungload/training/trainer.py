@@ -145,7 +145,7 @@ def train(
     params: VehicleParams | None = None,
     progress: bool = True,
     num_threads: int | None = None,
-    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+    on_epoch: Callable[[int, dict[str, float], nn.Module], None] | None = None,
 ) -> Run:
     """Train the run ``run`` describes (default ``RunConfig()``: the paper's network, the
     proposed loss, the default preset, seed 0) on a dataset folder (or a loaded ``Dataset``)
@@ -157,8 +157,9 @@ def train(
     holds a run is refused. ``num_threads`` sets torch's CPU threads for this process. A run
     whose ``TrainConfig.fit_constants`` is set fits the physics model's constants to the
     training flights first (``identify``) and trains with them. The run folder gets the
-    description as ``run.toml``. ``on_epoch(epoch, metrics)`` receives each validation epoch's
-    ``val/...`` metrics (``runtime.EpochReport``; a configuration search's progress).
+    description as ``run.toml``. ``on_epoch(epoch, metrics, net)`` receives each validation
+    epoch's ``val/...`` metrics and the network (``runtime.EpochReport``; a configuration
+    search's progress).
 
     Raises ``TrainingInterrupted`` after SIGINT/SIGTERM (``last.ckpt`` saved) and
     ``TrainingDiverged`` if the loss stays non-finite (see the module docstring).
