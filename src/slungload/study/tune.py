@@ -160,10 +160,16 @@ def run_tune(
 ) -> list[dict[str, Any]]:
     """Search (see the module); returns the trials' rows, best first."""
     ray = require_ray()
-    from ray import tune
-    from ray.tune.schedulers import ASHAScheduler
-    from ray.tune.search import ConcurrencyLimiter
-    from ray.tune.search.optuna import OptunaSearch
+    try:
+        import optuna  # noqa: F401  (OptunaSearch imports it only when built)
+        from ray import tune
+        from ray.tune.schedulers import ASHAScheduler
+        from ray.tune.search import ConcurrencyLimiter
+        from ray.tune.search.optuna import OptunaSearch
+    except ImportError as exc:  # Ray without its tune extra, or no Optuna
+        raise ValueError(
+            f"slungload tune needs Ray Tune and Optuna ({exc}): pip install 'slungload[cluster]'"
+        ) from exc
 
     settings, space = settings or TuneSettings(), space or SearchSpace()
     data, out = Path(data).resolve(), Path(out).resolve()
