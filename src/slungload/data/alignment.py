@@ -41,7 +41,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .. import frames
-from .consistency import Check, ConsistencyError, ConsistencyLimits, failures, refusal
+from .consistency import Check, ConsistencyLimits, refuse_unless_forced
 from .import_options import ImportOptions, SecondLog
 from .readers.logs import LogError, RawLog, Stream
 
@@ -258,13 +258,8 @@ def attach_second(
     )
     checks = alignment_checks(alignment, options.limits)
     forced: list[str] = []
-    bad = failures(checks)
-    if bad:
-        line = refusal(f"{first.path} + {second.path} ({alignment.describe()})", bad)
-        if not options.force:
-            raise ConsistencyError(line)
-        forced.append(line)
-        notes.append(f"forced: {line}")
+    where = f"{first.path} + {second.path} ({alignment.describe()})"
+    refuse_unless_forced(where, checks, options.force, forced, notes)
     notes.append(
         f"{first.path}: {', '.join(spec.roles)} from {second.path}, {alignment.describe()}"
     )

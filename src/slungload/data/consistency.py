@@ -275,3 +275,22 @@ def refusal(where: str, failed: list[Check]) -> str:
     """One line: the file (and flight), each quantity, its value, limit and likely cause."""
     parts = [f"{c.text()}: likely {c.cause}" for c in failed]
     return f"{where}: {'; '.join(parts)}. --force (force=True) imports it anyway"
+
+
+def refuse_unless_forced(
+    where: str,
+    checks: tuple[Check, ...] | list[Check],
+    force: bool,
+    forced: list[str],
+    notes: list[str],
+) -> None:
+    """Raise ``ConsistencyError`` (``refusal`` naming ``where``) when a check fails, unless
+    ``force``: then the line goes into ``forced`` and, as "forced: ...", into ``notes``."""
+    bad = failures(checks)
+    if not bad:
+        return
+    line = refusal(where, bad)
+    if not force:
+        raise ConsistencyError(line)
+    forced.append(line)
+    notes.append(f"forced: {line}")

@@ -39,13 +39,7 @@ from .._version import __version__
 from ..config import VehicleParams
 from ..fileio import SPLITS
 from .alignment import attach_second
-from .consistency import (
-    ConsistencyError,
-    ConsistencyLimits,
-    failures,
-    flight_checks,
-    refusal,
-)
+from .consistency import ConsistencyLimits, flight_checks, refuse_unless_forced
 from .flight import FlightFormatError
 from .import_options import ImportOptions, SecondLog
 from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
@@ -293,13 +287,7 @@ def _consistency(
         found = flight_checks(a["p"], q, a["p_load"], a["T_ref"], params, options.limits,
                               own_cable=own_cable)  # fmt: skip
         figures[f.name] = {c.quantity: round(c.value, 6) for c in found}
-        bad = failures(found)
-        if bad:
-            line = refusal(f"{f.log}: flight {f.name}", bad)
-            if not options.force:
-                raise ConsistencyError(line)
-            forced.append(line)
-            notes.append(f"forced: {line}")
+        refuse_unless_forced(f"{f.log}: flight {f.name}", found, options.force, forced, notes)
     return {
         "limits": _limits(options.limits),
         "cable_reference": "vehicle constants" if own_cable else "own median",
