@@ -16,10 +16,9 @@ from datetime import date
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
+from ..deploy.predictor import torch_threads
 from ..fileio import write_json
 from ..models.prediction import PHYSICS, PredictionModel
 from ..reporting import machine
@@ -70,12 +69,8 @@ def compare(
     if out_dir is not None:
         (out_dir / "flights").mkdir(parents=True, exist_ok=True)
     plans = _plans(cfg, predictors, samples, base, limits, params)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
-    finally:
-        torch.set_num_threads(previous)
     settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
     settings["backend"] = backend
     result = ControlComparison(rows, settings, out_dir, logs)

@@ -32,15 +32,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
+from ..deploy.predictor import torch_threads
 from ..deploy.timing import time_calls
 from ..fileio import read_json, write_json
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
 from ..models.prediction import PHYSICS, PredictionModel
-from ..sim.config import SimConfig
+from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from .closed_loop import FlightLog, flight_metrics, fly, read_log, write_log
@@ -100,9 +100,7 @@ def run_study(
     models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
     if learned is not None:
         models["learned"] = load_model(learned, backend=cfg.backend)
-    previous = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+    with torch_threads(threads):
         real_mpc = {PHYSICS, "learned"} & set(controllers)
         settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
         for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
@@ -110,8 +108,6 @@ def run_study(
             for maneuver in cfg.maneuvers:
                 for seed in cfg.seeds:
                     _fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
-    finally:
-        torch.set_num_threads(previous)
     return collect_rows(out)
 
 
@@ -128,7 +124,8 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
             if kind not in controllers or kind not in models:
                 continue
             for n in horizons:
-                mpc = MPCConfig(**_tuples(settings["mpc"][kind]), horizon=n, knots=_knots(n),
+                tuned = tuples_from_json(settings["mpc"][kind])
+                mpc = MPCConfig(**tuned, horizon=n, knots=_knots(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
                 plans.append(Flown(plant, f"mpc-{kind} N={n}",
                                    _mpc(models[kind], limits, mpc, params)))  # fmt: skip
@@ -138,11 +135,6 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
                                    _mpc(None, limits, mpc, params)))  # fmt: skip
     return plans
-
-
-def _tuples(values: dict[str, Any]) -> dict[str, Any]:
-    """Settings read back from JSON with their lists as the tuples ``MPCConfig`` holds."""
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
 
 
 def _knots(horizon: int) -> int:
@@ -216,7 +208,7 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
         for n in cfg.horizons:
 
             def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
-                tuned = _tuples(mpc[kind])
+                tuned = tuples_from_json(mpc[kind])
                 return lambda k: _mpc(models[kind], limits, MPCConfig(
                     **tuned, horizon=n, knots=_knots(n), samples=k), params)(0)  # fmt: skip
 

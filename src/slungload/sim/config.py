@@ -293,13 +293,13 @@ class SimConfig:
         """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
         data = dict(data)
         effects = Effects(**data.pop("effects", {}))
-        excitation = Excitation(**_tuples(data.pop("excitation", {})))
-        loads = LoadRanges(**_tuples(data.pop("loads", None) or {}))
+        excitation = Excitation(**tuples_from_json(data.pop("excitation", {})))
+        loads = LoadRanges(**tuples_from_json(data.pop("loads", None) or {}))
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
-        return cls(effects=effects, excitation=excitation, loads=loads, **_tuples(data))
+        return cls(effects=effects, excitation=excitation, loads=loads, **tuples_from_json(data))
 
     def with_effects(self, effects: Effects) -> SimConfig:
         """A copy with other effect switches."""
@@ -318,6 +318,7 @@ def vehicle_params(cfg: SimConfig) -> VehicleParams:
     )
 
 
-def _tuples(data: dict) -> dict:
-    """JSON lists back to the tuples the frozen configs hold."""
+def tuples_from_json(data: dict) -> dict:
+    """JSON lists back to the tuples the frozen configs hold (``SimConfig.from_dict``, the
+    control study's saved MPC settings)."""
     return {k: tuple(v) if isinstance(v, list) else v for k, v in data.items()}
