@@ -115,6 +115,14 @@ LOAD_ESTIMATES: dict[str, str] = {
     "difference": "backward differences of the last two positions (the data's estimate)",
     "smoothed": "slopes of least-squares quadratics through the last 9 positions",
 }
+# Which constants the discrete model f runs with, by name (``ModelConfig.constants`` for the
+# physics-step network: "dataset" or "window"; ``models.PhysicsModel`` takes all three).
+CONSTANTS_SOURCES: dict[str, str] = {
+    "dataset": "the dataset's (vehicle.json, or fitted by identify), one set for every window",
+    "window": "each window's cable length and load mass, estimated in flight from its history",
+    "flight": "each window's flight's recorded constants (simulated varied loads: the truth)",
+}
+NETWORK_CONSTANTS = ("dataset", "window")  # what a network can run f with (it sees no truth)
 
 
 @dataclass(frozen=True)
@@ -192,6 +200,9 @@ class ModelConfig:
     # How the physics-step network estimates the load state (vL, Omega_L) it starts f from
     # (a name of LOAD_ESTIMATES); the paper's network has no such estimate.
     load_estimate: str = "difference"
+    # The constants the physics-step network's f runs with (a name of NETWORK_CONSTANTS):
+    # "window" adapts f to each window's load, estimated from the history in flight.
+    constants: str = "dataset"
 
     def __post_init__(self) -> None:
         widths = (*self.embed_sizes, self.hidden_size, self.num_layers, *self.head_sizes)
@@ -211,6 +222,16 @@ class ModelConfig:
             raise ValueError(
                 f"load_estimate={self.load_estimate!r} is for the physics-step network; the "
                 f"{self.architecture!r} architecture starts no physics step"
+            )
+        if self.constants not in NETWORK_CONSTANTS:
+            raise ValueError(
+                f"unknown constants source {self.constants!r} for a network; known: "
+                f"{list(NETWORK_CONSTANTS)}"
+            )
+        if self.constants != "dataset" and self.architecture != "physics-step":
+            raise ValueError(
+                f"constants={self.constants!r} is for the physics-step network; the "
+                f"{self.architecture!r} architecture runs no physics step"
             )
         if self.architecture not in ARCHITECTURES:
             raise ValueError(

@@ -48,6 +48,12 @@ from .physics import VehicleConstants
 from .state import quat_to_rotmat, split_input, split_state
 
 SMOOTHING_STEPS = 7  # H: half-width of the triangular smoothing of the balance, steps
+# What a model that adapts to its load runs f with (``adapted``): the mass pulled towards the
+# constants' by this prior, (m/s^2)^2 per equation (one window's median error 13 % against 26 %
+# without, every effect on: docs/data.md), then both kept within these factors of the
+# constants' (a window without swing can read as a negative load, and f divides by mL).
+ADAPT_PRIOR_WEIGHT = 0.2
+ADAPT_RANGE = {"mass_load": (0.25, 4.0), "cable_length": (0.5, 2.0)}
 ESTIMATED = ("mass_load", "cable_length")  # what ``WindowConstants.vehicle`` replaces by default
 # The least-squares sums of one window, in ``stats``' last dimension (``pool`` adds them up).
 G_BB, G_BV, G_VV, M_B, M_V, T_A, T_B, T_T, LENGTH_SUM, COUNT = range(10)
@@ -107,6 +113,24 @@ def estimate_constants(
     return _solve(window_stats(states, inputs, params, smoothing, prior_weight))
 
 
+def adapted(states: Tensor, inputs: Tensor, params: VehicleParams) -> VehicleConstants:
+    """The constants a model adapting to its load runs f with, one set per window: the
+    ``params``' with the window's cable length and load mass (``estimate_constants`` with the
+    prior ``ADAPT_PRIOR_WEIGHT``, each clipped to ``ADAPT_RANGE`` times ``params``'). states
+    (..., M, 13), inputs (..., M, 4) -> those two as tensors (...,) in the states' dtype, the
+    other constants floats; no gradient (the
+    estimate is the data's, not the model's)."""
+    with torch.no_grad():
+        est = estimate_constants(states, inputs, params, prior_weight=ADAPT_PRIOR_WEIGHT)
+        clipped = {
+            name: getattr(est, name).clamp(
+                low * getattr(params, name), high * getattr(params, name)
+            )
+            for name, (low, high) in ADAPT_RANGE.items()
+        }
+    return VehicleConstants.of(params)._replace(**clipped)  # the others stay floats
+
+
 def pool(estimate: WindowConstants, dim: int | tuple[int, ...] = -1) -> WindowConstants:
     """One estimate from several windows (their least-squares sums added along ``dim`` of the
     leading dimensions), e.g. all windows of a flight."""
@@ -159,7 +183,8 @@ def _smoothed_balance(
     acc = (p[..., 2:, :] - 2 * p[..., 1:-1, :] + p[..., :-2, :]) / (h * h) + up
     acc_load = (p_load[..., 2:, :] - 2 * p_load[..., 1:-1, :] + p_load[..., :-2, :]) / (h * h) + up
     vel = (p[..., 2:, :] - p[..., :-2, :]) / (2 * h)
-    gain = (thrust / thrust.mean(-1, keepdim=True)).unsqueeze(-1)
+    mean = thrust.mean(-1, keepdim=True).clamp_min(torch.finfo(thrust.dtype).tiny)  # 0: idle
+    gain = (thrust / mean).unsqueeze(-1)
     kernel = _triangle(smoothing, states)
     lateral = tuple(
         _smooth(x - (x * b).sum(-1, keepdim=True) * b, kernel) for x in (acc_load, vel * gain, acc)
@@ -177,8 +202,14 @@ def _triangle(half: int, like: Tensor) -> Tensor:
 
 
 def _smooth(y: Tensor, kernel: Tensor) -> Tensor:
-    """(..., K, d) -> (..., K - len(kernel) + 1, d): the kernel's weighted sums along time."""
-    return (y.unfold(-2, len(kernel), 1) * kernel).sum(-1)
+    """(..., K, d) -> (..., K - len(kernel) + 1, d): the kernel's weighted sums along time.
+    Shifted slices with constant ends rather than ``unfold``, which ONNX cannot export for a
+    window of unknown length."""
+    span = len(kernel)
+    out = kernel[0] * y[..., : 1 - span, :]
+    for j in range(1, span):
+        out = out + kernel[j] * y[..., j : (j - span + 1) or None, :]
+    return out
 
 
 def _solve(stats: Tensor) -> WindowConstants:

@@ -41,7 +41,7 @@ def estimate_load_state(states: np.ndarray | Tensor, params: VehicleParams) -> n
     aux = x.new_empty(*x.shape[:-1], AUX_DIM)
     aux[..., LOAD_VEL] = _backward_difference(p_load, params.dt)
     rel_rate = _backward_difference(rel, params.dt)
-    aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / params.cable_length
+    aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / _per_sample(params.cable_length, rel)
     return aux.numpy() if isinstance(states, np.ndarray) else aux
 
 
@@ -73,8 +73,16 @@ def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
     v_load = torch.einsum("k,...kd->...d", c, p_load)
     rel_rate = torch.einsum("k,...kd->...d", c, rel)
     xi = rel[..., -1, :] / rel[..., -1, :].norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    rate = torch.linalg.cross(xi, rel_rate) / params.cable_length
+    rate = torch.linalg.cross(xi, rel_rate) / _per_sample(params.cable_length, rel_rate)
     return torch.cat([v_load, rate], dim=-1)
+
+
+def _per_sample(length: float | Tensor, like: Tensor) -> float | Tensor:
+    """The cable length ready to divide ``like`` (..., 3): a float or 0-d tensor as it is, one
+    length per window (B,) (``physics.VehicleConstants``) as (B, 1, ..., 1)."""
+    if not isinstance(length, Tensor) or length.dim() == 0:
+        return length
+    return length.reshape(*length.shape, *(1,) * (like.dim() - length.dim()))
 
 
 def _backward_difference(y: Tensor, h: float) -> Tensor:

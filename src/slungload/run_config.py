@@ -52,6 +52,9 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
+ADAPTIVE = "adaptive"  # the tag of a network whose f runs with constants estimated in flight
+
+
 @dataclass(frozen=True)
 class Preset:
     """A named optimisation schedule: one ``TrainConfig`` and what it is for."""
@@ -199,8 +202,8 @@ class RunConfig:
         """What sets this run apart from the paper's setup, in folder-name form: the
         architecture (unless the paper's), the network's named size (unless the paper's:
         ``config.size_tag``), the variant, "fitted" constants, the step weighting, "N<steps>"
-        (a training horizon other than the default) and the load estimate (unless the backward
-        difference)."""
+        (a training horizon other than the default), the load estimate (unless the backward
+        difference) and "adaptive" (f runs with each window's constants estimated in flight)."""
         tags = [] if self.model.architecture == DEFAULT_ARCHITECTURE else [self.model.architecture]
         tags += [size_tag(self.model)] if size_tag(self.model) else []
         tags.append(self.variant)
@@ -210,6 +213,7 @@ class RunConfig:
         tags += [f"N{self.window.horizon}"] if self.window.horizon != default_horizon else []
         estimate = self.model.load_estimate
         tags += [estimate] if estimate != ModelConfig().load_estimate else []
+        tags += [ADAPTIVE] if self.model.constants == "window" else []
         return tags
 
     def folder(self) -> str:
@@ -221,7 +225,8 @@ class RunConfig:
         """Its label in the tables (seeds share one): the variant, prefixed by the
         architecture unless that is the paper's network, suffixed by "+fit" (fitted
         constants), "+relative" or "+mixed" (the step weighting), "+N<steps>" with
-        ``with_horizon`` (when runs of a report differ in training horizon) and "+smoothed";
+        ``with_horizon`` (when runs of a report differ in training horizon), "+smoothed" and
+        "+adaptive";
         a named network size other than the paper's joins the architecture; e.g. "proposed",
         "physics-step/no-physics+relative+N50", "physics-step-small/no-physics"."""
         architecture, size = self.model.architecture, size_tag(self.model)
@@ -232,7 +237,8 @@ class RunConfig:
         tag = step_tag(self.loss.steps)
         label += f"+{tag}" if tag else ""
         label += f"+N{self.window.horizon}" if with_horizon else ""
-        return label + ("+smoothed" if self.model.load_estimate == "smoothed" else "")
+        label += "+smoothed" if self.model.load_estimate == "smoothed" else ""
+        return label + (f"+{ADAPTIVE}" if self.model.constants == "window" else "")
 
     # --- files ----------------------------------------------------------------------------
 

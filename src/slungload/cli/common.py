@@ -28,6 +28,10 @@ def choices(kind: str) -> list[str]:
         from ..config import STEP_WEIGHTINGS as names
     elif kind == "load-estimates":
         from ..config import LOAD_ESTIMATES as names
+    elif kind == "network-constants":
+        from ..config import NETWORK_CONSTANTS
+
+        return list(NETWORK_CONSTANTS)
     elif kind == "sizes":
         from ..config import MODEL_SIZES as names
 

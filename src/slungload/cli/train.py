@@ -94,6 +94,14 @@ def add_train(sub: Any) -> None:
         "start f from: difference (the last two positions, the data's estimate; default) or "
         "smoothed (quadratic fits through the last 9: less motion-capture noise)",
     )
+    p.add_argument(
+        "--constants",
+        default=RUN.model.constants,
+        choices=choices("network-constants"),
+        help="physics-step network: the constants its f runs with: dataset (vehicle.json's, "
+        "one set; default) or window (each window's cable length and load mass estimated in "
+        "flight from its history: one network for many loads; needs --history >= 17)",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -103,7 +111,7 @@ def add_train(sub: Any) -> None:
 
 # What a --config file describes instead (its options may not be given beside it).
 RUN_OPTIONS = ("variant", "model", "size", "preset", "fit_constants", "steps", "load_estimate",
-               "history", "horizon", "stride")  # fmt: skip
+               "constants", "history", "horizon", "stride")  # fmt: skip
 
 
 def run_from_args(args: argparse.Namespace):
@@ -132,7 +140,10 @@ def run_from_args(args: argparse.Namespace):
         max_epochs=args.epochs,
         fit_constants=args.fit_constants,
         model=ModelConfig.sized(
-            args.size, architecture=args.model, load_estimate=args.load_estimate
+            args.size,
+            architecture=args.model,
+            load_estimate=args.load_estimate,
+            constants=args.constants,
         ),
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),

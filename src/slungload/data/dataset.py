@@ -170,7 +170,8 @@ def load_dataset(
     for note in notes:
         warnings.warn(note, DataWarning, stacklevel=2)
     splits = {
-        s: make_windows([flights[n] for n in names[s] if n in flights], window) for s in SPLITS
+        s: make_windows([flights[n] for n in names[s] if n in flights], window, params)
+        for s in SPLITS
     }
     dataset = Dataset(**common, splits=splits, flights=flights, notes=tuple(notes))
     if not use_cache:
@@ -238,7 +239,9 @@ def _from_payload(payload: dict, common: dict, paths: dict[str, Path], cache_pat
         for name, f in payload["flights"].items()
     }
     splits = {
-        s: make_windows([flights[str(n)] for n in payload["splits"][s]], common["window"])
+        s: make_windows(
+            [flights[str(n)] for n in payload["splits"][s]], common["window"], common["params"]
+        )
         for s in SPLITS
     }
     notes = tuple(str(n) for n in payload["notes"])

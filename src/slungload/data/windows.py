@@ -16,7 +16,8 @@ import torch
 from torch import Tensor
 
 from ..config import WindowConfig, to_dict
-from ..physics import rollout
+from ..load_state import estimate_load_state
+from ..physics import VehicleConstants, rollout
 from ..state import STATE_DIM
 
 
@@ -35,6 +36,7 @@ class FlightSeries(Protocol):
     states: np.ndarray  # (T, 13)
     inputs: np.ndarray  # (T, 4)
     aux: np.ndarray  # (T, 6)
+    constants: Any  # the flight's own ``VehicleParams`` (varied loads), or None: the dataset's
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,9 @@ class Windows:
 
     states (W, M+N, 13), inputs (W, M+N, 4), aux (W, M+N, 6) = estimated (vL, Omega_L);
     flight (W,) int64 index into ``names``; start (W,) int64 first step of each window in its
-    flight. ``history`` / ``future`` give the first M / last N steps.
+    flight. ``history`` / ``future`` give the first M / last N steps. constants (W, 7) float64:
+    each window's flight's own constants (``physics.VehicleConstants`` order) where some flight
+    records them (simulated varied loads; the rest hold the dataset's), else None.
     """
 
     states: Tensor
@@ -53,6 +57,7 @@ class Windows:
     start: Tensor
     names: tuple[str, ...]
     window: WindowConfig
+    constants: Tensor | None = None
 
     def __len__(self) -> int:
         return self.states.shape[0]
@@ -83,9 +88,17 @@ class Windows:
             start=self.start[index],
             names=self.names,
             window=self.window,
+            constants=None if self.constants is None else self.constants[index],
         )
 
     subset = __getitem__
+
+    def vehicle(self) -> VehicleConstants | None:
+        """Each window's flight's own constants, one set per window (tensors (W,) float64, as
+        ``VehicleConstants.stack`` gives), or None when no flight records its own."""
+        if self.constants is None:
+            return None
+        return VehicleConstants(*self.constants.unbind(-1))
 
     def to(self, device: torch.device | str) -> Windows:
         """The same windows on another device."""
@@ -97,6 +110,7 @@ class Windows:
             self.start.to(device),
             self.names,
             self.window,
+            None if self.constants is None else self.constants.to(device),
         )
 
     def to_payload(self) -> dict[str, Any]:
@@ -109,6 +123,7 @@ class Windows:
             "start": self.start,
             "names": list(self.names),
             "window": to_dict(self.window),
+            "constants": self.constants,
         }
 
     @classmethod
@@ -121,6 +136,7 @@ class Windows:
             start=data["start"],
             names=tuple(data["names"]),
             window=WindowConfig(**data["window"]),
+            constants=data.get("constants"),
         )
 
 
@@ -131,8 +147,13 @@ def window_count(length: int, window: WindowConfig) -> int:
     return (length - window.length) // window.stride + 1
 
 
-def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windows:
-    """Cut every flight into windows (never across flights), concatenated in flight order."""
+def make_windows(
+    flights: Sequence[FlightSeries], window: WindowConfig, params: Any = None
+) -> Windows:
+    """Cut every flight into windows (never across flights), concatenated in flight order.
+    ``params`` (the dataset's ``VehicleParams``) fills ``Windows.constants`` for the flights
+    without their own when some flight has its own; without ``params`` it stays None."""
+    sets: list[tuple[int, Any]] = []  # (windows, the flight's own constants or None)
     parts: dict[str, list[Tensor]] = {
         "states": [],
         "inputs": [],
@@ -150,6 +171,8 @@ def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windo
             cut = series.unfold(0, window.length, window.stride)[:count]
             parts[key].append(cut.transpose(1, 2))
         parts["flight"].append(torch.full((count,), i, dtype=torch.int64))
+        own = getattr(flight, "constants", None)
+        sets.append((count, own))
         parts["start"].append(torch.arange(count, dtype=torch.int64) * window.stride)
     dims = {"states": 13, "inputs": 4, "aux": 6}
     out: dict[str, Tensor] = {}
@@ -160,7 +183,14 @@ def make_windows(flights: Sequence[FlightSeries], window: WindowConfig) -> Windo
             out[key] = torch.zeros(0, window.length, dims[key])
         else:
             out[key] = torch.zeros(0, dtype=torch.int64)
-    return Windows(**out, names=tuple(f.name for f in flights), window=window)
+    constants = None
+    if params is not None and any(own is not None for _, own in sets):
+        rows = [
+            torch.tensor(VehicleConstants.of(own or params), dtype=torch.float64).expand(n, -1)
+            for n, own in sets
+        ]
+        constants = torch.cat(rows).contiguous() if rows else None
+    return Windows(**out, names=tuple(f.name for f in flights), window=window, constants=constants)
 
 
 def physics_rollout(windows: Windows, params: Any, batch_size: int | None = 8192) -> Tensor:
@@ -178,13 +208,32 @@ def physics_rollout(windows: Windows, params: Any, batch_size: int | None = 8192
         return _rollout_from_history(windows, params)
     parts = [torch.zeros(0, windows.window.horizon, STATE_DIM, dtype=torch.float64)]
     for i in range(0, len(windows), batch_size):
-        parts.append(_rollout_from_history(windows[i : i + batch_size], params))
+        part = slice(i, i + batch_size)
+        parts.append(_rollout_from_history(windows[part], _constants_of(params, part)))
     return torch.cat(parts)
 
 
+def per_window(params: Any) -> bool:
+    """Whether ``params`` holds one set of constants per window (tensors (W,), as
+    ``VehicleConstants.stack`` and ``Windows.vehicle`` give) rather than one set."""
+    return any(isinstance(c, Tensor) and c.dim() > 0 for c in params)
+
+
+def _constants_of(params: Any, part: slice) -> Any:
+    """The constants of windows ``part``: per-window constants sliced, one set as it is."""
+    if not isinstance(params, tuple) or not per_window(params):
+        return params
+    return type(params)(*(c[part] if isinstance(c, Tensor) and c.dim() > 0 else c for c in params))
+
+
 def _rollout_from_history(windows: Windows, params: Any) -> Tensor:
-    """One batch: x_{M-1}, aux_{M-1}, u_{M-1} ... u_{M+N-2} -> (W, N, 13) float64."""
+    """One batch: x_{M-1}, aux_{M-1}, u_{M-1} ... u_{M+N-2} -> (W, N, 13) float64. With one
+    set of constants per window the load rate at M-1 is estimated again with each window's
+    cable length (the data's aux used the dataset's)."""
     m, n = windows.window.history, windows.window.horizon
     x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
+    if isinstance(params, tuple) and per_window(params):
+        params = type(params)(*(c.double() if isinstance(c, Tensor) else c for c in params))
+        aux0 = estimate_load_state(windows.states[:, m - 2 : m].double(), params)[:, -1]
     states, _ = rollout(x0, aux0, windows.inputs[:, m - 1 : m + n - 1].double(), params)
     return states

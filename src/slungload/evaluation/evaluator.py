@@ -59,7 +59,7 @@ def horizon_windows(
     if not flights:
         raise ValueError(f"evaluate: the dataset has no {split} flight")
     return {
-        n: make_windows(flights, WindowConfig(history=history, horizon=n, stride=1))
+        n: make_windows(flights, WindowConfig(history=history, horizon=n, stride=1), dataset.params)
         for n in horizons
     }
 

@@ -18,6 +18,10 @@ head's output has the same scale in both architectures: one step's typical chang
 A zero head (last head layer's weight and bias zero) therefore predicts ``physics.rollout``
 from the estimated load state (with the data's estimate: the paper's physics-only row), and
 the slack outputs are zero.
+
+With ``ModelConfig.constants = "window"`` f runs with each window's own cable length and load
+mass, estimated from its history in flight (``constants_estimate.adapted``): one network for
+many loads. The estimate needs M >= 17 history steps (``estimate_constants``).
 Same layers, parameters, attention and decoder as ``SlungLoadNet``; only the decoder's state
 update (``start_rollout``/``next_state``) differs. Shapes: B batch, M history steps (M >= 2),
 N horizon steps.
@@ -32,6 +36,7 @@ from torch import Tensor
 
 from .. import physics
 from ..config import ModelConfig, VehicleParams
+from ..constants_estimate import adapted
 from ..load_state import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
 from .lstm_attention import SlungLoadNet
 
@@ -43,6 +48,7 @@ class PhysicsCarry(NamedTuple):
     aux: Tensor  # (B, 6) a_k = (vL m/s, Omega_L rad/s), carried by f alone
     inputs: tuple[Tensor, ...]  # N x (B, 4) u_{M-1} ... u_{M+N-2}, (T N, omega rad/s)
     scale: Tensor | None  # (13,) delta_std, state units; None without normalisation
+    params: physics.Vehicle  # f's constants: the network's, or one set per window (B,)
 
 
 class PhysicsStepNet(SlungLoadNet):
@@ -87,18 +93,21 @@ class PhysicsStepNet(SlungLoadNet):
                 f"PhysicsStepNet needs M >= 2 history steps to estimate the load state "
                 f"(vL, Omega_L); got M = {x_rel.shape[1]}"
             )
+        params: physics.Vehicle = self.params
+        if self.config.constants == "window":
+            params = adapted(x_rel, u_hist, self.params)  # (B,) each
         if self.config.load_estimate == "smoothed":
             window = min(LOAD_FIT_STEPS, x_rel.shape[1])
             if window < 3:
                 raise ValueError(
                     f"the smoothed load estimate needs M >= 3 history steps; got M = {window}"
                 )
-            aux = fit_load_state(x_rel[:, -window:], self.params)  # (B, 6) at step M-1
+            aux = fit_load_state(x_rel[:, -window:], params)  # (B, 6) at step M-1
         else:
-            aux = estimate_load_state(x_rel[:, -2:], self.params)[:, -1]  # (B, 6) at step M-1
+            aux = estimate_load_state(x_rel[:, -2:], params)[:, -1]  # (B, 6) at step M-1
         inputs = torch.cat([u_hist[:, -1:], u_future[:, :-1]], dim=1)  # (B, N, 4)
         scale = self.delta_std if self.config.normalize else None
-        return PhysicsCarry(x_rel[:, -1], aux, inputs.unbind(1), scale)
+        return PhysicsCarry(x_rel[:, -1], aux, inputs.unbind(1), scale, params)
 
     def next_state(
         self, z: Tensor, out: Tensor, k: int, carry: PhysicsCarry
@@ -108,6 +117,6 @@ class PhysicsStepNet(SlungLoadNet):
         ``z`` (the previous state in network units) is not needed: ``carry.x`` holds the same
         state in physical units, which f takes. out (B, 13) -> z (B, 13) and the next carry.
         """
-        x, aux = physics.step(carry.x, carry.inputs[k], carry.aux, self.params)
+        x, aux = physics.step(carry.x, carry.inputs[k], carry.aux, carry.params)
         x = x + out if carry.scale is None else torch.addcmul(x, out, carry.scale)
         return self.normalize_state(x), carry._replace(x=x, aux=aux)

@@ -45,7 +45,8 @@ import torch
 from torch import Tensor, nn
 
 from .. import physics
-from ..config import VehicleParams
+from ..config import CONSTANTS_SOURCES, VehicleParams, WindowConfig
+from ..constants_estimate import adapted
 from ..data.windows import Windows, physics_rollout
 from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
 from ..load_state import estimate_load_state
@@ -71,24 +72,62 @@ class PredictionModel(Protocol):
 class PhysicsModel:
     """The paper's discrete model rolled out from the last measured state (float64 inside).
 
-    batch_size: windows per rollout in ``predict_windows``.
+    constants: which constants f runs with (``config.CONSTANTS_SOURCES``): "dataset"
+    (``params``, one set), "window" (each window's cable length and load mass estimated from
+    its history, ``constants_estimate.adapted``; M >= 17, candidates take the network's 50)
+    or "flight" (each window's flight's recorded constants, ``Windows.constants``: the truth
+    of simulated varied loads; windows only). batch_size: windows per rollout in
+    ``predict_windows``.
     """
 
     params: VehicleParams
     name: str = PHYSICS
     history: int = 2
     batch_size: int = 8192
+    constants: str = "dataset"
+
+    def __post_init__(self) -> None:
+        if self.constants not in CONSTANTS_SOURCES:
+            raise ValueError(
+                f"unknown constants source {self.constants!r}; known: {list(CONSTANTS_SOURCES)}"
+            )
+        if self.constants == "window":  # the estimate wants seconds of swing: the network's M
+            self.history = max(self.history, WindowConfig().history)
 
     def predict_windows(self, windows: Windows) -> Tensor:
-        return physics_rollout(windows, self.params, self.batch_size).to(windows.states.dtype)
+        params: physics.Vehicle = self.params
+        if self.constants == "flight":
+            params = windows.vehicle()
+            if params is None:
+                raise ValueError(
+                    "physics with the flights' constants: no flight of these windows records "
+                    "its own (fileio.CONSTANT_KEYS; simulate with --load-mass / --cable-length)"
+                )
+        elif self.constants == "window":
+            history = windows.history
+            params = adapted(history.states.double(), history.inputs.double(), self.params)
+        states = physics_rollout(windows, params, self.batch_size)
+        return states.to(windows.states.dtype)
 
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
+        if self.constants == "flight":
+            raise ValueError(
+                "physics with the flights' constants predicts windows only; a controller "
+                "knows no flight (give it PhysicsModel(true_params) instead)"
+            )
         x_hist = x_hist.to(plans.dtype)
-        aux = estimate_load_state(x_hist[-2:], self.params)[-1]  # (6,) causal, steps k-1 and k
+        params: physics.Vehicle = self.params
+        if self.constants == "window":  # the history's inputs; u_k is not used by the estimate
+            u = torch.cat([u_past.to(plans.dtype), plans[0, :1]])
+            est = adapted(x_hist, u, self.params)
+            params = est._replace(
+                mass_load=float(est.mass_load), cable_length=float(est.cable_length)
+            )
+        aux = estimate_load_state(x_hist[-2:], params)[-1]  # (6,) causal, steps k-1 and k
         k = plans.shape[0]
         states, _ = physics.rollout(
-            x_hist[-1].expand(k, STATE_DIM), aux.expand(k, AUX_DIM), plans, self.params
+            x_hist[-1].expand(k, STATE_DIM), aux.expand(k, AUX_DIM), plans, params
         )
         return states
 

@@ -40,7 +40,7 @@ from torch import Tensor
 
 from ...config import PREDICTION_BACKENDS, VehicleParams
 from ...data.windows import Windows
-from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
+from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM, THRUST
 from ...models.prediction import (
     PHYSICS,
     NetworkModel,
@@ -52,7 +52,13 @@ from ...models.prediction import (
 from ...physics import VehicleConstants
 from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
-from .physics import estimate_load_state, fit_load_state, physics_rollout, physics_step_columns
+from .physics import (
+    adapted_constants,
+    estimate_load_state,
+    fit_load_state,
+    physics_rollout,
+    physics_step_columns,
+)
 
 BACKENDS = tuple(PREDICTION_BACKENDS)  # ``load_model``'s choices; eager: models.prediction
 _Q = QUAT.start
@@ -66,9 +72,11 @@ class CompiledPhysicsModel:
     params: VehicleParams
     name: str = PHYSICS
     history: int = 2
+    constants: str = "dataset"  # or "window" (``PhysicsModel``'s; "flight" predicts windows only)
 
     def __post_init__(self) -> None:
-        self._eager = PhysicsModel(self.params, self.name)
+        self._eager = PhysicsModel(self.params, self.name, self.history, constants=self.constants)
+        self.history = self._eager.history
         self._vehicle = VehicleConstants.of(self.params)
 
     def predict_windows(self, windows: Windows) -> Tensor:
@@ -76,12 +84,18 @@ class CompiledPhysicsModel:
 
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
+        vehicle = self._vehicle
+        if self.constants == "window":
+            thrust = np.append(u_past.detach().cpu().numpy()[:, THRUST.start], 0.0)
+            vehicle = adapted_constants(x_hist.detach().cpu().numpy(), thrust, vehicle)
+        elif self.constants != "dataset":
+            self._eager.predict_candidates(x_hist, u_past, plans)  # its error
         x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
         aux = np.empty(AUX_DIM, np.float64)
-        estimate_load_state(x[0], x[1], self._vehicle, aux)
+        estimate_load_state(x[0], x[1], vehicle, aux)
         u = np.ascontiguousarray(plans.detach().cpu().numpy(), np.float64)
         out = np.empty((*u.shape[:2], STATE_DIM), np.float64)
-        physics_rollout(x[1], aux, u, self._vehicle, out)
+        physics_rollout(x[1], aux, u, vehicle, out)
         return torch.from_numpy(out).to(plans.device, plans.dtype)
 
 
@@ -112,6 +126,7 @@ class CompiledNetworkModel:
     def __init__(self, net: torch.nn.Module, history: int, name: str = "network") -> None:
         folded = fold(net)  # raises, naming why, for what it cannot run
         self.w = _columns(folded)
+        self.constants = folded.constants
         self.name, self.history = name, history
         self._eager = NetworkModel(net, history, name=name)
         self._buffers: _Buffers | None = None
@@ -134,7 +149,11 @@ class CompiledNetworkModel:
         )
         n, _, k = u_cols.shape
         b = self._buffers_for(k)
-        aux = self._load_state(x_rel, b.a["aux"])
+        vehicle = w.vehicle
+        if self.constants == "window":  # the history's own; its last input is not used
+            thrust = np.append(u_past.detach().cpu().numpy()[:, THRUST.start], 0.0)
+            vehicle = adapted_constants(x_rel, thrust, w.vehicle)
+        aux = self._load_state(x_rel, b.a["aux"], vehicle)
         b.a["xu"][:STATE_DIM] = x_rel[-1, :, None]
         b.a["xu"][STATE_DIM:] = u_cols[0]
         shared = self._encode(x_rel, u_past.detach().cpu().numpy(), b)
@@ -146,7 +165,7 @@ class CompiledNetworkModel:
             self._decoder_step(b, shared)
             u_next = u_cols[step + 1] if step + 1 < n else no_input
             _next_columns(
-                b.a["xu"], self._head(b), aux, w.mode, w.add_mean, w.vehicle, u_next, origin,
+                b.a["xu"], self._head(b), aux, w.mode, w.add_mean, vehicle, u_next, origin,
                 out, step,
             )  # fmt: skip
         return torch.from_numpy(out).to(plans.device, plans.dtype)
@@ -172,8 +191,11 @@ class CompiledNetworkModel:
         self._buffers = b
         return b
 
-    def _load_state(self, x_rel: np.ndarray, aux: np.ndarray) -> np.ndarray:
-        """The physics-step network's a_{M-1} (shared by the candidates) into aux (6, K)."""
+    def _load_state(
+        self, x_rel: np.ndarray, aux: np.ndarray, vehicle: VehicleConstants
+    ) -> np.ndarray:
+        """The physics-step network's a_{M-1} (shared by the candidates) into aux (6, K), with
+        f's constants ``vehicle``."""
         w = self.w
         if w.mode != PHYSICS_STEP:
             return aux
@@ -184,9 +206,9 @@ class CompiledNetworkModel:
                 raise ValueError(
                     f"the smoothed load estimate needs M >= 3 history steps; got M = {m}"
                 )
-            fit_load_state(x_rel, m, w.load_filters, w.vehicle, one)
+            fit_load_state(x_rel, m, w.load_filters, vehicle, one)
         else:
-            estimate_load_state(x_rel[-2], x_rel[-1], w.vehicle, one)
+            estimate_load_state(x_rel[-2], x_rel[-1], vehicle, one)
         aux[:] = one[:, None]
         return aux
 
@@ -351,7 +373,7 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
     if backend == "eager":
         return model
     if isinstance(model, PhysicsModel):
-        return CompiledPhysicsModel(model.params, model.name, model.history)
+        return CompiledPhysicsModel(model.params, model.name, model.history, model.constants)
     if isinstance(model, NetworkModel):
         if torch.device(model.device).type != "cpu":
             raise ValueError(

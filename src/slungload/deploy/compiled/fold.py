@@ -76,6 +76,9 @@ class FoldedWeights(NamedTuple):
     # The smoothed load estimate's weights (``physics.load_filters``), float64; (0, 0) for the
     # backward difference.
     load_filters: np.ndarray
+    # "window": f runs with each window's constants (``physics.adapted_constants`` of the
+    # history, in place of ``vehicle``'s cable length and load mass); "dataset": ``vehicle``.
+    constants: str = "dataset"
 
 
 def unsupported_architecture(model: nn.Module) -> str | None:
@@ -121,6 +124,7 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         architecture=model.architecture,
         vehicle=vehicle,
         load_filters=load_filters(cfg.load_estimate, vehicle.dt),
+        constants=getattr(cfg, "constants", "dataset"),
     )  # fmt: skip
 
 

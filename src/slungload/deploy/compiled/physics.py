@@ -1,6 +1,7 @@
 """A compiled (Numba) copy of ``physics.step`` (the paper's discrete model f, and
 ``physics.rollout`` of K input sequences from one state) and of the load-state estimates
-``load_state.estimate_load_state`` and ``load_state.fit_load_state``.
+``load_state.estimate_load_state`` and ``load_state.fit_load_state``; and a numpy copy of
+``constants_estimate.adapted`` (``adapted_constants``: a window's constants, once per call).
 
 The model is written once, in batched torch (``physics.py``, ``load_state.py``), where the
 loss, training, the eager predictors and the ONNX exports use it. Compiled code cannot call
@@ -27,6 +28,7 @@ import math
 
 import numpy as np
 
+from ...constants_estimate import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, SMOOTHING_STEPS
 from ...layout import (
     AUX_DIM,
     HISTORY_DIM,
@@ -42,6 +44,7 @@ from ...layout import (
     VEL,
 )
 from ...load_state import LOAD_FIT_STEPS, load_fit_coefficients
+from ...physics import VehicleConstants
 from .kernels import inline, jit
 
 # Rows of an (x, u) column (the package layout, q w-x-y-z) and of a load state a = (vL, Omega_L).
@@ -259,3 +262,44 @@ def load_filters(load_estimate: str, dt: float) -> np.ndarray:
     for k in range(3, LOAD_FIT_STEPS + 1):
         table[k - 3, :k] = load_fit_coefficients(k, dt)
     return table
+
+
+def adapted_constants(
+    states: np.ndarray, thrust: np.ndarray, c: VehicleConstants
+) -> VehicleConstants:
+    """``constants_estimate.adapted`` for one window, numpy float64: states (M, 13) (positions
+    relative or absolute), thrust (M,) commanded, N (the last row is not used) -> ``c`` with
+    the window's cable length and load mass. Once per prediction (every candidate of an MPC
+    step shares the history), so numpy rather than a compiled loop."""
+    s = np.asarray(states, np.float64)
+    h, half = c.dt, SMOOTHING_STEPS
+    p, q, p_load = s[:, POS], s[:, QUAT], s[:, LOAD_POS]
+    q = q[1:-1] / np.maximum(np.linalg.norm(q[1:-1], axis=-1, keepdims=True), 1e-12)
+    w, x, y, z = q.T
+    b = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1)
+    up = np.array([0.0, 0.0, c.gravity])
+    acc = (p[2:] - 2 * p[1:-1] + p[:-2]) / (h * h) + up
+    acc_load = (p_load[2:] - 2 * p_load[1:-1] + p_load[:-2]) / (h * h) + up
+    t = np.asarray(thrust, np.float64)[1:-1]
+    vel = (p[2:] - p[:-2]) / (2 * h) * (t / max(t.mean(), np.finfo(np.float64).tiny))[:, None]
+    j = np.arange(-half, half + 1, dtype=np.float64)
+    kernel = (half + 1 - np.abs(j)) / (half + 1 - np.abs(j)).sum()
+
+    def smoothed(v: np.ndarray) -> np.ndarray:  # (K, 3) projected across b, then smoothed
+        v = v - (v * b).sum(-1, keepdims=True) * b
+        return sum(kernel[i] * v[i : len(v) - 2 * half + i] for i in range(2 * half + 1))
+
+    load, drag, vehicle = smoothed(acc_load), smoothed(vel), smoothed(acc)
+    prior = ADAPT_PRIOR_WEIGHT * 3 * len(load)
+    target = -c.mass_quad * vehicle
+    g_bb, g_bv = (load * load).sum() + prior, (load * drag).sum()
+    g_vv = (drag * drag).sum()
+    m_b, m_v = (load * target).sum() + prior * c.mass_load, (drag * target).sum()
+    g_vv += np.finfo(np.float64).eps * (g_bb + g_vv) + np.finfo(np.float64).tiny
+    mass = (g_vv * m_b - g_bv * m_v) / (g_bb * g_vv - g_bv * g_bv)
+    length = np.linalg.norm(p_load - p, axis=-1).mean()
+    (m_lo, m_hi), (l_lo, l_hi) = ADAPT_RANGE["mass_load"], ADAPT_RANGE["cable_length"]
+    return c._replace(
+        mass_load=float(np.clip(mass, m_lo * c.mass_load, m_hi * c.mass_load)),
+        cable_length=float(np.clip(length, l_lo * c.cable_length, l_hi * c.cable_length)),
+    )

@@ -33,6 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ...constants_estimate import SMOOTHING_STEPS
 from ...layout import (
     AUX_DIM,
     HISTORY_DIM,
@@ -40,6 +41,7 @@ from ...layout import (
     POS,
     QUAT,
     STATE_DIM,
+    THRUST,
     WXYZ_TO_XYZW,
     XYZW_TO_WXYZ,
 )
@@ -56,13 +58,15 @@ from .kernels import (
     lstm_cell,
     lstm_layer,
 )
-from .physics import estimate_load_state, fit_load_state, physics_step
+from .physics import adapted_constants, estimate_load_state, fit_load_state, physics_step
 
 _P, _Q, _U = POS.start, QUAT.start, STATE_DIM  # rows of an (x, u) row: position, q, u
 # File columns of the quaternion's w, x, y, z (the file layout is x-y-z-w), and the package
 # components of the file's x, y, z, w.
 _FILE_QW, _FILE_QX, _FILE_QY, _FILE_QZ = (QUAT.start + i for i in XYZW_TO_WXYZ)
 _TO_FILE = WXYZ_TO_XYZW
+_THRUST = STATE_DIM + THRUST.start  # an (x, u) row's thrust column
+ESTIMATE_ROWS = 2 * SMOOTHING_STEPS + 3  # history rows a window's constants estimate needs
 
 
 class _Rows(NamedTuple):
@@ -177,10 +181,13 @@ class CompiledPredictor:
         fut = np.ascontiguousarray(fut, dtype=np.float32)
         w = self._w
         batch, m = hist.shape[:2]
-        if w.mode == PHYSICS_STEP and m < 2:  # as PhysicsStepNet.start_rollout
+        least = ESTIMATE_ROWS if self.weights.constants == "window" else 2
+        if w.mode == PHYSICS_STEP and m < least:  # as PhysicsStepNet.start_rollout
             raise ValueError(
                 f"CompiledPredictor.predict: the {self.weights.architecture!r} network needs "
-                f"M >= 2 history rows to estimate the load state (vL, Omega_L); got M = {m}"
+                f"M >= {least} history rows to estimate the load state (vL, Omega_L)"
+                + (" and its constants" if least > 2 else "")
+                + f"; got M = {m}"
             )
         xu = np.empty((batch, m, HISTORY_DIM), dtype=np.float32)
         origin = np.empty((batch, STATE_DIM), dtype=np.float32)
@@ -190,8 +197,16 @@ class CompiledPredictor:
             pre = self._encoder_inputs(xu)
         out = np.empty((batch, fut.shape[1], STATE_DIM), dtype=np.float32)
         for b in range(batch):
-            _forward(xu[b], origin[b], pre[b], fut[b], w, out[b])
+            _forward(xu[b], origin[b], pre[b], fut[b], self._for_window(xu[b]), out[b])
         return unbatch(out, single)
+
+    def _for_window(self, xu: np.ndarray) -> _Rows:
+        """The rows with f's constants for this window (M, 17): the network's, or, adapting to
+        its load, the window's own estimate (``physics.adapted_constants``)."""
+        w = self._w
+        if self.weights.constants != "window":
+            return w
+        return w._replace(vehicle=adapted_constants(xu[:, :STATE_DIM], xu[:, _THRUST], w.vehicle))
 
     def _encoder_inputs(self, xu: np.ndarray) -> np.ndarray:
         """(B, M, 17) rows -> (B, M, 4H): embedding and encoder layer 0's input part.
