@@ -135,3 +135,29 @@ def test_vehicle_constants_reach_the_compiled_copy_as_floats():
     constants = VehicleConstants.of(OTHER_PARAMS)
     assert constants._asdict() == dataclasses.asdict(OTHER_PARAMS)
     assert all(type(value) is float for value in constants)
+
+
+@pytest.mark.parametrize("params", PARAMS, ids=["default", "other"])
+def test_adapted_constants_is_adapted(physics_flight, params):
+    """The numpy copy of a window's constants (``adapted_constants``, the compiled paths') is
+    ``constants_estimate.adapted``, the torch original, on swinging windows and on a still one
+    (where the prior and the clipping decide)."""
+    from slungload.constants_estimate import adapted
+
+    flight = physics_flight("a", 3, 80)
+    windows = [flight.states[i : i + 50] for i in (0, 15, 30)]
+    still = np.repeat(flight.states[:1], 50, axis=0)
+    for states, thrust in [(s, flight.inputs[:50, 0]) for s in windows] + [
+        (still, np.full(50, 14.0))
+    ]:
+        want = adapted(
+            torch.from_numpy(states)[None],
+            torch.from_numpy(np.stack([thrust] * 4, -1))[None],
+            params,
+        )
+        got = compiled.adapted_constants(states, thrust, VehicleConstants.of(params))
+        assert got.mass_load == pytest.approx(float(want.mass_load[0]), rel=1e-9)
+        assert got.cable_length == pytest.approx(float(want.cable_length[0]), rel=1e-12)
+        assert got._replace(mass_load=0.0, cable_length=0.0) == VehicleConstants.of(
+            params
+        )._replace(mass_load=0.0, cable_length=0.0)

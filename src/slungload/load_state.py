@@ -39,8 +39,9 @@ def estimate_load_state(states: np.ndarray | Tensor, params: VehicleParams) -> n
     rel = p_load - p
     xi = rel / rel.norm(dim=-1, keepdim=True).clamp_min(1e-9)
     aux = x.new_empty(*x.shape[:-1], AUX_DIM)
-    aux[..., LOAD_VEL] = _backward_difference(p_load, params.dt)
-    rel_rate = _backward_difference(rel, params.dt)
+    h = _per_sample(params.dt, rel)
+    aux[..., LOAD_VEL] = _backward_difference(p_load, h)
+    rel_rate = _backward_difference(rel, h)
     aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / _per_sample(params.cable_length, rel)
     return aux.numpy() if isinstance(states, np.ndarray) else aux
 
@@ -65,7 +66,12 @@ def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
     (..., 6): vL and the rate of r = pL - p are the slopes of least-squares quadratics through
     the K samples (``load_fit_coefficients``), Omega_L = xi x r_dot / l with xi from the last
     sample, as ``estimate_load_state`` does with two samples. K >= 3."""
-    c = torch.as_tensor(load_fit_coefficients(states.shape[-2], params.dt), dtype=states.dtype).to(
+    dt = params.dt
+    if isinstance(dt, Tensor):  # one per window: the filter needs one step
+        if not bool((dt == dt.flatten()[0]).all()):
+            raise ValueError("fit_load_state: the windows' time steps differ")
+        dt = float(dt.flatten()[0])
+    c = torch.as_tensor(load_fit_coefficients(states.shape[-2], dt), dtype=states.dtype).to(
         states.device
     )
     p, _, _, p_load = split_state(states)
@@ -78,14 +84,15 @@ def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
 
 
 def _per_sample(length: float | Tensor, like: Tensor) -> float | Tensor:
-    """The cable length ready to divide ``like`` (..., 3): a float or 0-d tensor as it is, one
-    length per window (B,) (``physics.VehicleConstants``) as (B, 1, ..., 1)."""
+    """A constant (the cable length, the time step) ready to divide ``like`` (..., 3): a float
+    or 0-d tensor as it is, one per window (B,) (``physics.VehicleConstants``) as
+    (B, 1, ..., 1)."""
     if not isinstance(length, Tensor) or length.dim() == 0:
         return length
     return length.reshape(*length.shape, *(1,) * (like.dim() - length.dim()))
 
 
-def _backward_difference(y: Tensor, h: float) -> Tensor:
+def _backward_difference(y: Tensor, h: float | Tensor) -> Tensor:
     """(y_k - y_{k-1}) / h along axis -2, the first step repeating the second."""
     d = (y[..., 1:, :] - y[..., :-1, :]) / h
     return torch.cat([d[..., :1, :], d], dim=-2)
