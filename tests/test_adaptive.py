@@ -192,3 +192,15 @@ def test_adaptive_candidates_agree_on_every_backend(adaptive_predictor, varied):
     torch.testing.assert_close(got, want, atol=1e-10, rtol=0)
     nominal = PhysicsModel(ds.params).predict_candidates(x, u_past, plans)
     assert (want - nominal).abs().max() > 1e-3
+
+
+def test_the_report_shows_physics_with_the_flights_constants_beside_the_dataset_s(varied, tmp_path):
+    from slungload.evaluation.evaluator import evaluate
+    from slungload.evaluation.results import PHYSICS, PHYSICS_TRUTH
+
+    ds, _ = varied
+    report = evaluate([], data=ds.folder, horizons=(25,), progress=False, out=tmp_path)
+    assert report.labels[:2] == (PHYSICS, PHYSICS_TRUTH)
+    rmse = {r.label: r.metrics.rmse["combined"] for r in report.results}
+    assert rmse[PHYSICS_TRUTH] != rmse[PHYSICS]
+    assert "each flight with its own recorded load mass" in (tmp_path / "report.md").read_text()

@@ -92,3 +92,47 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
     assert {t.backend for t in study.timings} == {"compiled"}
     assert {t.backend for t in again.timings} == {"eager"}
     assert "eager backend" in (tmp_path / "study" / "size.md").read_text()
+
+
+# --- the loads study --------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyond(tmp_path):
+    import csv
+
+    from slungload.data.dataset import load_dataset
+    from slungload.study import LoadsStudyConfig, study_loads
+    from slungload.study.loads_config import NETWORK_ROWS, PHYSICS_ROWS, TRUTH
+
+    config = LoadsStudyConfig(flights=4, beyond_flights=2, size="tiny")
+    out = tmp_path / "loads"
+    rows = study_loads(out=out, config=config, preset="quick", epochs=1, workers=1,
+                       progress=False)  # fmt: skip
+    labels = [*PHYSICS_ROWS, *NETWORK_ROWS]
+    assert {(r.test_set, r.label, r.horizon) for r in rows} == {
+        (s, label, n) for s in ("inside", "beyond") for label in labels for n in (25, 50)
+    }
+    # Each dataset flies its loads: the nominal one, draws inside the range, beyond it.
+    ranges = {"many": (config.train_mass, config.train_length),
+              "beyond": (config.beyond_mass, config.beyond_length)}  # fmt: skip
+    for name, ((m_lo, m_hi), (l_lo, l_hi)) in ranges.items():
+        ds = load_dataset(out / "data" / name, use_cache=False)
+        for flight in ds.flights.values():
+            assert m_lo <= flight.constants.mass_load <= m_hi
+            assert l_lo <= flight.constants.cable_length <= l_hi
+    one = load_dataset(out / "data" / "one", use_cache=False)
+    assert (one.params.mass_load, one.params.cable_length) == pytest.approx(config.nominal)
+    # The truth helps the physics model on loads far from the nominal one.
+    rmse = {(r.test_set, r.label, r.horizon): r.rmse for r in rows}
+    assert rmse[("beyond", TRUTH, 25)] < rmse[("beyond", "physics (nominal)", 25)]
+    with open(out / "flights.csv") as f:
+        flights = list(csv.DictReader(f))
+    beyond = [float(r["mass_load_kg"]) for r in flights if r["set"] == "beyond"]
+    assert beyond and min(beyond) >= config.beyond_mass[0]
+    for name in ("loads.md", "loads.csv", "loads.png", "inside/report.md", "beyond/report.md"):
+        assert (out / name).is_file()
+    # A second run trains nothing and gives the same table.
+    again = study_loads(out=out, config=config, preset="quick", epochs=1, workers=1,
+                        progress=False)  # fmt: skip
+    assert again == rows

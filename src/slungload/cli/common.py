@@ -55,6 +55,27 @@ def comma_ints(text: str) -> list[int]:
     return [int(k) for k in text.split(",") if k]
 
 
+def value_or_range(text: str) -> float | tuple[float, float]:
+    """``0.1`` (one value) or ``0.05:0.3`` (a range), positive numbers."""
+    try:
+        values = tuple(float(v) for v in text.split(":"))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 2) or min(values) <= 0 or values[0] > values[-1]:
+        raise argparse.ArgumentTypeError(
+            f"expected a positive number or a range LO:HI with 0 < LO <= HI, got {text!r}"
+        )
+    return values[0] if len(values) == 1 else values  # type: ignore[return-value]
+
+
+def load_range(text: str) -> tuple[float, float]:
+    """``0.05:0.3``: a range LO:HI of positive numbers with LO < HI."""
+    value = value_or_range(text)
+    if not isinstance(value, tuple) or value[0] == value[1]:
+        raise argparse.ArgumentTypeError(f"expected a range LO:HI with LO < HI, got {text!r}")
+    return value
+
+
 def seed_range(text: str) -> tuple[int, ...]:
     """'3' -> (3,); '1..3' -> (1, 2, 3); '0,4' -> (0, 4)."""
     try:

@@ -12,6 +12,7 @@ from .common import (
     comma_names,
     new_command,
     resolve_params,
+    value_or_range,
     vehicle_overrides,
 )
 
@@ -82,24 +83,11 @@ def _add_load_options(p: argparse.ArgumentParser) -> None:
         group.add_argument(
             flag,
             dest=f.name,
-            type=_value_or_range,
+            type=value_or_range,
             metavar="X|LO:HI",
             help=f"{f.metadata['text']}, {f.metadata['unit']} "
             f"(default {SimConfig().value(f.name):g})",
         )
-
-
-def _value_or_range(text: str) -> float | tuple[float, float]:
-    """``0.1`` (one value) or ``0.05:0.3`` (a range), positive numbers."""
-    try:
-        values = tuple(float(v) for v in text.split(":"))
-    except ValueError:
-        values = ()
-    if len(values) not in (1, 2) or min(values) <= 0 or values[0] > values[-1]:
-        raise argparse.ArgumentTypeError(
-            f"expected a positive number or a range LO:HI with 0 < LO <= HI, got {text!r}"
-        )
-    return values[0] if len(values) == 1 else values  # type: ignore[return-value]
 
 
 def _excitation(text: str) -> tuple[float, float, float, float]:

@@ -12,6 +12,7 @@ from .common import (
     choices,
     comma_ints,
     comma_names,
+    load_range,
     new_command,
     seed_range,
 )
@@ -207,6 +208,7 @@ def add_study(sub: Any) -> None:
     add_cluster_option(d)
     d.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_study_size(kinds)
+    _add_study_loads(kinds)
     p.set_defaults(func=cmd_study)
 
 
@@ -271,7 +273,75 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def _add_study_loads(kinds: Any) -> None:
+    from dataclasses import fields
+
+    from ..study.loads_config import NETWORK_ROWS, PHYSICS_ROWS, RANGES, LoadsStudyConfig
+
+    cfg = LoadsStudyConfig()
+    s = kinds.add_parser(
+        "loads",
+        help="one model for many loads: unseen loads inside and beyond the training range",
+        description="Simulate flights of one load, of loads drawn from a range and of loads "
+        "beyond it; train the physics-step network (reproduce's best configuration) on "
+        + "; ".join(
+            f"{label!r}: {data} flights, f with the {c} constants"
+            for label, (data, c) in NETWORK_ROWS.items()
+        )  # fmt: skip
+        + "; compare with physics run with "
+        + ", ".join(f"the {c} constants ({label!r})" for label, c in PHYSICS_ROWS.items())
+        + " on unseen loads inside the range (the test flights) and beyond it (every flight). "
+        "Writes loads.md, loads.csv, flights.csv, loads.png and the evaluation reports "
+        "inside/ and beyond/ into OUT; datasets and finished runs are kept, so an "
+        "interrupted study can be re-run.",
+    )
+    s.add_argument("--out", required=True, type=Path, help="output folder")
+    for f in fields(LoadsStudyConfig):
+        if f.name not in RANGES:
+            continue
+        low, high = getattr(cfg, f.name)
+        s.add_argument(
+            f"--{f.name.replace('_', '-')}",
+            type=load_range,
+            default=(low, high),
+            metavar="LO:HI",
+            help=f"{f.metadata['text']}, {f.metadata['unit']} (default {low:g}:{high:g})",
+        )
+    s.add_argument("--flights", type=int, default=cfg.flights,
+                   help=f"flights of one load and of many (default {cfg.flights})")  # fmt: skip
+    s.add_argument("--beyond-flights", type=int, default=cfg.beyond_flights,
+                   help=f"flights beyond the range (default {cfg.beyond_flights})")  # fmt: skip
+    s.add_argument("--size", default=cfg.size, choices=choices("sizes"),
+                   help=f"network size (default {cfg.size})")  # fmt: skip
+    s.add_argument("--seeds", default="0", metavar="SEEDS", help="as for reproduce (default 0)")
+    s.add_argument(
+        "--preset", default="default", choices=choices("presets"), help="default: default"
+    )
+    s.add_argument(
+        "--epochs", type=int, help="epochs in place of the preset's (its schedule fitted to them)"
+    )
+    s.add_argument("--sim-seed", type=int, default=0, help="simulation seed (default 0)")
+    s.add_argument("--workers", type=int, default=2, help="parallel training runs (default 2)")
+    add_cluster_option(s)
+    s.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
 def cmd_study(args: argparse.Namespace) -> int:
+    if args.study == "loads":
+        from ..study import LoadsStudyConfig, study_loads
+
+        config = LoadsStudyConfig(
+            train_mass=args.train_mass, train_length=args.train_length,
+            beyond_mass=args.beyond_mass, beyond_length=args.beyond_length,
+            flights=args.flights, beyond_flights=args.beyond_flights, size=args.size,
+        )  # fmt: skip
+        study_loads(
+            out=args.out, config=config, seeds=seed_range(args.seeds), preset=args.preset,
+            epochs=args.epochs, sim_seed=args.sim_seed, workers=args.workers,
+            cluster=args.cluster, progress=not args.quiet,
+        )  # fmt: skip
+        print(args.out / "loads.md")
+        return 0
     if args.study == "size":
         from ..study import study_size
 

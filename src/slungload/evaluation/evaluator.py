@@ -31,7 +31,7 @@ from ..reporting import device_name, versions
 from ..state import GROUPS, group_errors
 from .metrics import Curve, mae_curve, metrics_from_errors
 from .report import write_report
-from .results import PHYSICS, Example, Report, RunResult, TimingResult, table_rows
+from .results import PHYSICS, PHYSICS_TRUTH, Example, Report, RunResult, TimingResult, table_rows
 
 # Batch-1 timing of the trained networks: (label, seed, network) triples, the test windows per
 # horizon and the vehicle constants -> one record per network, backend and horizon.
@@ -41,7 +41,8 @@ Timer = Callable[
 ]
 
 
-SPLITS = ("test", "val")  # the splits ``evaluate`` measures on: report on test, choose on val
+SPLITS = ("test", "val")
+# the splits ``evaluate`` measures on: report on test, choose on val
 
 
 def horizon_windows(
@@ -245,9 +246,10 @@ def evaluate(
     data: dataset folder (default: the one recorded in the first run). Every run must share
     the history M and the vehicle constants. Test windows are cut with stride 1 for each
     horizon in ``horizons`` from the same test flights. Runs of one variant are seeds of one
-    label (mean +- std in the table). ``include_physics`` adds the physics-only predictor;
-    ``timer`` adds batch-1 inference times (see ``Timer``). With ``out`` the report is written
-    there (``report.write_report``).
+    label (mean +- std in the table). ``include_physics`` adds the physics-only predictor
+    with the dataset's constants ("physics") and, where the flights record their own (varied
+    loads), with those (``PHYSICS_TRUTH``); ``timer`` adds batch-1 inference times (see
+    ``Timer``). With ``out`` the report is written there (``report.write_report``).
     """
     horizons = tuple(sorted({int(n) for n in horizons}))
     if not horizons or horizons[0] < 1:
@@ -266,6 +268,9 @@ def evaluate(
     candidates = []
     if include_physics:
         candidates.append(Candidate(PHYSICS, PhysicsModel(dataset.params)))
+        if windows[horizons[0]].constants is not None:  # flights of their own loads
+            truth = PhysicsModel(dataset.params, name=PHYSICS_TRUTH, constants="flight")
+            candidates.append(Candidate(PHYSICS_TRUTH, truth))
     training_horizon = loaded[0].window.horizon if loaded else horizons[0]
     for lm in loaded:
         model = NetworkModel(lm.model, lm.window.history, batch_size=batch_size, device=device)

@@ -27,7 +27,15 @@ from ..reporting import markdown_table
 from ..state import GROUPS
 from . import plots
 from .metrics import COMBINED, METRIC_KEYS
-from .results import PAPER_MODEL_NAMES, PAPER_RMSE_N50, PAPER_TIMING, PHYSICS, Report, RmseRow
+from .results import (
+    PAPER_MODEL_NAMES,
+    PAPER_RMSE_N50,
+    PAPER_TIMING,
+    PHYSICS,
+    PHYSICS_TRUTH,
+    Report,
+    RmseRow,
+)
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
@@ -215,7 +223,14 @@ def render_markdown(
         ),
         f"- vehicle constants: mQ = {p.mass_quad} kg, mL = {p.mass_load} kg, "
         f"l = {p.cable_length} m, d = {p.load_damping}, h = {p.dt} s, g = {p.gravity} m/s^2"
-        + (f" (from {env['params_source']})" if env.get("params_source") else ""),
+        + (f" (from {env['params_source']})" if env.get("params_source") else "")
+        + ": the physics row's"
+        + (
+            f"; the row {PHYSICS_TRUTH!r} rolls each flight with its own recorded load mass "
+            "and cable length"
+            if PHYSICS_TRUTH in report.labels
+            else ""
+        ),
         f"- training horizon N = {report.training_horizon} steps "
         f"({report.training_horizon * p.dt:.2f} s)",
         "",

@@ -17,6 +17,9 @@ from ..config import VehicleParams, to_dict
 from .metrics import METRIC_KEYS, Curve, Metrics
 
 PHYSICS = "physics"  # label of the physics-only open-loop predictor
+# The physics row with each flight's recorded constants, beside "physics" (the dataset's), where
+# the flights record their own (simulated varied loads).
+PHYSICS_TRUTH = "physics (flights' constants)"
 
 # --- the paper's numbers (Tables I and II) ------------------------------------------------
 

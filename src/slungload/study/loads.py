@@ -1,0 +1,287 @@
+"""One model for many loads: the loads study (``slungload study loads``).
+
+Three simulated datasets of the same maneuvers: ``one`` flies the nominal load (the training
+range's midpoints), ``many`` a load and cable length drawn per flight from the training range
+(its test flights are loads no training flight had: interpolation), ``beyond`` loads heavier
+and cables longer than any in training (extrapolation; every flight is tested). The
+physics-step network is trained on ``one``, on ``many``, and on ``many`` adapting f to each
+window's constants estimated in flight (``ModelConfig.constants = "window"``), over seeds, and
+compared with the physics model run with the nominal constants, with the in-flight estimate
+and with each flight's true constants: combined RMSE at N = 25 and 50, MAE per step, and the
+RMSE at N = 50 of each test flight against its load mass (``loads.png``).
+
+Layout of ``out``: ``data/{one,many,beyond}/``, ``runs/<set>/<RunConfig.folder()>/``,
+``inside/`` and ``beyond/`` (the evaluation reports), ``loads.csv``, ``flights.csv``,
+``loads.md``, ``loads.png``. Datasets and finished runs are kept: an interrupted study goes
+on where it stopped.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..config import VehicleParams, WindowConfig
+from ..data.dataset import load_dataset, resolve_params
+from ..data.windows import Windows, make_windows
+from ..evaluation.evaluator import Candidate, evaluate_predictors
+from ..evaluation.metrics import COMBINED, compute_metrics
+from ..evaluation.report import write_report
+from ..experiment import BEYOND_PAPER, TrainingJob, run_training_jobs
+from ..fileio import write_text
+from ..models import load_checkpoint
+from ..models.prediction import NetworkModel, PhysicsModel
+from ..reporting import markdown_table, model_colors, save_figure
+from ..run_config import RunConfig
+from ..sim import SimConfig, simulate_dataset
+from .loads_config import NETWORK_ROWS, PHYSICS_ROWS, SETS, TRUTH, LoadsStudyConfig
+
+
+@dataclass(frozen=True)
+class LoadsRow:
+    """Combined RMSE of one model (one seed) at one horizon on one test set."""
+
+    test_set: str  # "inside" | "beyond"
+    label: str
+    seed: int | None
+    horizon: int
+    rmse: float
+
+
+def study_loads(
+    *,
+    out: str | Path,
+    config: LoadsStudyConfig = LoadsStudyConfig(),  # noqa: B008 (frozen)
+    seeds: Sequence[int] = (0,),
+    preset: str = "default",
+    epochs: int | None = None,
+    sim_seed: int = 0,
+    workers: int = 2,
+    progress: bool = True,
+    cluster: str | None = None,
+) -> list[LoadsRow]:
+    """Simulate, train and evaluate the loads study into ``out`` (see the module); returns the
+    rows of ``loads.csv``. ``epochs`` replaces the preset's budget; ``cluster`` trains on Ray."""
+    out = Path(out)
+    data = _datasets(out / "data", config, sim_seed, workers, progress)
+    runs = {label: _runs(config, constants, preset, seeds, epochs)
+            for label, (_, constants) in NETWORK_ROWS.items()}  # fmt: skip
+    jobs = []
+    for label, (source, _) in NETWORK_ROWS.items():
+        for run in runs[label]:
+            folder = out / "runs" / source / run.folder()
+            if not (folder / "run.json").is_file():
+                resume = (folder / "last.ckpt").is_file()
+                jobs.append(TrainingJob(data[source], folder, run, resume))
+    run_training_jobs(jobs, workers=workers, progress=progress, cluster=cluster)
+
+    params, _ = resolve_params(data["many"], None)  # the nominal constants
+    rows: list[LoadsRow] = []
+    per_flight: list[tuple[str, str, str, float, float]] = []
+    worse: dict[tuple[str, str], tuple[int, int]] = {}
+    for test_set in SETS:
+        windows = _test_windows(data, test_set, params, config.horizons)
+        candidates = [Candidate(label, PhysicsModel(params, name=label, constants=source))
+                      for label, source in PHYSICS_ROWS.items()]  # fmt: skip
+        for label, (source, _) in NETWORK_ROWS.items():
+            for run in runs[label]:
+                loaded = load_checkpoint(out / "runs" / source / run.folder())
+                model = NetworkModel(loaded.model, loaded.window.history, name=label)
+                candidates.append(Candidate(label, model, run.seed, loaded.model))
+        report = evaluate_predictors(
+            candidates, windows, params=params, training_horizon=max(config.horizons),
+            dataset=str(data["beyond" if test_set == "beyond" else "many"]), split=test_set,
+        )  # fmt: skip
+        write_report(report, out / test_set)
+        rows += [LoadsRow(test_set, r.label, r.seed, r.metrics.horizon, r.metrics.rmse[COMBINED])
+                 for r in report.results]  # fmt: skip
+        per_flight += _per_flight(candidates, windows[max(config.horizons)], test_set)
+        worse.update(_steps_worse(report.curves, max(config.horizons), test_set))
+    write_loads_study(rows, per_flight, worse, out, config, params)
+    return rows
+
+
+def _datasets(
+    root: Path, config: LoadsStudyConfig, seed: int, workers: int, progress: bool
+) -> dict[str, Path]:
+    """The three datasets (simulated once; the same maneuvers, seed and effects)."""
+    mass, length = config.nominal
+    plan = {
+        "one": (SimConfig().with_loads(load_mass=mass, cable_length=length), config.flights),
+        "many": (
+            SimConfig().with_loads(load_mass=config.train_mass, cable_length=config.train_length),
+            config.flights,
+        ),
+        "beyond": (
+            SimConfig().with_loads(load_mass=config.beyond_mass, cable_length=config.beyond_length),
+            config.beyond_flights,
+        ),
+    }
+    folders = {}
+    for name, (sim, flights) in plan.items():
+        folder = root / name
+        if not (folder / "train.txt").is_file():
+            # "beyond" flies other seeds: its maneuvers' draws are not the training flights'.
+            own = seed + (1 if name == "beyond" else 0)
+            simulate_dataset(folder, flights=flights, seed=own, config=sim, workers=workers,
+                             progress=progress, overwrite=True)  # fmt: skip
+        folders[name] = folder
+    return folders
+
+
+def _runs(
+    config: LoadsStudyConfig, constants: str, preset: str, seeds: Sequence[int], epochs: int | None
+) -> list[RunConfig]:
+    """The physics-step network of reproduce's best configuration at ``config.size``, its f
+    running with ``constants``, for each seed."""
+    template = BEYOND_PAPER[0]
+    model = replace(template.model.resized(config.size), constants=constants)
+    runs = []
+    for seed in seeds:
+        run = replace(template, model=model).scheduled(preset, seed=seed)
+        if epochs is not None:
+            run = replace(run, train=replace(run.train, max_epochs=epochs))
+        runs.append(run)
+    return runs
+
+
+def _test_windows(
+    data: dict[str, Path], test_set: str, params: VehicleParams, horizons: Sequence[int]
+) -> dict[int, Windows]:
+    """Windows (stride 1) of the test flights of ``many`` (inside) or every flight of
+    ``beyond``, for each horizon, carrying each flight's true constants; the dataset read with
+    the nominal constants (``params``)."""
+    folder = data["many" if test_set == "inside" else "beyond"]
+    ds = load_dataset(folder, window=WindowConfig(), params=params)
+    names = ds.splits["test"].names if test_set == "inside" else tuple(ds.flights)
+    flights = [ds.flights[n] for n in names]
+    return {
+        n: make_windows(flights, WindowConfig(history=ds.window.history, horizon=n), params)
+        for n in horizons
+    }
+
+
+def _steps_worse(curves, horizon: int, test_set: str) -> dict[tuple[str, str], tuple[int, int]]:
+    """(set, label) -> the horizon steps (of N = ``horizon``) at which the label's position and
+    load-position MAE exceed physics with the true constants'."""
+    truth = curves[TRUTH][horizon]
+    return {
+        (test_set, label): tuple(
+            int((by_n[horizon][g].mean > truth[g].mean).sum())
+            for g in ("position", "load_position")
+        )
+        for label, by_n in curves.items()
+        if label != TRUTH and horizon in by_n
+    }
+
+
+def _per_flight(
+    candidates: Sequence[Candidate], windows: Windows, test_set: str
+) -> list[tuple[str, str, str, float, float]]:
+    """(set, label, flight, its load mass kg, combined RMSE) per candidate and test flight;
+    seeds of a label averaged."""
+    masses = windows.vehicle().mass_load
+    out: dict[tuple[str, str], list[float]] = {}
+    for cand in candidates:
+        pred = cand.model.predict_windows(windows)
+        for i, name in enumerate(windows.names):
+            mine = windows.flight == i
+            if not bool(mine.any()):
+                continue
+            part = windows[mine]
+            value = compute_metrics(pred[mine], part).rmse[COMBINED]
+            out.setdefault((cand.label, name), []).append(value)
+    first = {name: float(masses[windows.flight == i][0]) for i, name in enumerate(windows.names)
+             if bool((windows.flight == i).any())}  # fmt: skip
+    return [(test_set, label, name, first[name], statistics.fmean(v))
+            for (label, name), v in out.items()]  # fmt: skip
+
+
+def write_loads_study(
+    rows: Sequence[LoadsRow],
+    per_flight: Sequence[tuple[str, str, str, float, float]],
+    worse: dict[tuple[str, str], tuple[int, int]],
+    out: Path,
+    config: LoadsStudyConfig,
+    params: VehicleParams,
+) -> None:
+    """loads.csv (every run), flights.csv, loads.md (mean +- std over seeds, the ratios to
+    physics with the true constants, the horizon steps worse than it: ``worse``) and
+    loads.png."""
+    lines = ["set,label,seed,horizon,combined_rmse"]
+    lines += [f"{r.test_set},{r.label},{'' if r.seed is None else r.seed},{r.horizon},{r.rmse}"
+              for r in rows]  # fmt: skip
+    write_text(out / "loads.csv", "\n".join(lines) + "\n")
+    lines = [f"set,label,flight,mass_load_kg,combined_rmse_N{max(config.horizons)}"]
+    lines += [f"{s},{label},{name},{m},{e}" for s, label, name, m, e in per_flight]
+    write_text(out / "flights.csv", "\n".join(lines) + "\n")
+    groups: dict[tuple[str, str, int], list[float]] = {}
+    for r in rows:
+        groups.setdefault((r.test_set, r.label, r.horizon), []).append(r.rmse)
+    labels = list(dict.fromkeys(r.label for r in rows))
+    truth = TRUTH
+    parts = [
+        "# Loads study: one model for many loads",
+        "",
+        f"Trained on loads of {config.train_mass[0]:g}-{config.train_mass[1]:g} kg on "
+        f"{config.train_length[0]:g}-{config.train_length[1]:g} m cables (nominal "
+        f"{params.mass_load:g} kg, {params.cable_length:g} m: the physics row's and the "
+        f"one-load network's); tested on unseen loads inside that range and on "
+        f"{config.beyond_mass[0]:g}-{config.beyond_mass[1]:g} kg, "
+        f"{config.beyond_length[0]:g}-{config.beyond_length[1]:g} m beyond it. Combined RMSE "
+        f"(mean ± std over seeds) and its ratio to {truth!r}.",
+    ]
+    for test_set in SETS:
+        header = ["model"]
+        for n in config.horizons:
+            header += [f"RMSE N = {n}", f"/ truth N = {n}"]
+        header.append(
+            f"steps worse than truth (position, load position; of {max(config.horizons)})"
+        )
+        table = []
+        for label in labels:
+            row = [label]
+            for n in config.horizons:
+                values = groups.get((test_set, label, n))
+                ref = groups.get((test_set, truth, n))
+                if not values:
+                    row += ["-", "-"]
+                    continue
+                mean = statistics.fmean(values)
+                std = statistics.stdev(values) if len(values) > 1 else 0.0
+                row.append(f"{mean:.3f}" + (f" ± {std:.3f}" if len(values) > 1 else ""))
+                row.append(f"{mean / statistics.fmean(ref):.2f}" if ref else "-")
+            steps = worse.get((test_set, label))
+            row.append("-" if steps is None else f"{steps[0]}, {steps[1]}")
+            table.append(row)
+        parts += ["", f"## {test_set} the training range", "", markdown_table(header, table)]
+    parts += ["", "![RMSE against load mass](loads.png)", ""]
+    write_text(out / "loads.md", "\n".join(parts))
+    _figure(per_flight, config, out / "loads.png")
+
+
+def _figure(per_flight, config: LoadsStudyConfig, path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.0, 4.4), constrained_layout=True)
+    ax = fig.add_subplot()
+    labels = list(dict.fromkeys(label for _, label, _, _, _ in per_flight))
+    colors = model_colors(labels)
+    for i, label in enumerate(labels):
+        pts = sorted((m, e) for _, lab, _, m, e in per_flight if lab == label)
+        if not pts:
+            continue
+        x, y = np.array(pts).T
+        style = {"linestyle": ":"} if label.startswith("physics") else {}
+        ax.plot(x, y, marker="os^vDP<>"[i % 8], markersize=4, label=label,
+                color=colors[label], **style)  # fmt: skip
+    ax.axvspan(*config.train_mass, color="0.9", zorder=0, label="training range")
+    ax.set_xlabel("load mass (kg)")
+    ax.set_ylabel(f"combined RMSE at N = {max(config.horizons)} per test flight")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    save_figure(fig, path)

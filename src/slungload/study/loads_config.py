@@ -1,0 +1,52 @@
+"""What the loads study flies, trains and compares (``study.loads``): light, so that the
+command line's help derives its defaults from here without loading torch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+def _range(default: tuple[float, float], text: str, unit: str):
+    """A (low, high) field with its description and unit as metadata (the CLI's help)."""
+    return field(default=default, metadata={"text": text, "unit": unit})
+
+
+RANGES = ("train_mass", "train_length", "beyond_mass", "beyond_length")  # the ranged fields
+
+
+@dataclass(frozen=True)
+class LoadsStudyConfig:
+    """What the loads study flies and trains; masses in kg, lengths in m."""
+
+    train_mass: tuple[float, float] = _range(
+        (0.10, 0.25), "load masses of the training flights", "kg"
+    )
+    train_length: tuple[float, float] = _range((0.6, 0.9), "their cable lengths", "m")
+    beyond_mass: tuple[float, float] = _range((0.28, 0.36), "load masses beyond the range", "kg")
+    beyond_length: tuple[float, float] = _range((0.95, 1.05), "their cable lengths", "m")
+    flights: int = 48  # flights of ``one`` and ``many`` (split as the simulator splits)
+    beyond_flights: int = 12  # flights of ``beyond``, all tested
+    size: str = "small"  # the network's named size (``config.MODEL_SIZES``)
+    horizons: tuple[int, ...] = (25, 50)  # evaluated horizons N, steps
+
+    @property
+    def nominal(self) -> tuple[float, float]:
+        """The nominal load mass and cable length: the training range's midpoints."""
+        return sum(self.train_mass) / 2, sum(self.train_length) / 2
+
+
+# The rows of the study, by label (no commas: they are CSV cells): which constants the physics
+# model runs with.
+PHYSICS_ROWS = {
+    "physics (nominal)": "dataset",
+    "physics (in-flight estimate)": "window",
+    "physics (true constants)": "flight",
+}
+# The networks: the dataset each trains on and the constants its f runs with.
+NETWORK_ROWS = {
+    "one load": ("one", "dataset"),
+    "many loads": ("many", "dataset"),
+    "many loads (adaptive)": ("many", "window"),
+}
+TRUTH = "physics (true constants)"  # the reference row
+SETS = ("inside", "beyond")  # the test sets: unseen loads inside and beyond the range
