@@ -204,3 +204,16 @@ def test_the_report_shows_physics_with_the_flights_constants_beside_the_dataset_
     rmse = {r.label: r.metrics.rmse["combined"] for r in report.results}
     assert rmse[PHYSICS_TRUTH] != rmse[PHYSICS]
     assert "each flight with its own recorded load mass" in (tmp_path / "report.md").read_text()
+
+
+def test_train_takes_the_constants_option():
+    from slungload.cli import build_parser
+    from slungload.cli.train import run_from_args
+
+    base = ["train", "--data", "d", "--out", "o", "--model", "physics-step"]
+    run = run_from_args(build_parser().parse_args([*base, "--constants", "window"]))
+    assert run.model.constants == "window" and run.model.architecture == "physics-step"
+    assert run_from_args(build_parser().parse_args(base)).model.constants == "dataset"
+    with pytest.raises(ValueError, match="physics-step network"):
+        run_from_args(build_parser().parse_args(["train", "--data", "d", "--out", "o",
+                                                 "--constants", "window"]))  # fmt: skip

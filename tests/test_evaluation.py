@@ -252,6 +252,7 @@ def test_horizon_windows_come_from_the_same_test_flights(flights):
     dataset = SimpleNamespace(
         splits={"test": test, "train": make_windows(flights[:1], WindowConfig(M, N))},
         flights={f.name: f for f in flights},
+        params=VehicleParams(),
     )
     per_n = horizon_windows(dataset, history=M, horizons=(N, 2 * N))
     assert set(per_n) == {N, 2 * N}

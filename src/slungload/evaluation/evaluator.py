@@ -50,7 +50,8 @@ def horizon_windows(
 ) -> dict[int, Windows]:
     """Windows for each horizon N, cut with stride 1 from the flights of one split.
 
-    dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...).
+    dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...,
+    ``.params``: the constants of flights that record none of their own).
     Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
     """
     if split not in SPLITS:
