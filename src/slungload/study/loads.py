@@ -276,9 +276,10 @@ def _figure(per_flight, config: LoadsStudyConfig, path: Path) -> None:
         if not pts:
             continue
         x, y = np.array(pts).T
-        style = {"linestyle": ":"} if label.startswith("physics") else {}
-        ax.plot(x, y, marker="os^vDP<>"[i % 8], markersize=4, label=label,
-                color=colors[label], **style)  # fmt: skip
+        # Points, not lines: neighbouring masses are flights of different maneuvers.
+        hollow = label.startswith("physics")
+        ax.scatter(x, y, marker="os^vDP<>"[i % 8], s=22, label=label, color=colors[label],
+                   facecolors="none" if hollow else colors[label])  # fmt: skip
     ax.axvspan(*config.train_mass, color="0.9", zorder=0, label="training range")
     ax.set_xlabel("load mass (kg)")
     ax.set_ylabel(f"combined RMSE at N = {max(config.horizons)} per test flight")
