@@ -189,7 +189,7 @@ def make_windows(
             torch.tensor(VehicleConstants.of(own or params), dtype=torch.float64).expand(n, -1)
             for n, own in sets
         ]
-        constants = torch.cat(rows).contiguous() if rows else None
+        constants = torch.cat(rows)
     return Windows(**out, names=tuple(f.name for f in flights), window=window, constants=constants)
 
 
@@ -213,15 +213,16 @@ def physics_rollout(windows: Windows, params: Any, batch_size: int | None = 8192
     return torch.cat(parts)
 
 
-def per_window(params: Any) -> bool:
-    """Whether ``params`` holds one set of constants per window (tensors (W,), as
-    ``VehicleConstants.stack`` and ``Windows.vehicle`` give) rather than one set."""
-    return any(isinstance(c, Tensor) and c.dim() > 0 for c in params)
+def _per_window(params: Any) -> bool:
+    """Whether ``params`` holds one set of constants per window (a ``VehicleConstants`` with
+    tensors (W,), as ``VehicleConstants.stack`` and ``Windows.vehicle`` give) rather than one
+    set."""
+    return isinstance(params, tuple) and any(isinstance(c, Tensor) and c.dim() > 0 for c in params)
 
 
 def _constants_of(params: Any, part: slice) -> Any:
     """The constants of windows ``part``: per-window constants sliced, one set as it is."""
-    if not isinstance(params, tuple) or not per_window(params):
+    if not _per_window(params):
         return params
     return type(params)(*(c[part] if isinstance(c, Tensor) and c.dim() > 0 else c for c in params))
 
@@ -232,7 +233,7 @@ def _rollout_from_history(windows: Windows, params: Any) -> Tensor:
     cable length (the data's aux used the dataset's)."""
     m, n = windows.window.history, windows.window.horizon
     x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
-    if isinstance(params, tuple) and per_window(params):
+    if _per_window(params):
         params = type(params)(*(c.double() if isinstance(c, Tensor) else c for c in params))
         aux0 = estimate_load_state(windows.states[:, m - 2 : m].double(), params)[:, -1]
     states, _ = rollout(x0, aux0, windows.inputs[:, m - 1 : m + n - 1].double(), params)

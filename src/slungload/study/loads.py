@@ -39,6 +39,7 @@ from ..reporting import markdown_table, model_colors, save_figure
 from ..run_config import RunConfig
 from ..sim import SimConfig, simulate_dataset
 from .loads_config import NETWORK_ROWS, PHYSICS_ROWS, SETS, TRUTH, LoadsStudyConfig
+from .size import size_run
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,7 @@ def study_loads(
                 candidates.append(Candidate(label, model, run.seed, loaded.model))
         report = evaluate_predictors(
             candidates, windows, params=params, training_horizon=max(config.horizons),
-            dataset=str(data["beyond" if test_set == "beyond" else "many"]), split=test_set,
+            dataset=str(data[SETS[test_set]]), split=test_set,
         )  # fmt: skip
         write_report(report, out / test_set)
         rows += [LoadsRow(test_set, r.label, r.seed, r.metrics.horizon, r.metrics.rmse[COMBINED])
@@ -139,14 +140,9 @@ def _runs(
     """The physics-step network of reproduce's best configuration at ``config.size``, its f
     running with ``constants``, for each seed."""
     template = BEYOND_PAPER[0]
-    model = replace(template.model.resized(config.size), constants=constants)
-    runs = []
-    for seed in seeds:
-        run = replace(template, model=model).scheduled(preset, seed=seed)
-        if epochs is not None:
-            run = replace(run, train=replace(run.train, max_epochs=epochs))
-        runs.append(run)
-    return runs
+    template = replace(template, model=replace(template.model, constants=constants))
+    return [size_run(template, config.size, preset=preset, seed=seed, epochs=epochs)
+            for seed in seeds]  # fmt: skip
 
 
 def _test_windows(
@@ -155,7 +151,7 @@ def _test_windows(
     """Windows (stride 1) of the test flights of ``many`` (inside) or every flight of
     ``beyond``, for each horizon, carrying each flight's true constants; the dataset read with
     the nominal constants (``params``)."""
-    folder = data["many" if test_set == "inside" else "beyond"]
+    folder = data[SETS[test_set]]
     ds = load_dataset(folder, window=WindowConfig(), params=params)
     names = ds.splits["test"].names if test_set == "inside" else tuple(ds.flights)
     flights = [ds.flights[n] for n in names]

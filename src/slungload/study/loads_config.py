@@ -49,4 +49,6 @@ NETWORK_ROWS = {
     "many loads (adaptive)": ("many", "window"),
 }
 TRUTH = "physics (true constants)"  # the reference row
-SETS = ("inside", "beyond")  # the test sets: unseen loads inside and beyond the range
+# The test sets, unseen loads inside and beyond the range: the dataset whose flights each tests
+# (inside: the test flights of "many"; beyond: every flight of "beyond").
+SETS = {"inside": "many", "beyond": "beyond"}

@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from ...constants_estimate import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, SMOOTHING_STEPS
+from ...frames import rotation_matrix
 from ...layout import (
     AUX_DIM,
     HISTORY_DIM,
@@ -273,10 +274,8 @@ def adapted_constants(
     step shares the history), so numpy rather than a compiled loop."""
     s = np.asarray(states, np.float64)
     h, half = c.dt, SMOOTHING_STEPS
-    p, q, p_load = s[:, POS], s[:, QUAT], s[:, LOAD_POS]
-    q = q[1:-1] / np.maximum(np.linalg.norm(q[1:-1], axis=-1, keepdims=True), 1e-12)
-    w, x, y, z = q.T
-    b = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], -1)
+    p, p_load = s[:, POS], s[:, LOAD_POS]
+    b = rotation_matrix(s[1:-1, QUAT])[..., :, 2]  # body z, (M-2, 3)
     up = np.array([0.0, 0.0, c.gravity])
     acc = (p[2:] - 2 * p[1:-1] + p[:-2]) / (h * h) + up
     acc_load = (p_load[2:] - 2 * p_load[1:-1] + p_load[:-2]) / (h * h) + up

@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ...constants_estimate import SMOOTHING_STEPS
+from ...constants_estimate import MIN_STEPS
 from ...layout import (
     AUX_DIM,
     HISTORY_DIM,
@@ -66,7 +66,6 @@ _P, _Q, _U = POS.start, QUAT.start, STATE_DIM  # rows of an (x, u) row: position
 _FILE_QW, _FILE_QX, _FILE_QY, _FILE_QZ = (QUAT.start + i for i in XYZW_TO_WXYZ)
 _TO_FILE = WXYZ_TO_XYZW
 _THRUST = STATE_DIM + THRUST.start  # an (x, u) row's thrust column
-ESTIMATE_ROWS = 2 * SMOOTHING_STEPS + 3  # history rows a window's constants estimate needs
 
 
 class _Rows(NamedTuple):
@@ -181,7 +180,7 @@ class CompiledPredictor:
         fut = np.ascontiguousarray(fut, dtype=np.float32)
         w = self._w
         batch, m = hist.shape[:2]
-        least = ESTIMATE_ROWS if self.weights.constants == "window" else 2
+        least = MIN_STEPS if self.weights.constants == "window" else 2
         if w.mode == PHYSICS_STEP and m < least:  # as PhysicsStepNet.start_rollout
             raise ValueError(
                 f"CompiledPredictor.predict: the {self.weights.architecture!r} network needs "
