@@ -217,3 +217,107 @@ def test_train_takes_the_constants_option():
     with pytest.raises(ValueError, match="physics-step network"):
         run_from_args(build_parser().parse_args(["train", "--data", "d", "--out", "o",
                                                  "--constants", "window"]))  # fmt: skip
+
+
+# --- in closed loop: the MPC on loads it never saw ----------------------------------------
+
+
+@pytest.fixture(scope="module")
+def adaptive_run(varied, train_tiny, tmp_path_factory):
+    """One quick epoch of the adaptive network on the varied flights (a run folder)."""
+    ds, _ = varied
+    out = tmp_path_factory.mktemp("adaptive_run") / "run"
+    train_tiny(ds, out, variant="no-physics", model=ADAPTIVE, window=WINDOW, max_epochs=1)
+    return out
+
+
+class _Still:
+    """A numpy candidate model: every candidate stays where the history ends."""
+
+    name, history, numpy = "still", 20, True
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        return np.broadcast_to(x_hist[-1], (*plans.shape[:2], x_hist.shape[1])).copy()
+
+
+def _hanging(length: float, m: int = 20) -> np.ndarray:
+    """(m, 13): the vehicle hovering 1.5 m up, level, the load ``length`` below it."""
+    x = np.zeros((m, 13))
+    x[:, 2], x[:, 6], x[:, 12] = 1.5, 1.0, 1.5 - length
+    return x
+
+
+def test_the_mpc_cost_follows_the_in_flight_estimate():
+    from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC, window_estimate
+    from slungload.control.mppi import MPPIController, ReferenceAhead
+
+    params, limits = VehicleParams(), InputLimits.from_sim(SimConfig())
+    window = MPCConfig(samples=8, constants="window")
+    with pytest.raises(ValueError, match="needs an estimate"):
+        MPPIController(_Still(), limits, window, params)
+    with pytest.raises(ValueError, match="needs constants='window'"):
+        MPPIController(_Still(), limits, MPCConfig(samples=8), params, lambda x, u: (1.0, 0.1))
+    with pytest.raises(ValueError, match="unknown 'truth'"):
+        MPCConfig(constants="truth")
+    short = _Still()
+    short.history = 5
+    with pytest.raises(ValueError, match="M >= 17"):
+        SamplingMPC(short, limits, window, params)
+
+    mpc = MPPIController(_Still(), limits, window, params, lambda x, u: (1.1, 0.3))
+    assert mpc.cable_length == params.cable_length  # the prior until the first step
+    n = window.horizon
+    ref = ReferenceAhead(np.tile([0.0, 0.0, 1.5], (n, 1)), np.zeros((n, 3)), np.zeros(n))
+    mpc.step(_hanging(1.1)[0], ref)
+    assert mpc.cable_length == 1.1
+    assert mpc.hover_thrust == pytest.approx((params.mass_quad + 0.3) * params.gravity)
+    # the package's estimate: a load hanging still is as long as it hangs, and as heavy as the
+    # prior says (no motion tells its mass)
+    length, mass = window_estimate(params)(_hanging(0.9), np.tile([14.0, 0, 0, 0], (19, 1)))
+    assert length == pytest.approx(0.9) and mass == pytest.approx(params.mass_load)
+
+
+def test_a_network_given_the_constants_is_the_adaptive_one_at_its_estimate(adaptive_run, varied,
+                                                                            tiny_run):  # fmt: skip
+    from slungload.control.mpc import window_estimate
+    from slungload.models.prediction import load_prediction_model
+
+    _, windows = varied
+    m = WINDOW.history
+    x, u_past = windows.states[9, :m].double(), windows.inputs[9, : m - 1].double()
+    plans = windows.inputs[9, m - 1 : -1].double().expand(4, -1, -1) + 0.3 * torch.randn(4, 25, 4)
+    adaptive = load_prediction_model(adaptive_run)
+    length, mass = window_estimate(adaptive.net.params)(x.numpy(), u_past.numpy())
+    truth = dataclasses.replace(adaptive.net.params, cable_length=length, mass_load=mass)
+    given = load_prediction_model(adaptive_run, constants=truth)
+    assert given.net.config.constants == "dataset" and given.net.params == truth
+    want = adaptive.predict_candidates(x, u_past, plans)
+    torch.testing.assert_close(given.predict_candidates(x, u_past, plans), want, atol=1e-4, rtol=0)
+    other = dataclasses.replace(truth, cable_length=1.3 * length)
+    moved = load_prediction_model(adaptive_run, constants=other)
+    moved = moved.predict_candidates(x, u_past, plans)
+    assert (moved - want).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="only a physics-step network"):
+        load_prediction_model(tiny_run.out, constants=truth)
+
+
+def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_run, tmp_path):
+    from slungload.control.loads import fly_loads, plant_name, write_loads_report
+    from slungload.control.study_config import UnseenLoadsConfig
+
+    cfg = UnseenLoadsConfig(loads=((0.3, 0.95),), maneuvers=("xy_step",), seeds=(100,),
+                            samples=16, steps=12, backend="eager")  # fmt: skip
+    rows = fly_loads(adaptive_run, tmp_path, cfg, progress=None)
+    assert {r["controller"] for r in rows} == {
+        "pid", "mpc-physics (in-flight)", "mpc-physics (true constants)",
+        "mpc-adaptive (in-flight)", "mpc-adaptive (true constants)",
+    }  # fmt: skip
+    assert all(r["plant"] == plant_name(0.3, 0.95) and r["completed"] for r in rows)
+    assert all(np.isfinite(r["load_rmse"]) for r in rows)
+    report = write_loads_report(rows, cfg, tmp_path).read_text()
+    assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "loads.png").exists()
+    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
+    assert fly_loads(adaptive_run, tmp_path, cfg, progress=None) == rows  # nothing flown again
+    assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
+    with pytest.raises(ValueError, match="not an adaptive network"):
+        fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)

@@ -6,7 +6,14 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..control.study_config import CONTROLLERS, DEFAULT_MANEUVERS, NOMINAL, SHIFTS, StudyConfig
+from ..control.study_config import (
+    CONTROLLERS,
+    DEFAULT_MANEUVERS,
+    NOMINAL,
+    SHIFTS,
+    StudyConfig,
+    UnseenLoadsConfig,
+)
 from .common import choices, comma_ints, comma_names, new_command, seed_range
 
 
@@ -101,14 +108,49 @@ def add_control(sub: Any) -> None:
     study.add_argument(
         "--no-tune", action="store_true", help="MPC settings at their defaults (smoke runs)"
     )
+    loads = p.add_argument_group(
+        "unseen loads (--loads)",
+        "the MPC flying loads its model never saw: an adaptive physics-step network (--model, "
+        "trained with --constants window) and the physics model, each with the load estimated "
+        "in flight and given the true load, beside the PID; a second run flies only what is "
+        "missing (docs/control.md)",
+    )
+    loads.add_argument("--loads", action="store_true", help="fly the unseen loads instead")
+    defaults = UnseenLoadsConfig()
+    loads.add_argument(
+        "--load",
+        action="append",
+        type=_load,
+        metavar="KG,M",
+        help="a load mass (kg) and cable length (m) to fly; repeat for more (default "
+        + " ".join(f"{m},{length}" for m, length in defaults.loads)
+        + f"; with --maneuvers (default the study's), --seeds (default "
+        f"{','.join(map(str, defaults.seeds))}), --samples (default {defaults.samples}), "
+        f"--horizon (default {defaults.horizon}), --steps and --backend)",
+    )
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no line per flight")
     p.set_defaults(func=cmd_control)
 
 
+def _load(text: str) -> tuple[float, float]:
+    """'KG,M' -> (load mass, cable length), both positive."""
+    try:
+        mass, length = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected KG,M (e.g. 0.2,0.8), got {text!r}") from None
+    if not (mass > 0 and length > 0):
+        raise argparse.ArgumentTypeError(f"load mass and cable length must be > 0, got {text!r}")
+    return mass, length
+
+
 def cmd_control(args: argparse.Namespace) -> int:
+    if args.study and args.loads:
+        raise ValueError("control: --study and --loads are two runs; give one")
     if args.study:
         return _cmd_study(args)
+    if args.loads:
+        return _cmd_loads(args)
     from ..control.comparison import compare
 
     result = compare(
@@ -152,4 +194,29 @@ def _cmd_study(args: argparse.Namespace) -> int:
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
                      threads=args.threads, progress=None if args.quiet else print)  # fmt: skip
     print(write_study_report(rows, config, args.out, str(learned) if learned else None))
+    return 0
+
+
+def _cmd_loads(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..control.loads import fly_loads, write_loads_report
+
+    if len(args.model) != 1:
+        raise ValueError(
+            f"control --loads flies one --model (an adaptive network), got {len(args.model)}"
+        )
+    changes: dict[str, Any] = {}
+    for name, value in (("loads", args.load and tuple(args.load)),
+                        ("maneuvers", args.maneuvers and tuple(args.maneuvers)),
+                        ("seeds", args.seeds and seed_range(args.seeds)),
+                        ("samples", args.samples and args.samples[0]),
+                        ("horizon", args.horizon), ("steps", args.steps),
+                        ("backend", args.backend)):  # fmt: skip
+        if value:
+            changes[name] = value
+    config = replace(UnseenLoadsConfig(), **changes)
+    rows = fly_loads(args.model[0], args.out, config, threads=args.threads,
+                     progress=None if args.quiet else print)  # fmt: skip
+    print(write_loads_report(rows, config, args.out))
     return 0

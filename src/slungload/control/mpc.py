@@ -19,11 +19,16 @@ import numpy as np
 import torch
 
 from ..config import VehicleParams
+from ..constants_estimate import MIN_STEPS
+from ..deploy.compiled.physics import adapted_constants
+from ..layout import THRUST
 from ..models.prediction import PredictionModel
+from ..physics import VehicleConstants
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
 from .mppi import (
     CandidateModel,
+    ConstantsEstimate,
     InputLimits,
     MPCConfig,
     MPCStats,
@@ -41,6 +46,7 @@ __all__ = [
     "reference_ahead",
     "state_from_measurement",
     "trajectory_cost",
+    "window_estimate",
 ]
 
 
@@ -75,13 +81,29 @@ def reference_ahead(ref: Reference, k: int, n: int) -> ReferenceAhead:
     return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(), ref.yaw[idx].copy())
 
 
+def window_estimate(params: VehicleParams) -> ConstantsEstimate:
+    """The controller's in-flight estimate of the load: the adaptive network's
+    (``constants_estimate.adapted``, numpy: ``deploy.compiled.physics.adapted_constants``)
+    over the controller's history, ``params`` as the prior."""
+    prior = VehicleConstants.of(params)
+
+    def estimate(x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]:
+        thrust = np.append(u_past[:, THRUST.start], 0.0)  # the last row's is not used
+        c = adapted_constants(x_hist, thrust, prior)
+        return c.cable_length, c.mass_load
+
+    return estimate
+
+
 class SamplingMPC:
     """MPPI controller meeting ``sim.controller.Controller``; one per flight.
 
     model: a ``PredictionModel`` (torch) or a numpy ``mppi.CandidateModel``; limits:
     the input box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and
-    cable length (default ``VehicleParams()``). ``core`` is the ``mppi.MPPIController`` it runs;
-    ``stats`` counts steps and fallbacks; ``last_plan`` is the plan after the latest step.
+    cable length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of
+    the in-flight estimate, ``window_estimate``, which needs M >= 17). ``core`` is the
+    ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks; ``last_plan`` is the
+    plan after the latest step.
     """
 
     def __init__(
@@ -95,7 +117,15 @@ class SamplingMPC:
         # A torch model is converted at the edge; a model that says it takes numpy arrays
         # (``numpy = True``: the oracle) is the core's model as it is.
         numpy_model = model if getattr(model, "numpy", False) else TorchCandidates(model)
-        self.core = MPPIController(numpy_model, limits, config, params)
+        estimate = None
+        if config is not None and config.constants == "window":
+            if model.history < MIN_STEPS:
+                raise ValueError(
+                    f"the in-flight estimate of the load needs M >= {MIN_STEPS} history steps; "
+                    f"{model.name} keeps {model.history}"
+                )
+            estimate = window_estimate(params or VehicleParams())
+        self.core = MPPIController(numpy_model, limits, config, params, estimate)
 
     def attach(self, plant) -> None:
         """Pass the flight's plant on to a model that predicts with it (``oracle``)."""

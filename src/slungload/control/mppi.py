@@ -16,7 +16,8 @@ From PX4's NED/FRD, convert with ``frames`` first (docs/control.md).
 
 At every step the controller
 
-1. appends x_k to its history;
+1. appends x_k to its history (and, with ``MPCConfig.constants = "window"``, re-estimates the
+   load's cable length and mass from it for the cost: a load it was not told of);
 2. samples K input sequences u_k ... u_{k+N-1} around its nominal plan (the previous plan
    shifted by one step, its last row repeated): smooth noise (``MPCConfig.knots`` Gaussian
    control points per channel from numpy's ``Generator``, linearly interpolated over the
@@ -50,7 +51,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 
 from .. import frames
-from ..config import VehicleParams
+from ..config import NETWORK_CONSTANTS, VehicleParams
 from ..layout import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from .history import History
 
@@ -118,6 +119,10 @@ class MPCConfig:
     terminal: float = 5.0  # extra weight of the last step's state terms
     max_fallback_steps: int = 10  # consecutive fallbacks on the last safe plan, then hover
     hover_gain: float = 5.0  # 1/s, attitude error -> body rate of the hover command
+    # The cost's cable length and hover thrust: "dataset" (the params given) or "window"
+    # (estimated in flight from the history at every step, the params as the prior: a load
+    # the controller was not told of; ``MPPIController``'s ``estimate``).
+    constants: str = "dataset"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -128,6 +133,10 @@ class MPCConfig:
             )
         if not self.temperature > 0:
             raise ValueError(f"MPCConfig.temperature must be > 0, got {self.temperature}")
+        if self.constants not in NETWORK_CONSTANTS:
+            raise ValueError(
+                f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
+            )
 
 
 @dataclass
@@ -170,6 +179,13 @@ class CandidateModel(Protocol):
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
     ) -> np.ndarray: ...
+
+
+class ConstantsEstimate(Protocol):
+    """The controller's in-flight estimate of the load: (x_hist (M, 13), u_past (M-1, 4)) ->
+    (cable length m, load mass kg); ``mpc.window_estimate`` is the package's."""
+
+    def __call__(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]: ...
 
 
 def yaw_of(q: np.ndarray) -> np.ndarray:
@@ -245,8 +261,10 @@ class MPPIController:
 
     model: a ``CandidateModel``; limits: the input box; config: ``MPCConfig`` (default:
     K = 32, N = 15); params: the vehicle constants for hover thrust and cable length (default
-    ``VehicleParams()``). ``stats`` counts steps and fallbacks; ``plan`` is the nominal plan
-    (N, 4) for the next step (the last safe plan, shifted).
+    ``VehicleParams()``); estimate: (x_hist (M, 13), u_past (M-1, 4)) -> (cable length m,
+    load mass kg), called every step when ``config.constants`` is "window". ``stats`` counts
+    steps and fallbacks; ``plan`` is the nominal plan (N, 4) for the next step (the last safe
+    plan, shifted).
     """
 
     def __init__(
@@ -255,15 +273,21 @@ class MPPIController:
         limits: InputLimits,
         config: MPCConfig | None = None,
         params: VehicleParams | None = None,
+        estimate: ConstantsEstimate | None = None,
     ) -> None:
         self.model = model
         self.limits = limits
         self.cfg = cfg = config or MPCConfig()
-        params = params or VehicleParams()
-        self.cable_length = params.cable_length
-        self.hover_thrust = (params.mass_quad + params.mass_load) * params.gravity
+        if (cfg.constants == "window") != (estimate is not None):
+            raise ValueError(
+                "MPPIController: constants='window' needs an estimate of the constants, and an "
+                f"estimate needs constants='window'; got {cfg.constants!r} and "
+                f"{'an' if estimate else 'no'} estimate"
+            )
+        self.params = params = params or VehicleParams()
+        self.estimate = estimate
         self.history = History(max(2, model.history))
-        self.hover = limits.clamp(np.array([self.hover_thrust, 0.0, 0.0, 0.0]))
+        self._use_constants(params.cable_length, params.mass_load)
         self.plan = np.tile(self.hover, (cfg.horizon, 1))  # the last safe plan, shifted
         self.u_prev = self.hover.copy()
         self.std = np.array([cfg.thrust_std, *cfg.rate_std])
@@ -303,6 +327,8 @@ class MPPIController:
             raise ValueError(f"step: state must be ({STATE_DIM},), got {state.shape}")
         self.stats.steps += 1
         self.history.push_state(state)
+        if self.estimate is not None:
+            self._use_constants(*self.estimate(*self.history.window(self.plan[0])))
         plan, reason = self._optimise(reference)
         if reason is None:
             self._fallback_run = 0
@@ -313,6 +339,13 @@ class MPPIController:
         self.u_prev = u
         self.plan = np.concatenate([plan[1:], plan[-1:]])  # shifted: the next nominal plan
         return Command(float(u[0]), u[1:].copy())
+
+    def _use_constants(self, cable_length: float, mass_load: float) -> None:
+        """The cost's load reference and hover thrust (and the hover command) for these."""
+        p = self.params
+        self.cable_length = float(cable_length)
+        self.hover_thrust = (p.mass_quad + float(mass_load)) * p.gravity
+        self.hover = self.limits.clamp(np.array([self.hover_thrust, 0.0, 0.0, 0.0]))
 
     def check_reference(self, reference: ReferenceAhead) -> ReferenceAhead:
         """The reference as float64 arrays of N rows (a longer one is cut), or ValueError."""

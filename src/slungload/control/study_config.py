@@ -51,3 +51,20 @@ class StudyConfig:
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
             raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")
+
+
+@dataclass(frozen=True)
+class UnseenLoadsConfig:
+    """What ``control --loads`` flies (``loads.fly_loads``; defaults: the benchmark's,
+    docs/control.md). Every MPC flies K = ``samples``, N = ``horizon`` at ``temperature``."""
+
+    # (load mass kg, cable length m) of each plant: two inside the loads study's training
+    # range (0.10-0.25 kg, 0.6-0.9 m), one beyond it
+    loads: tuple[tuple[float, float], ...] = ((0.13, 0.65), (0.22, 0.85), (0.32, 1.0))
+    maneuvers: tuple[str, ...] = STUDY_MANEUVERS
+    seeds: tuple[int, ...] = (100, 101, 102)
+    samples: int = 256  # K
+    horizon: int = 15  # N, steps of 0.03 s
+    temperature: float = 0.1  # the control study's choice for the learned model
+    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
+    backend: str = "compiled"  # what the models predict on

@@ -37,7 +37,7 @@ embedding a network in a user's own controller is ``deploy.Predictor``, a differ
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
@@ -175,15 +175,33 @@ class NetworkModel:
         return with_unit_quaternion(states).to(plans.device, plans.dtype)
 
 
-def load_prediction_model(spec: str | Path, params: VehicleParams | None = None) -> PredictionModel:
+def load_prediction_model(
+    spec: str | Path,
+    params: VehicleParams | None = None,
+    *,
+    constants: VehicleParams | None = None,
+) -> PredictionModel:
     """``"physics"`` (the discrete model with ``params``, default ``VehicleParams()``), or a
-    run folder / ``.ckpt`` of any registered architecture, named after its folder."""
+    run folder / ``.ckpt`` of any registered architecture, named after its folder.
+
+    constants: a physics-step network's f runs with these, fixed, for every window (e.g. a
+    flight's true load), whatever its checkpoint's (``ModelConfig.constants``); its weights
+    unchanged. Another architecture is a ``ValueError``."""
     if str(spec) == PHYSICS:
         return PhysicsModel(params or VehicleParams())
     loaded = load_checkpoint(spec)
     path = Path(spec)
     label = path.name if path.is_dir() else path.parent.name
-    return NetworkModel(loaded.model, loaded.window.history, name=label)
+    net = loaded.model
+    if constants is not None:
+        if net.architecture != "physics-step":
+            raise ValueError(
+                f"{spec}: a {net.architecture!r} network runs no physics model; only a "
+                "physics-step network can be given its constants"
+            )
+        net.params = constants
+        net.config = replace(net.config, constants="dataset")
+    return NetworkModel(net, loaded.window.history, name=label)
 
 
 def check_candidates(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> None:

@@ -386,10 +386,14 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
 
 
 def load_model(
-    spec: str | Path, params: VehicleParams | None = None, *, backend: str = "eager"
+    spec: str | Path,
+    params: VehicleParams | None = None,
+    *,
+    backend: str = "eager",
+    constants: VehicleParams | None = None,
 ) -> PredictionModel:
-    """``models.prediction.load_prediction_model(spec, params)`` on ``backend`` (``BACKENDS``;
-    see ``with_backend``)."""
+    """``models.prediction.load_prediction_model(spec, params, constants=constants)`` on
+    ``backend`` (``BACKENDS``; see ``with_backend``)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
-    return with_backend(load_prediction_model(spec, params), backend)
+    return with_backend(load_prediction_model(spec, params, constants=constants), backend)

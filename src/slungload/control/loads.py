@@ -1,0 +1,198 @@
+"""``slungload control --loads``: the MPC flying loads its model never saw.
+
+One command flies, on every load of ``UnseenLoadsConfig.loads`` (each a plant of its own, every
+unmodelled effect on) x maneuver x evaluation seed:
+
+- ``mpc-adaptive (in-flight)``: an adaptive physics-step network (``train --constants window``)
+  as trained: its f and the MPC's cost (load reference, hover thrust) run with the cable length
+  and load mass estimated from the controller's history at every step (``MPCConfig.constants =
+  "window"``), the network's own constants as the prior. Nothing is told of the load.
+- ``mpc-adaptive (true constants)``: the same network and MPC given the flight's true load
+  (``load_model(..., constants=truth)``; the cost likewise): the reference it is held to.
+- ``mpc-physics (in-flight)`` and ``mpc-physics (true constants)``: the physics model, the same
+  two ways.
+- ``pid``: the simulator's PID built for the network's nominal vehicle.
+
+Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature). Flights land as
+in the control study (``study.flight_path``; the plant named by its load), so a second run flies
+only what is missing. ``write_loads_report`` writes ``loads.md`` and ``loads.png``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..config import VehicleParams
+from ..deploy.compiled.batched import load_model, with_backend
+from ..deploy.predictor import torch_threads
+from ..fileio import write_json, write_text
+from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
+from ..reporting import markdown_table, save_figure
+from ..sim.config import SimConfig
+from ..sim.controller import PIDController
+from ..sim.dataset import vehicle_params
+from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .study import Flown, _fly_once, collect_rows
+from .study_config import UnseenLoadsConfig
+from .study_report import KEYS, _by_flight, _fmt, _mean, _ordered, means_table, paired_table
+
+ADAPTIVE = "mpc-adaptive"
+IN_FLIGHT, TRUE = "in-flight", "true constants"
+SUMMARY_HEADER = ("load", "adaptive load RMSE", "adaptive swing RMS", "physics load RMSE",
+                  "physics swing RMS", "lost")  # fmt: skip
+
+
+def plant_name(load_mass: float, cable_length: float) -> str:
+    """A load's plant in the tables and folders: "0.22 kg, 0.85 m"."""
+    return f"{load_mass:.2f} kg, {cable_length:.2f} m"
+
+
+def label(model: str, constants: str) -> str:
+    """A controller's label: "mpc-adaptive (in-flight)"."""
+    return f"{model} ({constants})"
+
+
+def fly_loads(
+    adaptive: str | Path,
+    out: str | Path,
+    config: UnseenLoadsConfig | None = None,
+    *,
+    threads: int = 1,
+    progress: Callable[[str], None] | None = print,
+) -> list[dict[str, Any]]:
+    """Fly what is missing into ``out`` and return every row flown so far (see the module).
+
+    adaptive: a run folder of a physics-step network trained with ``--constants window``.
+    threads: torch threads while flying (restored after).
+    """
+    cfg = config or UnseenLoadsConfig()
+    adaptive = Path(adaptive)
+    eager = load_prediction_model(adaptive)
+    if getattr(eager.net.config, "constants", None) != "window":
+        raise ValueError(
+            f"{adaptive}: not an adaptive network (train it with --constants window); the loads "
+            "flights compare its in-flight estimate with the true constants"
+        )
+    trained = with_backend(eager, cfg.backend)
+    nominal: VehicleParams = eager.net.params  # the prior of the in-flight estimate
+    nominal_sim = SimConfig().with_load(
+        load_mass=nominal.mass_load, cable_length=nominal.cable_length
+    )
+    mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature)
+    out = Path(out)
+    write_json(out / "loads.json", {"adaptive": str(adaptive), "config": asdict(cfg),
+                                    "nominal": asdict(nominal)})  # fmt: skip
+    with torch_threads(threads):
+        for load_mass, cable_length in cfg.loads:
+            plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
+            truth = vehicle_params(plant)
+            limits = InputLimits.from_sim(plant)
+            name = plant_name(load_mass, cable_length)
+            flown = [Flown(name, "pid", lambda seed: PIDController(nominal_sim))]
+            for model, in_flight, given in (
+                (PHYSICS, with_backend(PhysicsModel(nominal, constants="window"), cfg.backend),
+                 load_model(PHYSICS, truth, backend=cfg.backend)),
+                ("adaptive", trained, load_model(adaptive, backend=cfg.backend, constants=truth)),
+            ):  # fmt: skip
+                window = replace(mpc, constants="window")
+                flown += [
+                    Flown(name, label(f"mpc-{model}", IN_FLIGHT),
+                          _mpc(in_flight, limits, window, nominal)),
+                    Flown(name, label(f"mpc-{model}", TRUE), _mpc(given, limits, mpc, truth)),
+                ]  # fmt: skip
+            for f in flown:
+                for maneuver in cfg.maneuvers:
+                    for seed in cfg.seeds:
+                        _fly_once(out, f, maneuver, seed, plant, limits, cfg.steps, progress)
+    return [r for r in collect_rows(out) if r["plant"] in {plant_name(*x) for x in cfg.loads}]
+
+
+def _mpc(model, limits, mpc, params) -> Callable[[int], SamplingMPC]:
+    return lambda seed: SamplingMPC(model, limits, replace(mpc, seed=seed), params)
+
+
+# --- the report -------------------------------------------------------------------------
+
+
+def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str) -> float:
+    """Mean ``key`` of ``model`` in flight over its mean given the true constants, over the
+    flights both flew to the end (1.0: as good as knowing the load)."""
+    a = _by_flight(rows, plant, label(model, IN_FLIGHT))
+    b = _by_flight(rows, plant, label(model, TRUE))
+    both = [k for k in a if k in b and a[k]["completed"] and b[k]["completed"]]
+    if not both:
+        return math.nan
+    return _mean([a[k] for k in both], key) / _mean([b[k] for k in both], key)
+
+
+def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, out: Path) -> Path:
+    """``loads.md`` and ``loads.png`` into ``out`` from ``fly_loads``' rows; returns the path of
+    loads.md."""
+    out = Path(out)
+    plants = [plant_name(*load) for load in config.loads]
+    summary = []
+    for plant in plants:
+        flown = [r for r in rows if r["plant"] == plant]
+        lost = {m: sum(not r["completed"] for r in flown if r["controller"].startswith(m))
+                for m in (ADAPTIVE, f"mpc-{PHYSICS}")}  # fmt: skip
+        summary.append([
+            plant,
+            *(_fmt(ratio_to_truth(rows, plant, m, key), "{:.2f}")
+              for m in (ADAPTIVE, f"mpc-{PHYSICS}") for key in ("load_rmse", "swing_rms")),
+            f"{lost[ADAPTIVE]} / {lost[f'mpc-{PHYSICS}']}",
+        ])  # fmt: skip
+    pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in (ADAPTIVE, f"mpc-{PHYSICS}")]
+    pairs.append((label(ADAPTIVE, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)))
+    lines = [
+        "# The MPC on loads its model never saw",
+        "",
+        f"K = {config.samples}, N = {config.horizon} ({config.horizon * 0.03:.2f} s), "
+        f"temperature {config.temperature}; maneuvers {', '.join(config.maneuvers)} x seeds "
+        f"{', '.join(map(str, config.seeds))}, "
+        f"{config.steps or 'all'} recorded steps each, every unmodelled effect on, "
+        f"{config.backend} backend.",
+        "",
+        "In flight / given the true constants, means over the flights both flew to the end "
+        "(1.00: as good as knowing the load); lost flights of the MPCs flown in flight "
+        "(adaptive / physics):",
+        "",
+        markdown_table(SUMMARY_HEADER, summary),
+        "",
+        "![load RMSE per load](loads.png)",
+    ]
+    for plant in plants:
+        lines += ["", f"## {plant}", "", means_table(rows, plant), "",
+                  "Paired differences (mean [95 % interval]):", "",
+                  paired_table(rows, plant, pairs)]  # fmt: skip
+    plot_loads(rows, plants, out / "loads.png")
+    write_text(out / "loads.md", "\n".join(lines) + "\n")
+    return out / "loads.md"
+
+
+def plot_loads(rows: list[dict[str, Any]], plants: Sequence[str], path: Path) -> Path:
+    """Mean load RMSE and swing RMS (completed flights) per load, one bar per controller."""
+    labels = _ordered({r["controller"] for r in rows if r["plant"] in plants})
+    colors = dict(zip(labels, (f"C{i}" for i in range(len(labels))), strict=True))
+    fig = Figure(figsize=(9.0, 3.6))
+    width = 0.8 / max(len(labels), 1)
+    for i, (key, head, _) in enumerate(KEYS[:2]):
+        ax = fig.add_subplot(1, 2, i + 1)
+        for j, lb in enumerate(labels):
+            ys = [_mean([r for r in _by_flight(rows, p, lb).values() if r["completed"]], key)
+                  for p in plants]  # fmt: skip
+            ax.bar(np.arange(len(plants)) + (j - (len(labels) - 1) / 2) * width, ys, width,
+                   color=colors[lb], label=lb)  # fmt: skip
+        ax.set_xticks(range(len(plants)))
+        ax.set_xticklabels(plants, fontsize=8)
+        ax.set_ylabel(head)
+        ax.grid(alpha=0.3, axis="y")
+    fig.axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return save_figure(fig, path)
