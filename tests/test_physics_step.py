@@ -272,16 +272,14 @@ def test_onnx_export_records_the_architecture_and_matches_eager(run_dir, val_arg
     assert np.abs(moved - got).max() > 1e-3
 
 
-@pytest.mark.parametrize("estimate", ["difference", "smoothed"])
-def test_onnx_export_of_the_paper_size_network_on_physics_windows(
-    physics_flight, tmp_path, estimate
-):
-    """Default sizes, random weights, normalisation fitted on physics windows, N = 25."""
+def test_onnx_export_of_the_paper_size_network_on_physics_windows(physics_flight, tmp_path):
+    """Default sizes, random weights, normalisation fitted on physics windows, N = 25 (the
+    smoothed load estimate exports too: tests/test_onboard.py, at a small size)."""
     window = WindowConfig(history=50, horizon=25)
     flights = [physics_flight(f"p{i}", 20 + i, 100) for i in range(3)]
     windows = make_windows(flights, dataclasses.replace(window, stride=9))
     torch.manual_seed(0)
-    model = PhysicsStepNet(ModelConfig(architecture=NAME, load_estimate=estimate))
+    model = PhysicsStepNet(ModelConfig(architecture=NAME))
     model.fit_normalization(windows.states, windows.inputs, origin_step=window.history - 1)
     predictor = Predictor(model.eval(), window, VehicleParams(), "proposed")
     result = export(predictor, tmp_path / "paper.onnx")

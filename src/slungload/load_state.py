@@ -15,6 +15,7 @@ import torch
 from torch import Tensor
 
 from .config import VehicleParams
+from .physics import per_window
 from .state import AUX_DIM, LOAD_RATE, LOAD_VEL, split_state
 
 
@@ -39,10 +40,10 @@ def estimate_load_state(states: np.ndarray | Tensor, params: VehicleParams) -> n
     rel = p_load - p
     xi = rel / rel.norm(dim=-1, keepdim=True).clamp_min(1e-9)
     aux = x.new_empty(*x.shape[:-1], AUX_DIM)
-    h = _per_sample(params.dt, rel)
+    h = per_window(params.dt, rel)
     aux[..., LOAD_VEL] = _backward_difference(p_load, h)
     rel_rate = _backward_difference(rel, h)
-    aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / _per_sample(params.cable_length, rel)
+    aux[..., LOAD_RATE] = torch.linalg.cross(xi, rel_rate) / per_window(params.cable_length, rel)
     return aux.numpy() if isinstance(states, np.ndarray) else aux
 
 
@@ -79,17 +80,8 @@ def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
     v_load = torch.einsum("k,...kd->...d", c, p_load)
     rel_rate = torch.einsum("k,...kd->...d", c, rel)
     xi = rel[..., -1, :] / rel[..., -1, :].norm(dim=-1, keepdim=True).clamp_min(1e-9)
-    rate = torch.linalg.cross(xi, rel_rate) / _per_sample(params.cable_length, rel_rate)
+    rate = torch.linalg.cross(xi, rel_rate) / per_window(params.cable_length, rel_rate)
     return torch.cat([v_load, rate], dim=-1)
-
-
-def _per_sample(length: float | Tensor, like: Tensor) -> float | Tensor:
-    """A constant (the cable length, the time step) ready to divide ``like`` (..., 3): a float
-    or 0-d tensor as it is, one per window (B,) (``physics.VehicleConstants``) as
-    (B, 1, ..., 1)."""
-    if not isinstance(length, Tensor) or length.dim() == 0:
-        return length
-    return length.reshape(*length.shape, *(1,) * (like.dim() - length.dim()))
 
 
 def _backward_difference(y: Tensor, h: float | Tensor) -> Tensor:

@@ -91,15 +91,17 @@ class VehicleConstants(NamedTuple):
 Vehicle = VehicleParams | VehicleConstants  # what the functions below take as ``params``
 
 
-def _per_row(c: Constant) -> Constant:
-    """A constant ready to scale vectors (..., 3): floats and 0-d tensors as they are, one value
-    per window (B,) as (B, 1)."""
-    return c.unsqueeze(-1) if isinstance(c, Tensor) and c.dim() > 0 else c
+def per_window(c: Constant, like: Tensor) -> Constant:
+    """A constant ready to scale ``like`` (B, ..., 3): floats and 0-d tensors as they are, one
+    value per window (B,) as (B, 1, ..., 1)."""
+    if not isinstance(c, Tensor) or c.dim() == 0:
+        return c
+    return c.reshape(*c.shape, *(1,) * (like.dim() - c.dim()))
 
 
 def cable_direction(p: Tensor, p_load: Tensor, params: Vehicle) -> Tensor:
     """xi = (pL - p) / l, (..., 3): unit when the cable is at its nominal length."""
-    return (p_load - p) / _per_row(params.cable_length)
+    return (p_load - p) / per_window(params.cable_length, p)
 
 
 def thrust_vector(q: Tensor, thrust: Tensor) -> Tensor:
@@ -128,12 +130,12 @@ def accelerations(
     xi = cable_direction(p, p_load, params)
     thrust_w = thrust_vector(q, params.thrust_gain * thrust)
     t_load = tension(xi, thrust_w, load_rate, params).unsqueeze(-1)
-    mq, ml = _per_row(params.mass_quad), _per_row(params.mass_load)
+    mq, ml = per_window(params.mass_quad, p), per_window(params.mass_load, p)
     g = torch.zeros_like(p)
     g[..., 2] = params.gravity
     acc = thrust_w / mq - g + (t_load / mq) * xi
     acc_load = -(t_load / ml) * xi - g
-    rate_dot = -torch.linalg.cross(xi, thrust_w) / (mq * _per_row(params.cable_length))
+    rate_dot = -torch.linalg.cross(xi, thrust_w) / (mq * per_window(params.cable_length, p))
     return acc, acc_load, rate_dot
 
 
@@ -145,8 +147,8 @@ def step(x: Tensor, u: Tensor, aux: Tensor, params: Vehicle) -> tuple[Tensor, Te
     constants' too (one per window: shape (B,) for x (B, 13); see the module's docstring).
     The returned quaternion is renormalised.
     """
-    h = _per_row(params.dt)
     p, v, q, p_load = split_state(x)
+    h = per_window(params.dt, p)
     _, rates = split_input(u)
     v_load, load_rate = aux[..., LOAD_VEL], aux[..., LOAD_RATE]
     acc, acc_load, rate_dot = accelerations(x, u, load_rate, params)
@@ -155,7 +157,7 @@ def step(x: Tensor, u: Tensor, aux: Tensor, params: Vehicle) -> tuple[Tensor, Te
     p_load_next = p_load + h * v_load + 0.5 * h * h * acc_load
     v_load_next = v_load + h * acc_load
     q_next = quat_normalize(quat_mul(q, quat_from_rotvec(h * rates)))
-    rate_next = (1.0 - _per_row(params.load_damping)) * load_rate + h * rate_dot
+    rate_next = (1.0 - per_window(params.load_damping, p)) * load_rate + h * rate_dot
     x_next = join_state(p_next, v_next, q_next, p_load_next)
     return x_next, torch.cat([v_load_next, rate_next], dim=-1)
 
