@@ -45,8 +45,8 @@ from .study_report import KEYS, _by_flight, _fmt, _mean, _ordered, means_table, 
 
 ADAPTIVE = "mpc-adaptive"
 IN_FLIGHT, TRUE = "in-flight", "true constants"
-SUMMARY_HEADER = ("load", "adaptive load RMSE", "adaptive swing RMS", "physics load RMSE",
-                  "physics swing RMS", "lost")  # fmt: skip
+SUMMARY_HEADER = ("load", "adaptive: load RMSE", "swing RMS", "lost", "physics: load RMSE",
+                  "swing RMS", "lost")  # fmt: skip
 
 
 def plant_name(load_mass: float, cable_length: float) -> str:
@@ -139,15 +139,14 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     plants = [plant_name(*load) for load in config.loads]
     summary = []
     for plant in plants:
-        flown = [r for r in rows if r["plant"] == plant]
-        lost = {m: sum(not r["completed"] for r in flown if r["controller"].startswith(m))
-                for m in (ADAPTIVE, f"mpc-{PHYSICS}")}  # fmt: skip
-        summary.append([
-            plant,
-            *(_fmt(ratio_to_truth(rows, plant, m, key), "{:.2f}")
-              for m in (ADAPTIVE, f"mpc-{PHYSICS}") for key in ("load_rmse", "swing_rms")),
-            f"{lost[ADAPTIVE]} / {lost[f'mpc-{PHYSICS}']}",
-        ])  # fmt: skip
+        cells = [plant]
+        for model in (ADAPTIVE, f"mpc-{PHYSICS}"):
+            cells += [_fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
+                      for key in ("load_rmse", "swing_rms")]  # fmt: skip
+            lost = [sum(not r["completed"] for r in _by_flight(rows, plant, label(model, c))
+                        .values()) for c in (IN_FLIGHT, TRUE)]  # fmt: skip
+            cells.append(f"{lost[0]} / {lost[1]}")
+        summary.append(cells)
     pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in (ADAPTIVE, f"mpc-{PHYSICS}")]
     pairs.append((label(ADAPTIVE, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)))
     lines = [
@@ -159,9 +158,9 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         f"{config.steps or 'all'} recorded steps each, every unmodelled effect on, "
         f"{config.backend} backend.",
         "",
-        "In flight / given the true constants, means over the flights both flew to the end "
-        "(1.00: as good as knowing the load); lost flights of the MPCs flown in flight "
-        "(adaptive / physics):",
+        "Each MPC in flight / the same MPC given the true constants: means over the flights both "
+        "flew to the end (1.00: as good as knowing the load), and the flights each lost (in "
+        "flight / given the truth):",
         "",
         markdown_table(SUMMARY_HEADER, summary),
         "",
