@@ -41,7 +41,16 @@ from ..sim.dataset import vehicle_params
 from .mpc import InputLimits, MPCConfig, SamplingMPC
 from .study import Flown, _fly_once, collect_rows
 from .study_config import UnseenLoadsConfig
-from .study_report import KEYS, _by_flight, _fmt, _mean, _ordered, means_table, paired_table
+from .study_report import (
+    KEYS,
+    _by_flight,
+    _fmt,
+    _mean,
+    _ordered,
+    both_completed,
+    means_table,
+    paired_table,
+)
 
 ADAPTIVE = "mpc-adaptive"
 IN_FLIGHT, TRUE = "in-flight", "true constants"
@@ -86,6 +95,8 @@ def fly_loads(
         load_mass=nominal.mass_load, cable_length=nominal.cable_length
     )
     mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature)
+    window = replace(mpc, constants="window")
+    physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
     write_json(out / "loads.json", {"adaptive": str(adaptive), "config": asdict(cfg),
                                     "nominal": asdict(nominal)})  # fmt: skip
@@ -97,11 +108,9 @@ def fly_loads(
             name = plant_name(load_mass, cable_length)
             flown = [Flown(name, "pid", lambda seed: PIDController(nominal_sim))]
             for model, in_flight, given in (
-                (PHYSICS, with_backend(PhysicsModel(nominal, constants="window"), cfg.backend),
-                 load_model(PHYSICS, truth, backend=cfg.backend)),
+                (PHYSICS, physics, load_model(PHYSICS, truth, backend=cfg.backend)),
                 ("adaptive", trained, load_model(adaptive, backend=cfg.backend, constants=truth)),
             ):  # fmt: skip
-                window = replace(mpc, constants="window")
                 flown += [
                     Flown(name, label(f"mpc-{model}", IN_FLIGHT),
                           _mpc(in_flight, limits, window, nominal)),
@@ -124,12 +133,10 @@ def _mpc(model, limits, mpc, params) -> Callable[[int], SamplingMPC]:
 def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str) -> float:
     """Mean ``key`` of ``model`` in flight over its mean given the true constants, over the
     flights both flew to the end (1.0: as good as knowing the load)."""
-    a = _by_flight(rows, plant, label(model, IN_FLIGHT))
-    b = _by_flight(rows, plant, label(model, TRUE))
-    both = [k for k in a if k in b and a[k]["completed"] and b[k]["completed"]]
+    both = both_completed(rows, plant, label(model, IN_FLIGHT), label(model, TRUE))
     if not both:
         return math.nan
-    return _mean([a[k] for k in both], key) / _mean([b[k] for k in both], key)
+    return _mean([a for a, _ in both], key) / _mean([b for _, b in both], key)
 
 
 def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, out: Path) -> Path:

@@ -20,8 +20,7 @@ import torch
 
 from ..config import VehicleParams
 from ..constants_estimate import MIN_STEPS
-from ..deploy.compiled.physics import adapted_constants
-from ..layout import THRUST
+from ..deploy.compiled.physics import history_constants
 from ..models.prediction import PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
@@ -83,13 +82,12 @@ def reference_ahead(ref: Reference, k: int, n: int) -> ReferenceAhead:
 
 def window_estimate(params: VehicleParams) -> ConstantsEstimate:
     """The controller's in-flight estimate of the load: the adaptive network's
-    (``constants_estimate.adapted``, numpy: ``deploy.compiled.physics.adapted_constants``)
+    (``constants_estimate.adapted``, numpy: ``deploy.compiled.physics.history_constants``)
     over the controller's history, ``params`` as the prior."""
     prior = VehicleConstants.of(params)
 
     def estimate(x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]:
-        thrust = np.append(u_past[:, THRUST.start], 0.0)  # the last row's is not used
-        c = adapted_constants(x_hist, thrust, prior)
+        c = history_constants(x_hist, u_past, prior)
         return c.cable_length, c.mass_load
 
     return estimate

@@ -327,9 +327,10 @@ class MPPIController:
             raise ValueError(f"step: state must be ({STATE_DIM},), got {state.shape}")
         self.stats.steps += 1
         self.history.push_state(state)
+        x_hist, u_past = self.history.window(self.plan[0])
         if self.estimate is not None:
-            self._use_constants(*self.estimate(*self.history.window(self.plan[0])))
-        plan, reason = self._optimise(reference)
+            self._use_constants(*self.estimate(x_hist, u_past))
+        plan, reason = self._optimise(reference, x_hist, u_past)
         if reason is None:
             self._fallback_run = 0
         else:
@@ -371,9 +372,10 @@ class MPPIController:
         noise[0] = 0.0
         return self.limits.clamp(self.plan + noise)
 
-    def _optimise(self, ref: ReferenceAhead) -> tuple[np.ndarray | None, str | None]:
+    def _optimise(
+        self, ref: ReferenceAhead, x_hist: np.ndarray, u_past: np.ndarray
+    ) -> tuple[np.ndarray | None, str | None]:
         samples = self.sample()
-        x_hist, u_past = self.history.window(self.plan[0])
         try:
             states = self.model.predict_candidates(x_hist, u_past, samples)
         except (RuntimeError, ValueError, FloatingPointError) as exc:

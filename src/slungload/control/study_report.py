@@ -96,11 +96,16 @@ def _mean(rows: Sequence[dict[str, Any]], key: str) -> float:
     return float(np.mean(values)) if values else math.nan
 
 
+def both_completed(rows, plant: str, a: str, b: str) -> list[tuple[dict, dict]]:
+    """(row of a, row of b) per flight (maneuver, seed) on ``plant`` both flew to the end."""
+    ra, rb = _by_flight(rows, plant, a), _by_flight(rows, plant, b)
+    return [(ra[k], rb[k]) for k in ra if k in rb and ra[k]["completed"] and rb[k]["completed"]]
+
+
 def paired(rows, plant: str, a: str, b: str, key: str) -> tuple[int, tuple[float, float, float]]:
     """a - b of ``key`` over the flights both flew to the end: (pairs, (mean, low, high))."""
-    ra, rb = _by_flight(rows, plant, a), _by_flight(rows, plant, b)
-    both = [k for k in ra if k in rb and ra[k]["completed"] and rb[k]["completed"]]
-    return len(both), paired_interval([ra[k][key] - rb[k][key] for k in both])
+    both = both_completed(rows, plant, a, b)
+    return len(both), paired_interval([x[key] - y[key] for x, y in both])
 
 
 def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:

@@ -40,7 +40,7 @@ from torch import Tensor
 
 from ...config import PREDICTION_BACKENDS, VehicleParams
 from ...data.windows import Windows
-from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM, THRUST
+from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
 from ...models.prediction import (
     PHYSICS,
     NetworkModel,
@@ -53,9 +53,9 @@ from ...physics import VehicleConstants
 from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
 from .physics import (
-    adapted_constants,
     estimate_load_state,
     fit_load_state,
+    history_constants,
     physics_rollout,
     physics_step_columns,
 )
@@ -86,8 +86,8 @@ class CompiledPhysicsModel:
         check_candidates(x_hist, u_past, plans)
         vehicle = self._vehicle
         if self.constants == "window":
-            thrust = np.append(u_past.detach().cpu().numpy()[:, THRUST.start], 0.0)
-            vehicle = adapted_constants(x_hist.detach().cpu().numpy(), thrust, vehicle)
+            history = x_hist.detach().cpu().numpy(), u_past.detach().cpu().numpy()
+            vehicle = history_constants(*history, vehicle)
         elif self.constants != "dataset":
             self._eager.predict_candidates(x_hist, u_past, plans)  # its error
         x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
@@ -150,9 +150,8 @@ class CompiledNetworkModel:
         n, _, k = u_cols.shape
         b = self._buffers_for(k)
         vehicle = w.vehicle
-        if self.constants == "window":  # the history's own; its last input is not used
-            thrust = np.append(u_past.detach().cpu().numpy()[:, THRUST.start], 0.0)
-            vehicle = adapted_constants(x_rel, thrust, w.vehicle)
+        if self.constants == "window":  # the history's own
+            vehicle = history_constants(x_rel, u_past.detach().cpu().numpy(), w.vehicle)
         aux = self._load_state(x_rel, b.a["aux"], vehicle)
         b.a["xu"][:STATE_DIM] = x_rel[-1, :, None]
         b.a["xu"][STATE_DIM:] = u_cols[0]

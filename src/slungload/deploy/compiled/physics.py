@@ -265,6 +265,16 @@ def load_filters(load_estimate: str, dt: float) -> np.ndarray:
     return table
 
 
+def history_constants(
+    x_hist: np.ndarray, u_past: np.ndarray, c: VehicleConstants
+) -> VehicleConstants:
+    """``adapted_constants`` of a candidate call's history (numpy): x_hist (M, 13), u_past
+    (M-1, 4), the inputs applied at all but the last state (whose input the estimate does not
+    use)."""
+    thrust = np.append(np.asarray(u_past)[:, THRUST.start], 0.0)
+    return adapted_constants(x_hist, thrust, c)
+
+
 def adapted_constants(
     states: np.ndarray, thrust: np.ndarray, c: VehicleConstants
 ) -> VehicleConstants:
