@@ -11,15 +11,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from slungload.control.closed_loop import flight_metrics, fly, swing_angle
+from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
 from slungload.control.results import paired_interval
-from slungload.control.study import collect_rows, run_study
-from slungload.control.study_config import SHIFTS, StudyConfig
+from slungload.control.study import collect_rows, run_study, tune_settings
+from slungload.control.study_config import COST_GRID, SHIFTS, TUNING_GRID, StudyConfig
 from slungload.control.study_report import gap_closed, write_study_report
-from slungload.frames import rotation_matrix
+from slungload.frames import rotation_matrix, swing_angle
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 from slungload.sim.config import Effects, SimConfig
 from slungload.sim.controller import Measurement, PIDController
@@ -263,3 +263,20 @@ def test_the_study_flies_only_the_plants_and_controllers_asked(tmp_path):
     assert not (tmp_path / "settings.json").exists()  # no real MPC: nothing tuned or timed
     with pytest.raises(ValueError, match="unknown plants"):
         run_study(None, tmp_path, TINY, plants=("moon",), progress=None)
+
+
+def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
+    from slungload.deploy.compiled.batched import load_model
+
+    nominal = SimConfig()
+    params = vehicle_params(nominal)
+    lines: list[str] = []
+    chosen = tune_settings(load_model("physics", params), InputLimits.from_sim(nominal), params,
+                           replace(TINY, tune=True), lines.append)  # fmt: skip
+    assert len(lines) == len(TUNING_GRID) + len(COST_GRID)
+    noise = {k: chosen[k] for k in ("temperature", "thrust_std", "rate_std")}
+    cost = {k: v for k, v in chosen.items() if k not in noise}
+    assert cost in COST_GRID and (chosen["temperature"], chosen["thrust_std"]) in {
+        (t, MPCConfig().thrust_std * scale) for t, scale in TUNING_GRID
+    }
+    MPCConfig(**chosen)  # fields of the MPC's config

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,8 +19,9 @@ from slungload.control.mppi import (
     MPPIController,
     ReferenceAhead,
     mppi_weights,
+    trajectory_cost,
 )
-from slungload.frames import rotation_matrix
+from slungload.frames import rotation_matrix, swing_angle
 
 PARAMS = VehicleParams()
 HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity
@@ -70,6 +72,54 @@ def test_weights_drop_non_finite_costs_and_sum_to_one():
     assert w.sum() == pytest.approx(1.0) and w[2] == 0.0 and w[3] == 0.0
     assert w[0] == w[4] > w[1] > 0
     assert mppi_weights(np.array([math.nan, math.inf]), 0.3) is None
+
+
+def swung(angle: float, n: int = 4) -> np.ndarray:
+    """States (1, n, 13): hovering with the load swung ``angle`` rad in x, cable length kept."""
+    x = hover_state()
+    x[10:13] = x[:3] + PARAMS.cable_length * np.array([math.sin(angle), 0.0, -math.cos(angle)])
+    return np.tile(x, (1, n, 1))
+
+
+def test_swing_angle_is_the_cable_angle_from_straight_down():
+    for angle in (0.0, 0.3, 1.2, 2.0):
+        assert swing_angle(swung(angle))[0, 0] == pytest.approx(angle)
+
+
+def test_the_swing_bound_costs_only_beyond_its_angle_and_grows_with_it():
+    n, ref = 4, hold(hover_state()[:3], 4)
+    plans, u_prev = np.tile([HOVER_T, 0, 0, 0], (1, n, 1)), np.array([HOVER_T, 0, 0, 0])
+    bounded = MPCConfig(max_swing=0.5, w_swing_bound=100.0, terminal=0.0)
+
+    def extra(angle: float) -> float:
+        cost = [
+            trajectory_cost(swung(angle), plans, ref, u_prev, c, PARAMS.cable_length, HOVER_T)[0]
+            for c in (bounded, replace(bounded, max_swing=math.inf))
+        ]
+        return cost[0] - cost[1]  # fmt: skip
+
+    assert extra(0.2) == 0.0 and extra(0.5) == 0.0
+    assert extra(0.9) == pytest.approx(n * 100.0 * 0.4**2)  # w (angle - bound)^2 per step
+    assert extra(1.4) > extra(0.9)
+
+
+def test_the_huber_position_cost_is_quadratic_near_and_linear_far():
+    n = 3
+    plans, u_prev = np.tile([HOVER_T, 0, 0, 0], (1, n, 1)), np.array([HOVER_T, 0, 0, 0])
+    only_position = MPCConfig(w_velocity=0.0, w_load=0.0, w_swing=0.0, w_yaw=0.0, w_tilt=0.0,
+                              terminal=0.0, position_huber=0.5)  # fmt: skip
+    x = np.tile(hover_state(), (1, n, 1))
+
+    def cost(d: float, cfg: MPCConfig) -> float:
+        ref = hold(hover_state()[:3] + [d, 0.0, 0.0], n)
+        return trajectory_cost(x, plans, ref, u_prev, cfg, PARAMS.cable_length, HOVER_T)[0]
+
+    quadratic = replace(only_position, position_huber=math.inf)
+    assert cost(0.4, only_position) == pytest.approx(cost(0.4, quadratic))
+    w = only_position.w_position * n
+    assert cost(2.0, only_position) == pytest.approx(w * 0.5 * (2 * 2.0 - 0.5))
+    assert cost(3.0, only_position) - cost(2.0, only_position) == pytest.approx(w * 2 * 0.5)
+    assert cost(3.0, quadratic) - cost(2.0, quadratic) == pytest.approx(w * 5.0)
 
 
 def test_step_returns_a_command_inside_the_limits_and_keeps_the_history():

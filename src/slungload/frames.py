@@ -27,6 +27,8 @@ import math
 
 import numpy as np
 
+from .layout import LOAD_POS, POS
+
 WORLD_FRAMES = ("enu", "ned")  # "enu": any z-up world frame, taken as it is
 BODY_FRAMES = ("flu", "frd")
 
@@ -168,6 +170,13 @@ def slerp(t: np.ndarray, times: np.ndarray, quats: np.ndarray) -> np.ndarray:
     b = np.where(near, u, np.sin(u * angle) / safe)
     out = a * q0 + b * q1
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def swing_angle(states: np.ndarray) -> np.ndarray:
+    """Angle (...,) rad of the cable, load minus vehicle position, from straight down, for
+    states (..., 13) in the package's layout (world z up; 0: hanging still, pi/2: horizontal)."""
+    cable = states[..., LOAD_POS] - states[..., POS]
+    return np.arctan2(np.hypot(cable[..., 0], cable[..., 1]), -cable[..., 2])
 
 
 def _check(frame: str, known: tuple[str, ...], what: str) -> None:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..fileio import write_npz
+from ..frames import swing_angle
 from ..layout import LOAD_POS, POS
 from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
@@ -175,13 +176,6 @@ def read_log(path: str | Path, row: dict[str, Any]) -> FlightLog:
         arrays = [z[name] for name in LOG_ARRAYS]
     return FlightLog(row["maneuver"], row["seed"], row["controller"], row["planned_steps"],
                      *arrays, row["stopped"])  # fmt: skip
-
-
-def swing_angle(states: np.ndarray) -> np.ndarray:
-    """Angle, rad, between the cable pL - p and the downward vertical, (S, 13) -> (S,)."""
-    r = states[:, LOAD_POS] - states[:, POS]
-    cos = -r[:, 2] / np.maximum(np.linalg.norm(r, axis=1), 1e-9)
-    return np.arccos(np.clip(cos, -1.0, 1.0))
 
 
 def flight_metrics(log: FlightLog, limits: InputLimits, cable_length: float) -> dict[str, Any]:

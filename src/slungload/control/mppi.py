@@ -26,8 +26,9 @@ At every step the controller
 3. predicts their N-step outcomes with its model;
 4. scores them (``trajectory_cost``): vehicle position and velocity against the reference,
    load position against its reference (vehicle reference minus l e3), load swing
-   (horizontal cable offset), yaw, tilt beyond ``max_tilt``, input effort about hover and
-   input rate;
+   (horizontal cable offset), yaw, tilt beyond ``max_tilt``, swing angle beyond ``max_swing``,
+   input effort about hover and input rate (position errors beyond ``position_huber``
+   growing linearly);
 5. weights them by ``exp(-(c - c_min) / lambda)`` with lambda = ``temperature`` times the
    spread ``mean(c) - c_min`` (a scale-free temperature) and applies the first input of the
    weighted plan (receding horizon).
@@ -112,6 +113,11 @@ class MPCConfig:
     w_yaw: float = 2.0  # 1/rad^2
     w_tilt: float = 200.0  # 1/rad^2, tilt beyond max_tilt
     max_tilt: float = 0.75  # rad, as the PID's tilt limit
+    w_swing_bound: float = 200.0  # 1/rad^2, swing angle beyond max_swing
+    max_swing: float = math.inf  # rad, angle of the cable from the vertical (inf: no bound)
+    # m: vehicle and load position errors beyond it cost linearly (Huber), so that a far
+    # reference (a position step) pulls at a bounded rate instead of the square of the distance
+    position_huber: float = math.inf
     w_thrust: float = 0.01  # 1/N^2, thrust minus hover thrust
     w_rates: float = 0.05  # s^2/rad^2
     w_thrust_rate: float = 0.05  # 1/N^2, change of thrust per step
@@ -220,13 +226,16 @@ def trajectory_cost(
         yaw_err = np.remainder(yaw_of(q) - ref.yaw + math.pi, 2.0 * math.pi) - math.pi
         over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
         state_cost = (
-            cfg.w_position * _square_norm(p - ref.position)
+            cfg.w_position * _huber(_square_norm(p - ref.position), cfg.position_huber)
             + cfg.w_velocity * _square_norm(v - ref.velocity)
-            + cfg.w_load * _square_norm(pl - load_ref)
+            + cfg.w_load * _huber(_square_norm(pl - load_ref), cfg.position_huber)
             + cfg.w_swing * _square_norm((pl - p)[..., :2])
             + cfg.w_yaw * np.square(yaw_err)
             + cfg.w_tilt * np.square(over_tilt)
         )  # (K, N)
+        if math.isfinite(cfg.max_swing):
+            over_swing = np.maximum(frames.swing_angle(states) - cfg.max_swing, 0.0)
+            state_cost += cfg.w_swing_bound * np.square(over_swing)
     du = np.diff(plans, axis=1, prepend=np.broadcast_to(u_prev, (len(plans), 1, INPUT_DIM)))
     input_cost = (
         cfg.w_thrust * np.square(plans[..., 0] - hover_thrust)
@@ -235,6 +244,15 @@ def trajectory_cost(
         + cfg.w_rates_rate * _square_norm(du[..., 1:])
     )
     return state_cost @ step_w + input_cost.sum(-1)
+
+
+def _huber(square: np.ndarray, radius: float) -> np.ndarray:
+    """A squared distance (...,) m^2 as is up to ``radius`` m, continued linearly beyond it
+    (value and slope continuous); inf radius: unchanged."""
+    if not math.isfinite(radius):
+        return square
+    dist = np.sqrt(square)
+    return np.where(dist <= radius, square, radius * (2.0 * dist - radius))
 
 
 def _square_norm(a: np.ndarray) -> np.ndarray:

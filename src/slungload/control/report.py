@@ -16,8 +16,9 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..fileio import write_text
+from ..frames import swing_angle
 from ..reporting import markdown_table, model_colors, save_figure
-from .closed_loop import FlightLog, swing_angle
+from .closed_loop import FlightLog
 from .results import COLUMNS, ControlComparison, VersusPhysics, summary, versus_physics
 
 FIGURES = ("paths_3d.png", "swing.png", "table.png")

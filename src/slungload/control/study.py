@@ -10,11 +10,11 @@ One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
   slower thrust) the PID, the geometric controller and both real MPCs at the first horizon, every
   model built for the nominal vehicle.
 
-Fair by construction: each real MPC's sampling noise and temperature are chosen on the separate
-``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the evaluation
-seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median control step
-(sampling, prediction, cost) is within the learned model's at its K (``equal_compute_samples``),
-per horizon.
+Fair by construction: each real MPC's sampling noise, temperature and cost changes are chosen
+on the separate ``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the
+evaluation seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median
+control step (sampling, prediction, cost) is within the learned model's at its K
+(``equal_compute_samples``), per horizon.
 
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
@@ -50,6 +50,7 @@ from .mppi import ReferenceAhead
 from .oracle import ORACLE, PlantCandidates
 from .study_config import (
     CONTROLLERS,
+    COST_GRID,
     NOMINAL,
     PHYSICS_SAMPLES,
     SHIFTS,
@@ -232,16 +233,24 @@ def tune_settings(
     cfg: StudyConfig,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """The sampling noise scale and temperature of ``TUNING_GRID`` that fly the tuning seeds
-    (nominal plant, first horizon, K = ``cfg.samples`` for every model) with the fewest lost
-    flights, then the lowest mean load RMSE: {"temperature", "thrust_std", "rate_std"} for
-    ``MPCConfig``."""
-    nominal, base = SimConfig(), MPCConfig()
-    best, best_score = {}, (np.inf, np.inf)
-    for temperature, scale in TUNING_GRID:
-        choice = {"temperature": temperature, "thrust_std": base.thrust_std * scale,
-                  "rate_std": tuple(r * scale for r in base.rate_std)}  # fmt: skip
-        n = cfg.horizons[0]
+    """The MPC settings that fly the tuning seeds (nominal plant, first horizon, K =
+    ``cfg.samples`` for every model) with the fewest lost flights, then the lowest mean load
+    RMSE, chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
+    with the default cost, then the cost changes of ``COST_GRID`` at that choice. Returns the
+    ``MPCConfig`` fields chosen, e.g. {"temperature", "thrust_std", "rate_std", "max_swing"}."""
+    base = MPCConfig()
+    noise = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
+              "rate_std": tuple(r * scale for r in base.rate_std)}
+             for temperature, scale in TUNING_GRID]  # fmt: skip
+    chosen = _best(model, limits, params, cfg, noise, progress)
+    return _best(model, limits, params, cfg, [{**chosen, **c} for c in COST_GRID], progress)
+
+
+def _best(model, limits, params, cfg: StudyConfig, choices, progress) -> dict[str, Any]:
+    """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds."""
+    nominal, n = SimConfig(), cfg.horizons[0]
+    best, best_score = choices[0], (np.inf, np.inf)
+    for choice in choices:
         mpc = MPCConfig(**choice, horizon=n, knots=_knots(n), samples=cfg.samples)
         rows = [flight_metrics(fly(man, seed, _mpc(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
@@ -251,8 +260,8 @@ def tune_settings(
         done = [r["load_rmse"] for r in rows if r["completed"]]
         score = (lost, float(np.mean(done)) if done else np.inf)
         if progress:
-            progress(f"tuning {model.name}: temperature {temperature}, noise x{scale}: "
-                     f"{lost} lost, load RMSE {score[1]:.3f} m")  # fmt: skip
+            shown = ", ".join(f"{k} {v}" for k, v in choice.items())
+            progress(f"tuning {model.name}: {shown}: {lost} lost, load RMSE {score[1]:.3f} m")
         if score < best_score:
             best, best_score = choice, score
     return best

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..config import VEHICLE_FILE, VehicleParams, WindowConfig
 from ..fileio import SPLITS
+from ..frames import swing_angle
 from ..state import (
     THRUST,
     split_state,
@@ -225,10 +226,7 @@ def maneuver_of(flight: str) -> str:
 
 def _swing_deg(f: Flight) -> np.ndarray:
     """Angle between the cable (vehicle -> load) and straight down, degrees."""
-    p, _, _, p_load = split_state(f.states)
-    rel = p_load - p
-    cos = -rel[:, 2] / np.maximum(np.linalg.norm(rel, axis=1), 1e-12)
-    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return np.degrees(swing_angle(f.states))
 
 
 _RANGES = {  # quantity -> samples of one flight
