@@ -123,6 +123,10 @@ CONSTANTS_SOURCES: dict[str, str] = {
     "flight": "each window's flight's recorded constants (simulated varied loads: the truth)",
 }
 NETWORK_CONSTANTS = ("dataset", "window")  # what a network can run f with (it sees no truth)
+# H: half-width of the triangular smoothing of the in-flight estimate's force balance, steps
+# (``constants_estimate``), and the shortest window that estimate takes
+ESTIMATE_SMOOTHING_STEPS = 7
+ESTIMATE_MIN_STEPS = 2 * ESTIMATE_SMOOTHING_STEPS + 3
 
 
 @dataclass(frozen=True)

@@ -43,12 +43,12 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .config import VehicleParams
+from .config import ESTIMATE_MIN_STEPS, ESTIMATE_SMOOTHING_STEPS, VehicleParams
 from .physics import VehicleConstants
 from .state import quat_to_rotmat, split_input, split_state
 
-SMOOTHING_STEPS = 7  # H: half-width of the triangular smoothing of the balance, steps
-MIN_STEPS = 2 * SMOOTHING_STEPS + 3  # the shortest window ``estimate_constants`` takes (default H)
+SMOOTHING_STEPS = ESTIMATE_SMOOTHING_STEPS  # H: half-width of the smoothing, steps
+MIN_STEPS = ESTIMATE_MIN_STEPS  # the shortest window ``estimate_constants`` takes (default H)
 # What a model that adapts to its load runs f with (``adapted``): the mass pulled towards the
 # constants' by this prior, (m/s^2)^2 per equation (one window's median error 13 % against 26 %
 # without, every effect on: docs/data.md), then both kept within these factors of the

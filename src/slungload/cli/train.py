@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..config import ARCHITECTURES, LOSS_VARIANTS, MODEL_SIZES
+from ..config import ARCHITECTURES, ESTIMATE_MIN_STEPS, LOSS_VARIANTS, MODEL_SIZES
 from ..run_config import PRESETS, RunConfig
 from .common import add_vehicle_options, add_window_options, choices, new_command, resolve_params
 
@@ -100,7 +100,8 @@ def add_train(sub: Any) -> None:
         choices=choices("network-constants"),
         help="physics-step network: the constants its f runs with: dataset (vehicle.json's, "
         "one set; default) or window (each window's cable length and load mass estimated in "
-        "flight from its history: one network for many loads; needs --history >= 17)",
+        "flight from its history: one network for many loads; needs --history >= "
+        f"{ESTIMATE_MIN_STEPS})",
     )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -39,16 +39,16 @@ from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from .mpc import InputLimits, MPCConfig, SamplingMPC
-from .study import Flown, _fly_once, collect_rows
+from .study import Flown, collect_rows, fly_once
 from .study_config import UnseenLoadsConfig
 from .study_report import (
     KEYS,
-    _by_flight,
-    _fmt,
-    _mean,
-    _ordered,
     both_completed,
+    by_flight,
+    fmt,
+    mean_of,
     means_table,
+    ordered_labels,
     paired_table,
 )
 
@@ -119,7 +119,7 @@ def fly_loads(
             for f in flown:
                 for maneuver in cfg.maneuvers:
                     for seed in cfg.seeds:
-                        _fly_once(out, f, maneuver, seed, plant, limits, cfg.steps, progress)
+                        fly_once(out, f, maneuver, seed, plant, limits, cfg.steps, progress)
     return [r for r in collect_rows(out) if r["plant"] in {plant_name(*x) for x in cfg.loads}]
 
 
@@ -136,7 +136,7 @@ def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str)
     both = both_completed(rows, plant, label(model, IN_FLIGHT), label(model, TRUE))
     if not both:
         return math.nan
-    return _mean([a for a, _ in both], key) / _mean([b for _, b in both], key)
+    return mean_of([a for a, _ in both], key) / mean_of([b for _, b in both], key)
 
 
 def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, out: Path) -> Path:
@@ -148,9 +148,9 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     for plant in plants:
         cells = [plant]
         for model in (ADAPTIVE, f"mpc-{PHYSICS}"):
-            cells += [_fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
+            cells += [fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
                       for key in ("load_rmse", "swing_rms")]  # fmt: skip
-            lost = [sum(not r["completed"] for r in _by_flight(rows, plant, label(model, c))
+            lost = [sum(not r["completed"] for r in by_flight(rows, plant, label(model, c))
                         .values()) for c in (IN_FLIGHT, TRUE)]  # fmt: skip
             cells.append(f"{lost[0]} / {lost[1]}")
         summary.append(cells)
@@ -184,14 +184,14 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
 
 def plot_loads(rows: list[dict[str, Any]], plants: Sequence[str], path: Path) -> Path:
     """Mean load RMSE and swing RMS (completed flights) per load, one bar per controller."""
-    labels = _ordered({r["controller"] for r in rows if r["plant"] in plants})
+    labels = ordered_labels({r["controller"] for r in rows if r["plant"] in plants})
     colors = dict(zip(labels, (f"C{i}" for i in range(len(labels))), strict=True))
     fig = Figure(figsize=(9.0, 3.6))
     width = 0.8 / max(len(labels), 1)
     for i, (key, head, _) in enumerate(KEYS[:2]):
         ax = fig.add_subplot(1, 2, i + 1)
         for j, lb in enumerate(labels):
-            ys = [_mean([r for r in _by_flight(rows, p, lb).values() if r["completed"]], key)
+            ys = [mean_of([r for r in by_flight(rows, p, lb).values() if r["completed"]], key)
                   for p in plants]  # fmt: skip
             ax.bar(np.arange(len(plants)) + (j - (len(labels) - 1) / 2) * width, ys, width,
                    color=colors[lb], label=lb)  # fmt: skip

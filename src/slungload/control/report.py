@@ -19,7 +19,7 @@ from ..fileio import write_text
 from ..frames import swing_angle
 from ..reporting import markdown_table, model_colors, save_figure
 from .closed_loop import FlightLog
-from .results import COLUMNS, ControlComparison, VersusPhysics, summary, versus_physics
+from .results import COLUMNS, ControlComparison, VersusPhysics, fmt, summary, versus_physics
 
 FIGURES = ("paths_3d.png", "swing.png", "table.png")
 LINESTYLES = ("-", "--", ":", "-.")  # one per K of a model, in the order flown
@@ -39,16 +39,12 @@ def write_report(result: ControlComparison, out: str | Path) -> Path:
 # --- markdown ----------------------------------------------------------------------------
 
 
-def _fmt(value: float, spec: str) -> str:
-    return "-" if value is None or not math.isfinite(value) else spec.format(value)
-
-
 def summary_table(entries: list[dict[str, Any]], first: tuple[str, ...]) -> str:
     """The means of ``results.summary`` as a Markdown table, ``first`` its leading columns."""
     head = [*first, *(h for _, h, _ in COLUMNS), "failed", "fallback steps",
             "compute median / p99 (ms)"]  # fmt: skip
     rows = [
-        [*(e[k] for k in first), *(_fmt(e[k], spec) for k, _, spec in COLUMNS),
+        [*(e[k] for k in first), *(fmt(e[k], spec) for k, _, spec in COLUMNS),
          f"{e['failed']} / {e['flights']}", e["fallbacks"],
          f"{e['compute_median']:.2f} / {e['compute_p99']:.2f}"]
         for e in entries

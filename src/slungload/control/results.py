@@ -38,9 +38,15 @@ class ControlComparison:
     logs: list[FlightLog] = field(default_factory=list, repr=False)
 
 
-def _mean(values: Sequence[float | None]) -> float:
+def finite_mean(values: Sequence[float | None]) -> float:
+    """The mean of the finite values (NaN when none is)."""
     finite = [v for v in values if v is not None and math.isfinite(v)]
     return float(np.mean(finite)) if finite else math.nan
+
+
+def fmt(value: float | None, spec: str) -> str:
+    """A table cell: ``spec`` applied to ``value``, "-" when it is missing or not finite."""
+    return "-" if value is None or not math.isfinite(value) else spec.format(value)
 
 
 def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -52,7 +58,7 @@ def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, A
     for key, group in groups.items():
         done = [r for r in group if r["completed"]]
         entry = dict(zip(by, key, strict=True))
-        entry.update({k: _mean([r[k] for r in done]) for k, _, _ in COLUMNS})
+        entry.update({k: finite_mean([r[k] for r in done]) for k, _, _ in COLUMNS})
         entry["flights"] = len(group)
         entry["failed"] = len(group) - len(done)
         entry["fallbacks"] = sum(r.get("fallback_steps", 0) for r in group)
@@ -100,7 +106,7 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
             mine = [r for r in at_k if r["controller"] == net]
             pairs = [(r, physics.get((r["maneuver"], r["seed"]))) for r in mine if r["completed"]]
             both = [(r, q) for r, q in pairs if q is not None and q["completed"]]
-            means = [{key: _mean([pair[i][key] for pair in both]) for key in PAIRED} if both
+            means = [{key: finite_mean([pair[i][key] for pair in both]) for key in PAIRED} if both
                      else {} for i in (0, 1)]  # fmt: skip
             failed = [r for r in mine if not r["completed"]]
             out.append(VersusPhysics(

@@ -108,7 +108,7 @@ def run_study(
             plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
             for maneuver in cfg.maneuvers:
                 for seed in cfg.seeds:
-                    _fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+                    fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
     return collect_rows(out)
 
 
@@ -153,7 +153,8 @@ def _mpc(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleP
     return make
 
 
-def _fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:
+def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:
+    """Fly one flight of ``flown`` and land it under ``out`` (``flight_path``) unless there."""
     path = flight_path(out, flown.plant, flown.label, maneuver, seed)
     if path.with_suffix(".json").exists():
         return

@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 from ..fileio import read_json, write_text
 from ..reporting import markdown_table, model_colors, save_figure
 from .report import plot_paths
-from .results import paired_interval
+from .results import finite_mean, fmt, paired_interval
 from .study import load_log
 from .study_config import NOMINAL, StudyConfig
 
@@ -49,7 +49,7 @@ def _model(label: str) -> str:
     return re.sub(r"^mpc-| N=\d+$", "", label)
 
 
-def _ordered(labels) -> list[str]:
+def ordered_labels(labels) -> list[str]:
     """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
     order = ("pid", "geometric", "physics", "learned", "oracle")
 
@@ -61,11 +61,8 @@ def _ordered(labels) -> list[str]:
     return sorted(labels, key=rank)
 
 
-def _fmt(value: float, spec: str) -> str:
-    return "-" if value is None or not math.isfinite(value) else spec.format(value)
-
-
-def _by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, Any]]:
+def by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, Any]]:
+    """Rows of ``label`` on ``plant`` by flight (maneuver, seed)."""
     return {
         (r["maneuver"], r["seed"]): r
         for r in rows
@@ -75,30 +72,30 @@ def _by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, 
 
 def means_table(rows: list[dict[str, Any]], plant: str) -> str:
     """Per controller on ``plant``: means over its completed flights, lost / flown, compute."""
-    labels = _ordered({r["controller"] for r in rows if r["plant"] == plant})
+    labels = ordered_labels({r["controller"] for r in rows if r["plant"] == plant})
     table = []
     for label in labels:
-        group = list(_by_flight(rows, plant, label).values())
+        group = list(by_flight(rows, plant, label).values())
         done = [r for r in group if r["completed"]]
         table.append(
             [
                 label,
-                *(_fmt(_mean(done, k), spec) for k, _, spec in KEYS),
+                *(fmt(mean_of(done, k), spec) for k, _, spec in KEYS),
                 f"{len(group) - len(done)} / {len(group)}",
-                _fmt(float(np.median([r["compute_median"] for r in group])), "{:.1f}"),
+                fmt(float(np.median([r["compute_median"] for r in group])), "{:.1f}"),
             ]
         )
     return markdown_table(["controller", *(h for _, h, _ in KEYS), "lost", "compute (ms)"], table)
 
 
-def _mean(rows: Sequence[dict[str, Any]], key: str) -> float:
-    values = [r[key] for r in rows if math.isfinite(r[key])]
-    return float(np.mean(values)) if values else math.nan
+def mean_of(rows: Sequence[dict[str, Any]], key: str) -> float:
+    """The mean of ``key`` over the rows where it is finite."""
+    return finite_mean([r[key] for r in rows])
 
 
 def both_completed(rows, plant: str, a: str, b: str) -> list[tuple[dict, dict]]:
     """(row of a, row of b) per flight (maneuver, seed) on ``plant`` both flew to the end."""
-    ra, rb = _by_flight(rows, plant, a), _by_flight(rows, plant, b)
+    ra, rb = by_flight(rows, plant, a), by_flight(rows, plant, b)
     return [(ra[k], rb[k]) for k in ra if k in rb and ra[k]["completed"] and rb[k]["completed"]]
 
 
@@ -114,7 +111,7 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
         cells = []
         for key, _, spec in KEYS:
             n, (mean, lo, hi) = paired(rows, plant, a, b, key)
-            cells.append(f"{_fmt(mean, spec)} [{_fmt(lo, spec)}, {_fmt(hi, spec)}]")
+            cells.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]")
         out.append([f"{a} - {b}", n, *cells])
     return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
 
@@ -122,7 +119,7 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
 def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[list[str]]:
     """Per maneuver: means over the seeds all three flew to the end, and (physics - learned) /
     (physics - oracle)."""
-    sets = [_by_flight(rows, NOMINAL, label) for label in (physics, learned, oracle)]
+    sets = [by_flight(rows, NOMINAL, label) for label in (physics, learned, oracle)]
     out = []
     for maneuver in dict.fromkeys(m for m, _ in sets[0]):
         keys = [
@@ -142,7 +139,7 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
                 f"{p:.3f}",
                 f"{learn:.3f}",
                 f"{o:.3f}",
-                _fmt(100 * gap, "{:.0f} %"),
+                fmt(100 * gap, "{:.0f} %"),
             ]
         )
     return out
@@ -162,7 +159,7 @@ def plot_horizons(rows, path: Path) -> Path:
             )
             ns = [_horizon(label) * 0.03 for label in labels]
             ys = [
-                _mean([r for r in _by_flight(rows, NOMINAL, lb).values() if r["completed"]], key)
+                mean_of([r for r in by_flight(rows, NOMINAL, lb).values() if r["completed"]], key)
                 for lb in labels
             ]
             ax.plot(ns, ys, "o-", color=colors[model], label=model)
@@ -290,10 +287,10 @@ def write_study_report(
 def _past_60(rows, labels: Sequence[str], limit: float = 60.0) -> str:
     """Per MPC: flights whose swing passed ``limit`` deg where the geometric controller's did
     not (the same maneuver and seed; a lost flight counts with the swing it reached)."""
-    geo = _by_flight(rows, NOMINAL, "geometric")
+    geo = by_flight(rows, NOMINAL, "geometric")
     lines = []
-    for label in _ordered(lb for lb in labels if lb.startswith("mpc-")):
-        mine = _by_flight(rows, NOMINAL, label)
+    for label in ordered_labels(lb for lb in labels if lb.startswith("mpc-")):
+        mine = by_flight(rows, NOMINAL, label)
         worse = [f"{m} s{seed}" for (m, seed), r in mine.items() if (m, seed) in geo
                  and r["swing_max"] > limit >= geo[(m, seed)]["swing_max"]]  # fmt: skip
         lines.append(f"- {label}: {len(worse)} of {len(mine)}" + (f" ({', '.join(worse)})"
