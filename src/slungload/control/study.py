@@ -237,20 +237,26 @@ def tune_settings(
     """The MPC settings that fly the tuning seeds (nominal plant, first horizon, K =
     ``cfg.samples`` for every model) with the fewest lost flights, then the lowest mean load
     RMSE, chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
-    with the default cost, then the cost changes of ``COST_GRID`` at that choice. Returns the
+    with the default cost, then the cost changes of ``COST_GRID`` at that choice (the default
+    cost there is the first round's winner, not flown again). Returns the
     ``MPCConfig`` fields chosen, e.g. {"temperature", "thrust_std", "rate_std", "max_swing"}."""
     base = MPCConfig()
     noise = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
               "rate_std": tuple(r * scale for r in base.rate_std)}
              for temperature, scale in TUNING_GRID]  # fmt: skip
     chosen = _best(model, limits, params, cfg, noise, progress)
-    return _best(model, limits, params, cfg, [{**chosen, **c} for c in COST_GRID], progress)
+    costs = [{**chosen[0], **change} for change in COST_GRID]
+    return _best(model, limits, params, cfg, costs, progress, start=chosen)[0]
 
 
-def _best(model, limits, params, cfg: StudyConfig, choices, progress) -> dict[str, Any]:
-    """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds."""
+def _best(
+    model, limits, params, cfg: StudyConfig, choices, progress, start=None
+) -> tuple[dict[str, Any], tuple[float, float]]:
+    """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds, and
+    its score (lost flights, mean load RMSE); ``start``: a (choice, score) already flown, kept
+    unless one scores strictly better."""
     nominal, n = SimConfig(), cfg.horizons[0]
-    best, best_score = choices[0], (np.inf, np.inf)
+    best, best_score = start or (choices[0], (np.inf, np.inf))
     for choice in choices:
         mpc = MPCConfig(**choice, horizon=n, knots=_knots(n), samples=cfg.samples)
         rows = [flight_metrics(fly(man, seed, _mpc(model, limits, mpc, params)(seed),
@@ -265,7 +271,7 @@ def _best(model, limits, params, cfg: StudyConfig, choices, progress) -> dict[st
             progress(f"tuning {model.name}: {shown}: {lost} lost, load RMSE {score[1]:.3f} m")
         if score < best_score:
             best, best_score = choice, score
-    return best
+    return best, best_score
 
 
 def equal_compute_samples(

@@ -29,10 +29,10 @@ CONTROLLERS = ("pid", "geometric", "physics", "learned", "oracle")
 PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may use
 # (temperature, noise scale) pairs ``tune_settings`` tries first, with the default cost
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
-# then the cost changes it tries at the chosen pair (``mppi.MPCConfig`` fields; {}: the default):
-# a bound on the swing angle (40 deg), position errors beyond 0.5 m or 0.3 m pulling linearly
+# then the cost changes it tries at the chosen pair against the default cost (``mppi.MPCConfig``
+# fields): a bound on the swing angle (40 deg), position errors beyond 0.5 m or 0.3 m pulling
+# linearly
 COST_GRID: tuple[dict[str, float], ...] = (
-    {},
     {"max_swing": 0.7},
     {"position_huber": 0.5},
     {"position_huber": 0.3},
