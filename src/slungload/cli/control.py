@@ -57,7 +57,12 @@ def add_control(sub: Any) -> None:
         help=f"MPC samples per step; each model flies once per K (default 32; the study: the "
         f"learned model's K, default {StudyConfig.samples})",
     )
-    p.add_argument("--horizon", type=int, help="MPC horizon N, steps of 0.03 s (default 15)")
+    p.add_argument(
+        "--horizon",
+        type=int,
+        help="MPC horizon N, steps of 0.03 s (default 15; with --loads "
+        f"{UnseenLoadsConfig.horizon})",
+    )
     p.add_argument(
         "--steps",
         type=int,

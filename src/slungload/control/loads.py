@@ -13,9 +13,9 @@ unmodelled effect on) x maneuver x evaluation seed:
   two ways.
 - ``pid``: the simulator's PID built for the network's nominal vehicle.
 
-Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature). Flights land as
-in the control study (``study.flight_path``; the plant named by its load), so a second run flies
-only what is missing. ``write_loads_report`` writes ``loads.md`` and ``loads.png``.
+Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound). Flights
+land as in the control study (``study.flight_path``; the plant named by its load), so a second
+run flies only what is missing. ``write_loads_report`` writes ``loads.md`` and ``loads.png``.
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ def fly_loads(
     nominal_sim = SimConfig().with_load(
         load_mass=nominal.mass_load, cable_length=nominal.cable_length
     )
-    mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature)
+    mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature,
+                    max_swing=cfg.max_swing)  # fmt: skip
     window = replace(mpc, constants="window")
     physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
@@ -159,8 +160,10 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     lines = [
         "# The MPC on loads its model never saw",
         "",
-        f"K = {config.samples}, N = {config.horizon} ({config.horizon * 0.03:.2f} s), "
-        f"temperature {config.temperature}; maneuvers {', '.join(config.maneuvers)} x seeds "
+        f"K = {config.samples}, N = {config.horizon} "
+        f"({config.horizon * SimConfig.control_dt:.2f} s), temperature {config.temperature}, "
+        f"swing bound {math.degrees(config.max_swing):.0f} deg; maneuvers "
+        f"{', '.join(config.maneuvers)} x seeds "
         f"{', '.join(map(str, config.seeds))}, "
         f"{config.steps or 'all'} recorded steps each, every unmodelled effect on, "
         f"{config.backend} backend.",

@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from ..fileio import write_text
 from ..frames import swing_angle
 from ..reporting import markdown_table, model_colors, save_figure
+from ..sim.config import SimConfig
 from .closed_loop import FlightLog
 from .results import COLUMNS, ControlComparison, VersusPhysics, fmt, summary, versus_physics
 
@@ -88,7 +89,7 @@ def report_markdown(result: ControlComparison) -> str:
         "",
         f"{s['date']}; maneuvers {', '.join(s['maneuvers'])}; sim seeds "
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
-        f"{mpc['horizon']} ({mpc['horizon'] * 0.03:.2f} s), K = "
+        f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "
         f"{', '.join(map(str, s['samples']))}; torch threads {s['threads']}; prediction "
         f"backend {s.get('backend', 'eager')}; {machine['cpu']} ({machine['cores']} cores, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in load) if load else 'unknown'}).",

@@ -27,6 +27,7 @@ from matplotlib.figure import Figure
 
 from ..fileio import read_json, write_text
 from ..reporting import markdown_table, model_colors, save_figure
+from ..sim.config import SimConfig
 from .report import plot_paths
 from .results import finite_mean, fmt, paired_interval
 from .study import load_log
@@ -157,7 +158,7 @@ def plot_horizons(rows, path: Path) -> Path:
             labels = sorted(
                 {r["controller"] for r in mpc if _model(r["controller"]) == model}, key=_horizon
             )
-            ns = [_horizon(label) * 0.03 for label in labels]
+            ns = [_horizon(label) * SimConfig.control_dt for label in labels]
             ys = [
                 mean_of([r for r in by_flight(rows, NOMINAL, lb).values() if r["completed"]], key)
                 for lb in labels
