@@ -122,6 +122,23 @@ def test_the_huber_position_cost_is_quadratic_near_and_linear_far():
     assert cost(3.0, quadratic) - cost(2.0, quadratic) == pytest.approx(w * 5.0)
 
 
+def test_the_floor_costs_only_below_its_height():
+    n = 3
+    plans, u_prev = np.tile([HOVER_T, 0, 0, 0], (1, n, 1)), np.array([HOVER_T, 0, 0, 0])
+    floored = MPCConfig(min_height=1.0, w_floor=500.0, terminal=0.0)
+
+    def extra(z: float) -> float:
+        # hovering at height z with the reference there too: only the floor costs
+        x, ref = np.tile(hover_state((0.0, 0.0, z)), (1, n, 1)), hold((0.0, 0.0, z), n)
+        cost = [trajectory_cost(x, plans, ref, u_prev, c, PARAMS.cable_length, HOVER_T)[0]
+                for c in (floored, replace(floored, min_height=-math.inf))]  # fmt: skip
+        return cost[0] - cost[1]
+
+    assert extra(1.5) == 0.0 and extra(1.0) == 0.0
+    assert extra(0.8) == pytest.approx(n * 500.0 * 0.2**2)  # w (floor - z)^2 per step
+    assert extra(0.6) > extra(0.8)
+
+
 def test_step_returns_a_command_inside_the_limits_and_keeps_the_history():
     mpc = MPPIController(HoldModel(), LIMITS, SMALL, PARAMS)
     x = hover_state()

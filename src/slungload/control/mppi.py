@@ -27,8 +27,8 @@ At every step the controller
 4. scores them (``trajectory_cost``): vehicle position and velocity against the reference,
    load position against its reference (vehicle reference minus l e3), load swing
    (horizontal cable offset), yaw, tilt beyond ``max_tilt``, swing angle beyond ``max_swing``,
-   input effort about hover and input rate (position errors beyond ``position_huber``
-   growing linearly);
+   vehicle height below ``min_height``, input effort about hover and input rate (position
+   errors beyond ``position_huber`` growing linearly);
 5. weights them by ``exp(-(c - c_min) / lambda)`` with lambda = ``temperature`` times the
    spread ``mean(c) - c_min`` (a scale-free temperature) and applies the first input of the
    weighted plan (receding horizon).
@@ -118,6 +118,11 @@ class MPCConfig:
     # m: vehicle and load position errors beyond it cost linearly (Huber), so that a far
     # reference (a position step) pulls at a bounded rate instead of the square of the distance
     position_huber: float = math.inf
+    # m: vehicle height below it costs w_floor per m^2 per step (-inf: no floor). The arena ends
+    # a flight with the vehicle below 0.75 m (the hanging load at the floor); a swing the MPC
+    # cannot stop within its horizon otherwise makes lowering the thrust look cheap.
+    min_height: float = -math.inf
+    w_floor: float = 1000.0  # 1/m^2
     w_thrust: float = 0.01  # 1/N^2, thrust minus hover thrust
     w_rates: float = 0.05  # s^2/rad^2
     w_thrust_rate: float = 0.05  # 1/N^2, change of thrust per step
@@ -236,6 +241,8 @@ def trajectory_cost(
         if math.isfinite(cfg.max_swing):
             over_swing = np.maximum(frames.swing_angle(states) - cfg.max_swing, 0.0)
             state_cost += cfg.w_swing_bound * np.square(over_swing)
+        if math.isfinite(cfg.min_height):
+            state_cost += cfg.w_floor * np.square(np.minimum(p[..., 2] - cfg.min_height, 0.0))
     du = np.diff(plans, axis=1, prepend=np.broadcast_to(u_prev, (len(plans), 1, INPUT_DIM)))
     input_cost = (
         cfg.w_thrust * np.square(plans[..., 0] - hover_thrust)
