@@ -31,12 +31,13 @@ PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may us
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
 # then the cost changes it tries at the chosen pair against the default cost (``mppi.MPCConfig``
 # fields): a bound on the swing angle (40 deg), position errors beyond 0.5 m or 0.3 m pulling
-# linearly
+# linearly, a floor under the vehicle 0.5 m below the hover height
 COST_GRID: tuple[dict[str, float], ...] = (
     {"max_swing": 0.7},
     {"position_huber": 0.5},
     {"position_huber": 0.3},
     {"max_swing": 0.7, "position_huber": 0.5},
+    {"min_height": 1.0},
 )
 
 
