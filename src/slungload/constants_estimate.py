@@ -19,10 +19,11 @@ the ratio mL / mQ is identifiable: scaling both masses and the thrust leaves the
 unchanged). Each sample's accelerations are second differences of the positions, its velocity
 a central difference, each projected with its own attitude, the drag column scaled by T / mean
 T (rotor drag grows with thrust); the projected balance is then smoothed with a triangular
-kernel (``SMOOTHING_STEPS``), which keeps the equation exact (a sum of exact equations) and
-divides the differentiated position noise by (H + 1)^2. (mL, c) is the least-squares solution
-of the smoothed balance; ``prior_weight`` adds the constants' ``mass_load`` as a prior worth
-that many (m/s^2)^2 per equation, so a window without swing falls back to it.
+kernel (half-width H = ``config.ESTIMATE_SMOOTHING_STEPS``), which keeps the equation exact (a
+sum of exact equations) and divides the differentiated position noise by (H + 1)^2. (mL, c)
+is the least-squares solution of the smoothed balance; ``prior_weight`` adds the constants'
+``mass_load`` as a prior worth that many (m/s^2)^2 per equation, so a window without swing
+falls back to it.
 
 **Thrust gain**: the axial part of the same balance, ``kT T = b . (mQ (a + g e3) + mL (aL + g e3))``
 smoothed and fitted through zero with the estimated mL. It is the *effective* gain: the wake's
@@ -43,12 +44,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .config import ESTIMATE_MIN_STEPS, ESTIMATE_SMOOTHING_STEPS, VehicleParams
+from .config import ESTIMATE_SMOOTHING_STEPS, VehicleParams
 from .physics import VehicleConstants
 from .state import quat_to_rotmat, split_input, split_state
 
-SMOOTHING_STEPS = ESTIMATE_SMOOTHING_STEPS  # H: half-width of the smoothing, steps
-MIN_STEPS = ESTIMATE_MIN_STEPS  # the shortest window ``estimate_constants`` takes (default H)
 # What a model that adapts to its load runs f with (``adapted``): the mass pulled towards the
 # constants' by this prior, (m/s^2)^2 per equation (one window's median error 13 % against 26 %
 # without, every effect on: docs/data.md), then both kept within these factors of the
@@ -99,7 +98,7 @@ def estimate_constants(
     inputs: Tensor,
     params: VehicleParams | VehicleConstants,
     *,
-    smoothing: int = SMOOTHING_STEPS,
+    smoothing: int = ESTIMATE_SMOOTHING_STEPS,
     prior_weight: float = 0.0,
 ) -> WindowConstants:
     """The constants of each window: states (..., M, 13), inputs (..., M, 4) (commanded thrust
@@ -144,7 +143,7 @@ def window_stats(
     states: Tensor,
     inputs: Tensor,
     params: VehicleParams | VehicleConstants,
-    smoothing: int = SMOOTHING_STEPS,
+    smoothing: int = ESTIMATE_SMOOTHING_STEPS,
     prior_weight: float = 0.0,
 ) -> Tensor:
     """The least-squares sums (..., 10) of each window (``stats``' layout above)."""

@@ -18,8 +18,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..config import VehicleParams
-from ..constants_estimate import MIN_STEPS
+from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
 from ..models.prediction import PredictionModel
 from ..physics import VehicleConstants
@@ -99,9 +98,9 @@ class SamplingMPC:
     model: a ``PredictionModel`` (torch) or a numpy ``mppi.CandidateModel``; limits:
     the input box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and
     cable length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of
-    the in-flight estimate, ``window_estimate``, which needs M >= 17). ``core`` is the
-    ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks; ``last_plan`` is the
-    plan after the latest step.
+    the in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
+    ``core`` is the ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks;
+    ``last_plan`` is the plan after the latest step.
     """
 
     def __init__(
@@ -117,9 +116,10 @@ class SamplingMPC:
         numpy_model = model if getattr(model, "numpy", False) else TorchCandidates(model)
         estimate = None
         if config is not None and config.constants == "window":
-            if model.history < MIN_STEPS:
+            if model.history < ESTIMATE_MIN_STEPS:
                 raise ValueError(
-                    f"the in-flight estimate of the load needs M >= {MIN_STEPS} history steps; "
+                    "the in-flight estimate of the load needs M >= "
+                    f"{ESTIMATE_MIN_STEPS} history steps; "
                     f"{model.name} keeps {model.history}"
                 )
             estimate = window_estimate(params or VehicleParams())

@@ -28,7 +28,8 @@ import math
 
 import numpy as np
 
-from ...constants_estimate import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, SMOOTHING_STEPS
+from ...config import ESTIMATE_SMOOTHING_STEPS
+from ...constants_estimate import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE
 from ...frames import rotation_matrix
 from ...layout import (
     AUX_DIM,
@@ -283,7 +284,7 @@ def adapted_constants(
     the window's cable length and load mass. Once per prediction (every candidate of an MPC
     step shares the history), so numpy rather than a compiled loop."""
     s = np.asarray(states, np.float64)
-    h, half = c.dt, SMOOTHING_STEPS
+    h, half = c.dt, ESTIMATE_SMOOTHING_STEPS
     p, p_load = s[:, POS], s[:, LOAD_POS]
     b = rotation_matrix(s[1:-1, QUAT])[..., :, 2]  # body z, (M-2, 3)
     up = np.array([0.0, 0.0, c.gravity])

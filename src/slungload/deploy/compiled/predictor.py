@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ...constants_estimate import MIN_STEPS
+from ...config import ESTIMATE_MIN_STEPS
 from ...layout import (
     AUX_DIM,
     HISTORY_DIM,
@@ -180,7 +180,7 @@ class CompiledPredictor:
         fut = np.ascontiguousarray(fut, dtype=np.float32)
         w = self._w
         batch, m = hist.shape[:2]
-        least = MIN_STEPS if self.weights.constants == "window" else 2
+        least = ESTIMATE_MIN_STEPS if self.weights.constants == "window" else 2
         if w.mode == PHYSICS_STEP and m < least:  # as PhysicsStepNet.start_rollout
             raise ValueError(
                 f"CompiledPredictor.predict: the {self.weights.architecture!r} network needs "
