@@ -146,17 +146,22 @@ def study_size(
         )
         for s in sizes
     )
-    rows = _evaluate(data, out, run_of, {s: seeds for s in sizes}, horizon)
-    more = tuple(k for k in front_seeds if k not in seeds)
-    given: set[str] = set()  # the sizes trained with ``more`` seeds
-    front = pareto_front(rows, timings)
-    while more and not set(front) <= given:  # a size that joins the front gets them too
-        given |= set(front)
-        if train:
+    if train:
+        rows = _evaluate(data, out, run_of, {s: seeds for s in sizes}, horizon)
+        more = tuple(k for k in front_seeds if k not in seeds)
+        given: set[str] = set()  # the sizes trained with ``more`` seeds
+        front = pareto_front(rows, timings)
+        while more and not set(front) <= given:  # a size that joins the front gets them too
+            given |= set(front)
             chosen_sizes = [s for s in sizes if s in given]
             _train(data, out, run_of, chosen_sizes, more, (workers, cluster), progress)
-        chosen = {s: tuple(seeds) + (more if s in given else ()) for s in sizes}
-        rows = _evaluate(data, out, run_of, chosen, horizon)
+            chosen = {s: tuple(seeds) + (more if s in given else ()) for s in sizes}
+            rows = _evaluate(data, out, run_of, chosen, horizon)
+            front = pareto_front(rows, timings)
+    else:
+        # every finished run named: the front that chose who got more seeds was the training
+        # run's; one re-derived from these fresh timings could name other sizes
+        rows = _evaluate(data, out, run_of, {s: every for s in sizes}, horizon)
         front = pareto_front(rows, timings)
     study = SizeStudy(tuple(rows), timings, front, horizon)
     write_size_study(study, out)
