@@ -316,7 +316,8 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     assert all(np.isfinite(r["load_rmse"]) for r in rows)
     report = write_loads_report(rows, cfg, tmp_path).read_text()
     assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "loads.png").exists()
-    assert f"swing bound {np.degrees(cfg.max_swing):.0f} deg" in report  # the settings flown
+    flown = f"swing bound {np.degrees(cfg.max_swing):.0f} deg, floor {cfg.min_height} m"
+    assert flown in report  # the settings flown
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
     assert fly_loads(adaptive_run, tmp_path, cfg, progress=None) == rows  # nothing flown again
     assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}

@@ -13,9 +13,10 @@ unmodelled effect on) x maneuver x evaluation seed:
   two ways.
 - ``pid``: the simulator's PID built for the network's nominal vehicle.
 
-Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound). Flights
-land as in the control study (``study.flight_path``; the plant named by its load), so a second
-run flies only what is missing. ``write_loads_report`` writes ``loads.md`` and ``loads.png``.
+Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound,
+floor). Flights land as in the control study (``study.flight_path``; the plant named by its
+load), so a second run flies only what is missing. ``write_loads_report`` writes ``loads.md``
+and ``loads.png``.
 """
 
 from __future__ import annotations
@@ -95,7 +96,7 @@ def fly_loads(
         load_mass=nominal.mass_load, cable_length=nominal.cable_length
     )
     mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature,
-                    max_swing=cfg.max_swing)  # fmt: skip
+                    max_swing=cfg.max_swing, min_height=cfg.min_height)  # fmt: skip
     window = replace(mpc, constants="window")
     physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
@@ -162,8 +163,8 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         "",
         f"K = {config.samples}, N = {config.horizon} "
         f"({config.horizon * SimConfig.control_dt:.2f} s), temperature {config.temperature}, "
-        f"swing bound {math.degrees(config.max_swing):.0f} deg; maneuvers "
-        f"{', '.join(config.maneuvers)} x seeds "
+        f"swing bound {math.degrees(config.max_swing):.0f} deg, floor {config.min_height} m; "
+        f"maneuvers {', '.join(config.maneuvers)} x seeds "
         f"{', '.join(map(str, config.seeds))}, "
         f"{config.steps or 'all'} recorded steps each, every unmodelled effect on, "
         f"{config.backend} backend.",
