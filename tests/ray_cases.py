@@ -101,6 +101,9 @@ def test_tune_searches_and_its_best_configuration_trains(tmp_path):
     assert "outside this search space" in text  # the tiny space excludes reproduce's choice
     best = tmp_path / "tune" / "best.toml"
     assert best.is_file() and (tmp_path / "tune" / "tune.png").stat().st_size > 0
+    # no TensorBoard logger (it warns on every stopped trial's +inf objective); CSV/JSON kept
+    assert not list((tmp_path / "tune" / "ray").rglob("events.out.tfevents*"))
+    assert list((tmp_path / "tune" / "ray").rglob("progress.csv"))
     assert main(["train", "--data", str(data), "--config", str(best), "--epochs", "1",
                  "--out", str(tmp_path / "retrained"), "--quiet"]) == 0  # fmt: skip
     assert (tmp_path / "retrained" / "run.json").is_file()

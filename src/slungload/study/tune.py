@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -163,6 +164,7 @@ def run_tune(
     try:
         import optuna  # noqa: F401  (OptunaSearch imports it only when built)
         from ray import tune
+        from ray.tune.logger import CSVLoggerCallback, JsonLoggerCallback
         from ray.tune.schedulers import ASHAScheduler
         from ray.tune.search import ConcurrencyLimiter
         from ray.tune.search.optuna import OptunaSearch
@@ -191,6 +193,9 @@ def run_tune(
     # still train its other seeds after its last reported epoch.
     scheduler = ASHAScheduler(metric=VAL_LOSS, mode="min", time_attr="epoch",
                               max_t=max_epochs + 1, grace_period=settings.grace_epochs)  # fmt: skip
+    # Ray Tune's default loggers include TensorBoard's, which prints "NaN or Inf found in input
+    # tensor" for every trial ASHA stops (its objective is +inf): keep the CSV and JSON ones.
+    os.environ.setdefault("TUNE_DISABLE_AUTO_CALLBACK_LOGGERS", "1")
     started = connect(cluster)
     try:
         trainable = tune.with_resources(
@@ -203,7 +208,12 @@ def run_tune(
             tune_config=tune.TuneConfig(
                 num_samples=settings.trials, search_alg=searcher, scheduler=scheduler
             ),  # fmt: skip
-            run_config=tune.RunConfig(name="tune", storage_path=str(out / "ray"), verbose=0),
+            run_config=tune.RunConfig(
+                name="tune",
+                storage_path=str(out / "ray"),
+                verbose=0,
+                callbacks=[CSVLoggerCallback(), JsonLoggerCallback()],
+            ),
         )
         grid = tuner.fit()
     finally:
