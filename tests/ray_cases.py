@@ -94,7 +94,7 @@ def test_tune_searches_and_its_best_configuration_trains(tmp_path):
         horizon=SMALL.horizon, grace_epochs=1, history=SMALL.history,
     )  # fmt: skip
     rows = run_tune(data, tmp_path / "tune", settings, space, cluster="auto")
-    assert len(rows) == 3
+    assert len(rows) == 3 and sorted(r["order"] for r in rows) == [1, 2, 3]  # as they started
     assert all(1 <= r["epochs"] <= 2 and r["val_rmse"] > 0 for r in rows)  # every epoch reported
     assert (tmp_path / "tune" / "trials.csv").read_text().count("\n") == 4
     text = (tmp_path / "tune" / "tune.md").read_text()

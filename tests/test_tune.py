@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 
@@ -52,3 +53,21 @@ def test_a_trial_without_a_physics_step_trains_the_default_load_estimate():
     assert run.model.load_estimate == "difference"
     kept = choice_run({**choice, "architecture": "physics-step"}, "quick", 0, 1)
     assert kept.model.load_estimate == "smoothed"
+
+
+def test_trials_are_numbered_in_the_order_they_started(tmp_path):
+    from slungload.study.tune import OBJECTIVE, STARTED, _in_start_order, write_tune
+
+    choice = hand_chosen("quick")
+    rows = [{"trial": trial, STARTED: started, **choice, "epochs": 2, "val_rmse": 1.0,
+             OBJECTIVE: objective}
+            for trial, started, objective in (("f0", 30.0, 0.9), ("a1", 10.0, math.inf),
+                                              ("c2", 20.0, 1.2))]  # fmt: skip
+    numbered = _in_start_order(rows)  # Ray's trial ids are random: the start time orders them
+    assert [(r["trial"], r["order"]) for r in numbered] == [("a1", 1), ("c2", 2), ("f0", 3)]
+    assert all(STARTED not in r for r in numbered)
+    best_first = sorted(numbered, key=lambda r: r[OBJECTIVE])
+    write_tune(best_first, choice, TuneSettings(), tmp_path)
+    lines = (tmp_path / "trials.csv").read_text().splitlines()
+    assert lines[0].startswith("trial,order,") and lines[1].startswith("f0,3,")
+    assert (tmp_path / "tune.png").stat().st_size > 0 and (tmp_path / "best.toml").is_file()

@@ -26,6 +26,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -55,6 +56,7 @@ OBJECTIVE = "objective"  # combined RMSE at N = 50 on val, mean of the seeds
 # trial's own horizon would compare loss variants or horizons, not configurations).
 VAL_LOSS = "val_rmse"
 EPOCH_WINDOWS = 512  # validation windows each epoch's figure is measured on
+STARTED = "started"  # when a trial started, Unix s: its reports carry it
 
 
 def choice_run(
@@ -122,7 +124,8 @@ def _trial(choice: dict[str, Any], data: str, out: str, settings: TuneSettings) 
     windows = _epoch_windows(data, settings)
     # Every report carries the objective (the searcher reads it each time): +inf until the
     # trial's end, so a trial ASHA stops counts as the worst for TPE.
-    runs, last = [], {VAL_LOSS: math.nan, "epoch": 0, OBJECTIVE: math.inf}
+    # "started" (Unix s) orders the trials for the figure: Ray's trial ids are random.
+    runs, last = [], {VAL_LOSS: math.nan, "epoch": 0, OBJECTIVE: math.inf, STARTED: time.time()}
     for i, seed in enumerate(settings.seeds):
         run = choice_run(choice, settings.preset, seed, settings.epochs, settings.history)
 
@@ -219,7 +222,7 @@ def run_tune(
     finally:
         if started:
             ray.shutdown()
-    rows = [_row(result) for result in grid]
+    rows = _in_start_order([_row(result) for result in grid])
     rows.sort(key=lambda r: (not math.isfinite(r[OBJECTIVE]), r[OBJECTIVE], -r["epochs"]))
     write_tune(rows, first if start else None, settings, out)
     return rows
@@ -234,11 +237,20 @@ def _row(result: Any) -> dict[str, Any]:
     objective = result.metrics.get(OBJECTIVE, math.inf)
     return {
         "trial": result.metrics.get("trial_id", "?"),
+        STARTED: result.metrics.get(STARTED, math.inf),
         **trained_choice(result.config),
         "epochs": int(epochs) if epochs == epochs else 0,  # NaN: no epoch reported
         VAL_LOSS: float(loss),
         OBJECTIVE: float(objective) if objective is not None else math.inf,
     }
+
+
+def _in_start_order(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The rows in the order their trials started, each with its number there ("order", from
+    1) in place of its start time."""
+    ordered = sorted(rows, key=lambda r: r[STARTED])
+    return [{"trial": r["trial"], "order": n, **{k: v for k, v in r.items() if k not in
+             ("trial", STARTED)}} for n, r in enumerate(ordered, 1)]  # fmt: skip
 
 
 def write_tune(
@@ -293,18 +305,19 @@ def _cell(value: Any) -> str:
 
 
 def _plot(rows: Sequence[dict[str, Any]], path: Path) -> Path:
-    """The objective of each finished trial in trial order, and the best so far."""
-    ordered = sorted(rows, key=lambda r: str(r["trial"]))
-    values = [r[OBJECTIVE] for r in ordered]
+    """The objective of each finished trial in the order the trials started, and the best so
+    far."""
+    ordered = sorted(rows, key=lambda r: r["order"])
+    order, values = [r["order"] for r in ordered], [r[OBJECTIVE] for r in ordered]
     fig = Figure(figsize=(6.0, 3.2))
     ax = fig.add_subplot(1, 1, 1)
-    xs = [i for i, v in enumerate(values) if math.isfinite(v)]
-    ax.plot(xs, [values[i] for i in xs], "o", label="trial")
+    done = [(n, v) for n, v in zip(order, values, strict=True) if math.isfinite(v)]
+    ax.plot([n for n, _ in done], [v for _, v in done], "o", label="trial")
     best, running = math.inf, []
     for v in values:
         best = min(best, v) if math.isfinite(v) else best
         running.append(best)
-    ax.step(range(len(values)), running, where="post", label="best so far")
+    ax.step(order, running, where="post", label="best so far")
     ax.set_xlabel("trial")
     ax.set_ylabel("val combined RMSE, N = 50")
     ax.legend(fontsize=8)
