@@ -30,14 +30,15 @@ PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may us
 # (temperature, noise scale) pairs ``tune_settings`` tries first, with the default cost
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
 # then the cost changes it tries at the chosen pair against the default cost (``mppi.MPCConfig``
-# fields): a bound on the swing angle (40 deg), position errors beyond 0.5 m or 0.3 m pulling
-# linearly, a floor under the vehicle 0.5 m below the hover height
+# fields): the swing bound, position errors beyond 0.5 m or 0.3 m pulling linearly, the floor
+SWING_BOUND = 0.7  # rad (40 deg): the swing angle beyond it costs (``MPCConfig.max_swing``)
+FLOOR = 1.0  # m, 0.5 m below the hover height: lower costs (``MPCConfig.min_height``)
 COST_GRID: tuple[dict[str, float], ...] = (
-    {"max_swing": 0.7},
+    {"max_swing": SWING_BOUND},
     {"position_huber": 0.5},
     {"position_huber": 0.3},
-    {"max_swing": 0.7, "position_huber": 0.5},
-    {"min_height": 1.0},
+    {"max_swing": SWING_BOUND, "position_huber": 0.5},
+    {"min_height": FLOOR},
 )
 
 
@@ -79,9 +80,10 @@ class UnseenLoadsConfig:
     # steps, at 25 (0.75 s) 2, where the control study's learned MPC also loses none
     horizon: int = 25
     temperature: float = 0.1  # the control study's choice for the learned model
-    max_swing: float = 0.7  # rad (40 deg), likewise: at N = 25 it keeps those 2 in the arena
-    # m, a floor under the vehicle (COST_GRID's): it keeps in the arena the one flight the
-    # adaptive MPC still lost in flight with the bound alone (xy_step, seed 100, 0.13 kg)
-    min_height: float = 1.0
+    # the swing bound, likewise: at N = 25 it keeps those 2 in the arena
+    max_swing: float = SWING_BOUND
+    # the floor under the vehicle: it keeps in the arena the one flight the adaptive MPC still
+    # lost in flight with the bound alone (xy_step, seed 100, 0.13 kg)
+    min_height: float = FLOOR
     steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
     backend: str = "compiled"  # what the models predict on
