@@ -323,3 +323,83 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
     with pytest.raises(ValueError, match="not an adaptive network"):
         fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
+
+
+# --- a network that sees its constants (``ModelConfig.constants_input``) ------------------
+
+SEEING = dataclasses.replace(ADAPTIVE, constants_input=True)
+
+
+@pytest.fixture(scope="module")
+def seeing_predictor(varied):
+    """An adaptive network that also sees f's constants, its constants' columns non-zero."""
+    ds, windows = varied
+    torch.manual_seed(2)
+    net = PhysicsStepNet(SEEING, ds.params)
+    net.fit_normalization(windows.states, windows.inputs, origin_step=49)
+    with torch.no_grad():
+        net.embed.layers[0].weight[:, -2:].normal_(0.0, 2.0)
+    return Predictor(net.eval(), WINDOW, ds.params, "proposed"), windows
+
+
+def test_a_network_that_sees_its_constants_is_the_adaptive_one_when_it_ignores_them(
+    varied, seeing_predictor
+):
+    ds, windows = varied
+    seeing = seeing_predictor[0].model
+    adaptive = PhysicsStepNet(ADAPTIVE, ds.params)
+    state = dict(seeing.state_dict())
+    first = state["embed.layers.0.weight"]
+    assert first.shape[1] == 17 + 2  # state, input, cable length, load mass
+    adaptive.load_state_dict({**state, "embed.layers.0.weight": first[:, :17]})
+    adaptive.eval()
+    m = WINDOW.history
+    args = windows.states[:, :m], windows.inputs[:, :m], windows.inputs[:, m:]
+    with torch.no_grad():
+        sees = seeing(*args).states
+        ignores = adaptive(*args).states
+        seeing.embed.layers[0].weight[:, -2:] = 0.0
+        blind = seeing(*args).states
+        seeing.embed.layers[0].weight.copy_(first)
+    torch.testing.assert_close(blind, ignores, atol=1e-6, rtol=0)
+    assert (sees - ignores).abs().max() > 1e-3
+    # what it sees: the window's estimate against the network's own constants
+    est = adapted(windows.history.states, windows.history.inputs, ds.params)
+    ratio = est.cable_length / ds.params.cable_length - 1
+    carry = seeing.start_rollout(args[0] - seeing.origin(args[0][:, -1]).unsqueeze(1), *args[1:])
+    torch.testing.assert_close(seeing.conditioning(carry)[:, 0], ratio)
+
+
+def test_a_network_that_sees_its_constants_agrees_on_every_path(seeing_predictor, tmp_path):
+    predictor, windows = seeing_predictor
+    history, future = predict_args(windows[:6])
+    want = predictor.predict(history, future)
+    result = export(predictor, tmp_path / "seeing.onnx")
+    assert result.max_abs_diff <= PARITY_TOLERANCE
+    got = OnnxPredictor(result.model).predict(history, future)
+    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
+    compiled = CompiledPredictor(predictor)
+    np.testing.assert_allclose(compiled.predict(history, future), want, atol=PARITY_TOLERANCE)
+    # candidates, in flight and given fixed constants (the truth's path)
+    m = WINDOW.history
+    x, u_past = windows.states[5, :m], windows.inputs[5, : m - 1]
+    plans = windows.inputs[5, m - 1 : -1].expand(6, -1, -1) + 0.3 * torch.randn(6, 25, 4)
+    net = predictor.model
+    for given in (None, dataclasses.replace(net.params, cable_length=1.2, mass_load=0.3)):
+        if given is not None:
+            net.params, net.config = given, dataclasses.replace(net.config, constants="dataset")
+        eager = NetworkModel(net, m).predict_candidates(x, u_past, plans)
+        fast = CompiledNetworkModel(net, m).predict_candidates(x, u_past, plans)
+        torch.testing.assert_close(fast, eager, atol=PARITY_TOLERANCE, rtol=0)
+    with torch.no_grad():  # the candidates' shared encoder sees what a whole window's does
+        shared = net.forward_candidates(x, u_past, plans).states
+        alone = net(x.expand(6, -1, -1), torch.cat([u_past.expand(6, -1, -1), plans[:, :1]], 1),
+                    torch.cat([plans[:, 1:], plans[:, -1:]], 1)).states  # fmt: skip
+    torch.testing.assert_close(shared, alone, atol=1e-5, rtol=0)
+
+
+def test_only_the_physics_step_network_sees_its_constants():
+    with pytest.raises(ValueError, match="constants_input is for the physics-step"):
+        ModelConfig(constants_input=True)
+    run = RunConfig(model=dataclasses.replace(SEEING))
+    assert RunConfig.from_toml(run.to_toml()) == run

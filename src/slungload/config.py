@@ -123,6 +123,8 @@ CONSTANTS_SOURCES: dict[str, str] = {
     "flight": "each window's flight's recorded constants (simulated varied loads: the truth)",
 }
 NETWORK_CONSTANTS = ("dataset", "window")  # what a network can run f with (it sees no truth)
+# The constants a network with ``ModelConfig.constants_input`` sees, as ratios to its own.
+CONDITIONED = ("cable_length", "mass_load")
 # H: half-width of the triangular smoothing of the in-flight estimate's force balance, steps
 # (``constants_estimate``), and the shortest window that estimate takes
 ESTIMATE_SMOOTHING_STEPS = 7
@@ -207,6 +209,10 @@ class ModelConfig:
     # The constants the physics-step network's f runs with (a name of NETWORK_CONSTANTS):
     # "window" adapts f to each window's load, estimated from the history in flight.
     constants: str = "dataset"
+    # The physics-step network's correction also sees f's constants (``CONDITIONED``, each as
+    # a ratio to the network's own minus one) as more embedding inputs at every step: it can
+    # then learn how the unmodelled effects change with the load, not only f.
+    constants_input: bool = False
 
     def __post_init__(self) -> None:
         widths = (*self.embed_sizes, self.hidden_size, self.num_layers, *self.head_sizes)
@@ -236,6 +242,11 @@ class ModelConfig:
             raise ValueError(
                 f"constants={self.constants!r} is for the physics-step network; the "
                 f"{self.architecture!r} architecture runs no physics step"
+            )
+        if self.constants_input and self.architecture != "physics-step":
+            raise ValueError(
+                f"constants_input is for the physics-step network; the {self.architecture!r} "
+                "architecture runs no physics step whose constants it could see"
             )
         if self.architecture not in ARCHITECTURES:
             raise ValueError(

@@ -53,6 +53,7 @@ else:  # pragma: no cover
 
 
 ADAPTIVE = "adaptive"  # the tag of a network whose f runs with constants estimated in flight
+SEEING = "sees-constants"  # ... and of one whose correction sees them too (constants_input)
 
 
 @dataclass(frozen=True)
@@ -203,7 +204,8 @@ class RunConfig:
         architecture (unless the paper's), the network's named size (unless the paper's:
         ``config.size_tag``), the variant, "fitted" constants, the step weighting, "N<steps>"
         (a training horizon other than the default), the load estimate (unless the backward
-        difference) and "adaptive" (f runs with each window's constants estimated in flight)."""
+        difference), "adaptive" (f runs with each window's constants estimated in flight) and
+        "sees-constants" (the correction network takes them as inputs too)."""
         tags = [] if self.model.architecture == DEFAULT_ARCHITECTURE else [self.model.architecture]
         tags += [size_tag(self.model)] if size_tag(self.model) else []
         tags.append(self.variant)
@@ -214,6 +216,7 @@ class RunConfig:
         estimate = self.model.load_estimate
         tags += [estimate] if estimate != ModelConfig().load_estimate else []
         tags += [ADAPTIVE] if self.model.constants == "window" else []
+        tags += [SEEING] if self.model.constants_input else []
         return tags
 
     def folder(self) -> str:
@@ -226,7 +229,7 @@ class RunConfig:
         architecture unless that is the paper's network, suffixed by "+fit" (fitted
         constants), "+relative" or "+mixed" (the step weighting), "+N<steps>" with
         ``with_horizon`` (when runs of a report differ in training horizon), "+smoothed" and
-        "+adaptive";
+        "+adaptive" and "+sees-constants";
         a named network size other than the paper's joins the architecture; e.g. "proposed",
         "physics-step/no-physics+relative+N50", "physics-step-small/no-physics"."""
         architecture, size = self.model.architecture, size_tag(self.model)
@@ -238,7 +241,8 @@ class RunConfig:
         label += f"+{tag}" if tag else ""
         label += f"+N{self.window.horizon}" if with_horizon else ""
         label += "+smoothed" if self.model.load_estimate == "smoothed" else ""
-        return label + (f"+{ADAPTIVE}" if self.model.constants == "window" else "")
+        label += f"+{ADAPTIVE}" if self.model.constants == "window" else ""
+        return label + (f"+{SEEING}" if self.model.constants_input else "")
 
     # --- files ----------------------------------------------------------------------------
 

@@ -286,7 +286,8 @@ def _add_study_loads(kinds: Any) -> None:
         "beyond it; train the physics-step network (reproduce's best configuration) on "
         + "; ".join(
             f"{label!r}: {data} flights, f with the {c} constants"
-            for label, (data, c) in NETWORK_ROWS.items()
+            + (", its correction seeing them" if seeing else "")
+            for label, (data, c, seeing) in NETWORK_ROWS.items()
         )  # fmt: skip
         + "; compare with physics run with "
         + ", ".join(f"the {c} constants ({label!r})" for label, c in PHYSICS_ROWS.items())

@@ -103,6 +103,13 @@ def add_train(sub: Any) -> None:
         "flight from its history: one network for many loads; needs --history >= "
         f"{ESTIMATE_MIN_STEPS})",
     )
+    p.add_argument(
+        "--constants-input",
+        action="store_true",
+        help="physics-step network: its correction also takes f's cable length and load mass "
+        "(as ratios to the dataset's) as inputs at every step, with --constants window the "
+        "window's estimate",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -112,7 +119,7 @@ def add_train(sub: Any) -> None:
 
 # What a --config file describes instead (its options may not be given beside it).
 RUN_OPTIONS = ("variant", "model", "size", "preset", "fit_constants", "steps", "load_estimate",
-               "constants", "history", "horizon", "stride")  # fmt: skip
+               "constants", "constants_input", "history", "horizon", "stride")  # fmt: skip
 
 
 def run_from_args(args: argparse.Namespace):
@@ -145,6 +152,7 @@ def run_from_args(args: argparse.Namespace):
             architecture=args.model,
             load_estimate=args.load_estimate,
             constants=args.constants,
+            constants_input=args.constants_input,
         ),
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),

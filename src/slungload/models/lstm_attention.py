@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ..config import DEFAULT_ARCHITECTURE, ModelConfig, VehicleParams
+from ..config import CONDITIONED, DEFAULT_ARCHITECTURE, ModelConfig, VehicleParams
 from ..state import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
 from .base import Prediction
 
@@ -41,16 +41,18 @@ DELTA_STD_FLOOR = 1e-5  # per-step changes x_k - x_{k-1}, same units as the stat
 
 
 class InputEmbedding(nn.Module):
-    """(x_k, u_k) (..., 17) -> z_k (..., E): Linear -> GELU, repeated, dropout between.
+    """(x_k, u_k[, c]) (..., 17 + C) -> z_k (..., E): Linear -> GELU, repeated, dropout between.
 
-    Shared by the encoder and the decoder. The first Linear is split in its state and input
-    columns so the decoder can apply the input part to the whole horizon at once
-    (``input_part``) and only the state part inside its loop (``from_parts``).
+    Shared by the encoder and the decoder. c: ``extra`` per-window columns after the input's
+    (C = 0 unless the network sees its constants, ``ModelConfig.constants_input``). The first
+    Linear is split in its state columns and the rest so the decoder can apply the rest to the
+    whole horizon at once (``input_part``) and only the state part inside its loop
+    (``from_parts``).
     """
 
-    def __init__(self, sizes: tuple[int, ...], dropout: float) -> None:
+    def __init__(self, sizes: tuple[int, ...], dropout: float, extra: int = 0) -> None:
         super().__init__()
-        widths = (FEATURE_DIM, *sizes)
+        widths = (FEATURE_DIM + extra, *sizes)
         self.layers = nn.ModuleList(nn.Linear(a, b) for a, b in pairwise(widths))
         self.dropout = nn.Dropout(dropout)
 
@@ -58,7 +60,7 @@ class InputEmbedding(nn.Module):
         return self._rest(self.layers[0](features))
 
     def input_part(self, u: Tensor) -> Tensor:
-        """First layer's input columns plus bias: (..., 4) -> (..., sizes[0])."""
+        """First layer's input (and extra) columns plus bias: (..., 4 + C) -> (..., sizes[0])."""
         first = self.layers[0]
         return F.linear(u, first.weight[:, STATE_DIM:], first.bias)
 
@@ -165,7 +167,8 @@ class SlungLoadNet(nn.Module):
         self.config = cfg
         hidden, layers = cfg.hidden_size, cfg.num_layers
         embed = cfg.embed_sizes[-1]
-        self.embed = InputEmbedding(cfg.embed_sizes, cfg.dropout)
+        extra = len(CONDITIONED) if cfg.constants_input else 0
+        self.embed = InputEmbedding(cfg.embed_sizes, cfg.dropout, extra)
         between = cfg.dropout if layers > 1 else 0.0  # nn.LSTM drops out between its layers
         self.encoder = nn.LSTM(embed, hidden, layers, dropout=between, batch_first=True)
         self.attention = BahdanauAttention(hidden)
@@ -260,8 +263,11 @@ class SlungLoadNet(nn.Module):
         origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
         x_rel = x_hist - origin  # (B, M, 13) positions relative to the origin
         z_hist = self.normalize_state(x_rel)  # (B, M, 13)
-        enc, state = self.encoder(self.embed(torch.cat([z_hist, self.normalize_input(u_hist)], -1)))
-        return self._decode(enc, state, x_rel, u_hist, u_future, origin)
+        carry = self.start_rollout(x_rel, u_hist, u_future)
+        cond = self.conditioning(carry)  # (B, C) or None
+        features = _with(torch.cat([z_hist, self.normalize_input(u_hist)], -1), cond)
+        enc, state = self.encoder(self.embed(features))
+        return self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
 
     def forward_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Prediction:
         """K candidate futures from one history, as a model-predictive controller asks for.
@@ -286,15 +292,20 @@ class SlungLoadNet(nn.Module):
         origin = self.origin(x_hist[:1, -1]).unsqueeze(1)  # (1, 1, 13), shared
         x_rel = x_hist - origin  # (K, M, 13)
         z_hist = self.normalize_state(x_rel[:1])  # (1, M, 13)
+        carry = self.start_rollout(x_rel, u_hist, u_future)
+        # (K, C) or None; the same for every candidate (they share the history)
+        cond = self.conditioning(carry)
         shared = torch.cat([z_hist[:, :-1], self.normalize_input(u_past).unsqueeze(0)], -1)
+        shared = _with(shared, None if cond is None else cond[:1])
         enc_shared, (h, c) = self.encoder(self.embed(shared))  # (1, M-1, H); (layers, 1, H)
         last = torch.cat(
             [z_hist[:, -1].expand(k, STATE_DIM), self.normalize_input(plans[:, 0])], -1
         )
+        last = _with(last.unsqueeze(1), cond)
         state = (h.expand(-1, k, -1).contiguous(), c.expand(-1, k, -1).contiguous())
-        enc_last, state = self.encoder(self.embed(last).unsqueeze(1), state)  # (K, 1, H)
+        enc_last, state = self.encoder(self.embed(last), state)  # (K, 1, H)
         enc = torch.cat([enc_shared.expand(k, -1, -1), enc_last], dim=1)  # (K, M, H)
-        return self._decode(enc, state, x_rel, u_hist, u_future, origin)
+        return self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
 
     def _decode(
         self,
@@ -304,10 +315,13 @@ class SlungLoadNet(nn.Module):
         u_hist: Tensor,
         u_future: Tensor,
         origin: Tensor,
+        carry: Any,
+        cond: Tensor | None,
     ) -> Prediction:
         """The attention decoder's N steps from the encoder's outputs enc (B, M, H) and final
         state (h, c) (layers, B, H); x_rel (B, M, 13) the history relative to ``origin``
-        (B or 1, 1, 13), inputs as ``forward`` takes them (physical units)."""
+        (B or 1, 1, 13), inputs as ``forward`` takes them (physical units), ``carry`` from
+        ``start_rollout``, ``cond`` (B, C) from ``conditioning``."""
         cfg = self.config
         h, c = state
         z_hist = self.normalize_state(x_rel[:, -1:])  # (B, 1, 13) the last measured state
@@ -318,8 +332,7 @@ class SlungLoadNet(nn.Module):
         # Decoder inputs u_{M-1} ... u_{M+N-2}: their share of the first embedding layer is
         # computed for the whole horizon at once.
         v_dec = torch.cat([v_hist[:, -1:], v_future[:, :-1]], dim=1)  # (B, N, 4)
-        input_parts = self.embed.input_part(v_dec).unbind(1)  # N x (B, E0)
-        carry = self.start_rollout(x_rel, u_hist, u_future)
+        input_parts = self.embed.input_part(_with(v_dec, cond)).unbind(1)  # N x (B, E0)
 
         state_weight = self.embed.state_weight()  # (13, E0)
         head = self.head.joined()
@@ -363,6 +376,11 @@ class SlungLoadNet(nn.Module):
         # Residual mode: x_k = x_{k-1} + delta_std * out, written in network units.
         return self.delta_std / self.state_std if self.config.normalize else None
 
+    def conditioning(self, carry: Any) -> Tensor | None:
+        """The per-window columns (B, C) the embedding takes after each step's input (from
+        ``start_rollout``'s carry), or None: the paper's network has none."""
+        return None
+
     def next_state(self, z: Tensor, out: Tensor, k: int, carry: Any) -> tuple[Tensor, Any]:
         """Decoder step k's next state in network units: z_{M+k} (B, 13) from z_{M-1+k} (the
         last measured state for k = 0), the head's state rows ``out`` (B, 13) and ``carry``
@@ -398,6 +416,13 @@ def _lstm_cell(x: Tensor, h: Tensor, c: Tensor, w: Tensor, b: Tensor) -> tuple[T
     i, f, g, o = (gates[:, k * hidden : (k + 1) * hidden] for k in range(4))  # (B, H) each
     c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
     return torch.sigmoid(o) * torch.tanh(c), c
+
+
+def _with(features: Tensor, cond: Tensor | None) -> Tensor:
+    """features (B, T, F) with the per-window columns cond (B, C) appended at every step."""
+    if cond is None:
+        return features
+    return torch.cat([features, cond.unsqueeze(1).expand(-1, features.shape[1], -1)], -1)
 
 
 def _check_shapes(x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> None:

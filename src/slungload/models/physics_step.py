@@ -21,7 +21,10 @@ the slack outputs are zero.
 
 With ``ModelConfig.constants = "window"`` f runs with each window's own cable length and load
 mass, estimated from its history in flight (``constants_estimate.adapted``): one network for
-many loads. The estimate needs M >= 17 history steps (``estimate_constants``).
+many loads. The estimate needs M >= 17 history steps (``estimate_constants``). With
+``ModelConfig.constants_input`` the correction network sees them too: f's cable length and load
+mass as ratios to the network's own (``reference``) minus one, two more embedding inputs at
+every step (``conditioning``), so the correction itself can change with the load.
 Same layers, parameters, attention and decoder as ``SlungLoadNet``; only the decoder's state
 update (``start_rollout``/``next_state``) differs. Shapes: B batch, M history steps (M >= 2),
 N horizon steps.
@@ -35,7 +38,7 @@ import torch
 from torch import Tensor
 
 from .. import physics
-from ..config import ModelConfig, VehicleParams
+from ..config import CONDITIONED, ModelConfig, VehicleParams
 from ..constants_estimate import adapted
 from ..load_state import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
 from .lstm_attention import SlungLoadNet
@@ -78,6 +81,9 @@ class PhysicsStepNet(SlungLoadNet):
             )
         super().__init__(cfg, params)
         self.params = params or VehicleParams()
+        # What ``conditioning`` measures f's constants against: the constants the network was
+        # built with, kept when a caller gives f others (``load_prediction_model``).
+        self.reference = self.params
 
     def start_rollout(self, x_rel: Tensor, u_hist: Tensor, u_future: Tensor) -> PhysicsCarry:
         """The decoder's starting point: x_{M-1}, the estimate a_{M-1} and the physical inputs
@@ -120,3 +126,24 @@ class PhysicsStepNet(SlungLoadNet):
         x, aux = physics.step(carry.x, carry.inputs[k], carry.aux, carry.params)
         x = x + out if carry.scale is None else torch.addcmul(x, out, carry.scale)
         return self.normalize_state(x), carry._replace(x=x, aux=aux)
+
+    def conditioning(self, carry: PhysicsCarry) -> Tensor | None:
+        """With ``ModelConfig.constants_input``, f's constants as the embedding sees them:
+        (B, C) ``constant_ratios`` of ``carry.params`` against ``reference``; else None."""
+        if not self.config.constants_input:
+            return None
+        like = carry.x
+        ratios = constant_ratios(carry.params, self.reference)
+        return torch.stack(
+            [torch.as_tensor(r, dtype=like.dtype, device=like.device).expand(like.shape[0])
+             for r in ratios], dim=-1,
+        )  # fmt: skip
+
+
+def constant_ratios(
+    params: physics.Vehicle | VehicleParams, reference: physics.Vehicle | VehicleParams
+) -> list:
+    """f's ``CONDITIONED`` constants as a network with ``constants_input`` sees them: each
+    params' / reference's - 1 (0 at the network's own), floats or tensors (B,) as params holds
+    them. One definition for the eager network and the compiled paths."""
+    return [getattr(params, name) / float(getattr(reference, name)) - 1 for name in CONDITIONED]

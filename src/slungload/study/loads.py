@@ -5,7 +5,8 @@ range's midpoints), ``many`` a load and cable length drawn per flight from the t
 (its test flights are loads no training flight had: interpolation), ``beyond`` loads heavier
 and cables longer than any in training (extrapolation; every flight is tested). The
 physics-step network is trained on ``one``, on ``many``, and on ``many`` adapting f to each
-window's constants estimated in flight (``ModelConfig.constants = "window"``), over seeds, and
+window's constants estimated in flight (``ModelConfig.constants = "window"``), without and
+with its correction seeing them (``ModelConfig.constants_input``), over seeds, and
 compared with the physics model run with the nominal constants, with the in-flight estimate
 and with each flight's true constants: combined RMSE at N = 25 and 50, MAE per step, and the
 RMSE at N = 50 of each test flight against its load mass (``loads.png``).
@@ -69,10 +70,10 @@ def study_loads(
     rows of ``loads.csv``. ``epochs`` replaces the preset's budget; ``cluster`` trains on Ray."""
     out = Path(out)
     data = _datasets(out / "data", config, sim_seed, workers, progress)
-    runs = {label: _runs(config, constants, preset, seeds, epochs)
-            for label, (_, constants) in NETWORK_ROWS.items()}  # fmt: skip
+    runs = {label: _runs(config, constants, seeing, preset, seeds, epochs)
+            for label, (_, constants, seeing) in NETWORK_ROWS.items()}  # fmt: skip
     jobs = []
-    for label, (source, _) in NETWORK_ROWS.items():
+    for label, (source, _, _) in NETWORK_ROWS.items():
         for run in runs[label]:
             folder = out / "runs" / source / run.folder()
             if not (folder / "run.json").is_file():
@@ -88,7 +89,7 @@ def study_loads(
         windows = _test_windows(data, test_set, params, config.horizons)
         candidates = [Candidate(label, PhysicsModel(params, name=label, constants=source))
                       for label, source in PHYSICS_ROWS.items()]  # fmt: skip
-        for label, (source, _) in NETWORK_ROWS.items():
+        for label, (source, _, _) in NETWORK_ROWS.items():
             for run in runs[label]:
                 loaded = load_checkpoint(out / "runs" / source / run.folder())
                 model = NetworkModel(loaded.model, loaded.window.history, name=label)
@@ -135,12 +136,18 @@ def _datasets(
 
 
 def _runs(
-    config: LoadsStudyConfig, constants: str, preset: str, seeds: Sequence[int], epochs: int | None
+    config: LoadsStudyConfig,
+    constants: str,
+    seeing: bool,
+    preset: str,
+    seeds: Sequence[int],
+    epochs: int | None,
 ) -> list[RunConfig]:
     """The physics-step network of reproduce's best configuration at ``config.size``, its f
-    running with ``constants``, for each seed."""
+    running with ``constants`` (its correction seeing them with ``seeing``), for each seed."""
     template = BEYOND_PAPER[0]
-    template = replace(template, model=replace(template.model, constants=constants))
+    model = replace(template.model, constants=constants, constants_input=seeing)
+    template = replace(template, model=model)
     return [size_run(template, config.size, preset=preset, seed=seed, epochs=epochs)
             for seed in seeds]  # fmt: skip
 

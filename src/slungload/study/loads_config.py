@@ -42,11 +42,13 @@ PHYSICS_ROWS = {
     "physics (in-flight estimate)": "window",
     "physics (true constants)": "flight",
 }
-# The networks: the dataset each trains on and the constants its f runs with.
+# The networks: the dataset each trains on, the constants its f runs with and whether its
+# correction sees them (``ModelConfig.constants_input``).
 NETWORK_ROWS = {
-    "one load": ("one", "dataset"),
-    "many loads": ("many", "dataset"),
-    "many loads (adaptive)": ("many", "window"),
+    "one load": ("one", "dataset", False),
+    "many loads": ("many", "dataset", False),
+    "many loads (adaptive)": ("many", "window", False),
+    "many loads (adaptive sees constants)": ("many", "window", True),
 }
 TRUTH = "physics (true constants)"  # the reference row
 # The test sets, unseen loads inside and beyond the range: the dataset whose flights each tests

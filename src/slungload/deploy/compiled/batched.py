@@ -50,7 +50,7 @@ from ...models.prediction import (
     load_prediction_model,
 )
 from ...physics import VehicleConstants
-from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, fold
+from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
 from .physics import (
     estimate_load_state,
@@ -124,7 +124,7 @@ class CompiledNetworkModel:
     """
 
     def __init__(self, net: torch.nn.Module, history: int, name: str = "network") -> None:
-        folded = fold(net)  # raises, naming why, for what it cannot run
+        self.folded = folded = fold(net)  # raises, naming why, for what it cannot run
         self.w = _columns(folded)
         self.constants = folded.constants
         self.name, self.history = name, history
@@ -149,18 +149,20 @@ class CompiledNetworkModel:
         )
         n, _, k = u_cols.shape
         b = self._buffers_for(k)
-        vehicle = w.vehicle
-        if self.constants == "window":  # the history's own
+        vehicle, embed = w.vehicle, w.embed
+        if self.constants == "window":  # the history's own, and the embedding's bias with them
             vehicle = history_constants(x_rel, u_past.detach().cpu().numpy(), w.vehicle)
+            bias0 = torch.from_numpy(first_bias(self.folded, vehicle))[:, None]
+            embed = [(embed[0][0], bias0), *embed[1:]]
         aux = self._load_state(x_rel, b.a["aux"], vehicle)
         b.a["xu"][:STATE_DIM] = x_rel[-1, :, None]
         b.a["xu"][STATE_DIM:] = u_cols[0]
-        shared = self._encode(x_rel, u_past.detach().cpu().numpy(), b)
+        shared = self._encode(x_rel, u_past.detach().cpu().numpy(), b, embed)
         out = np.empty((k, n, STATE_DIM), np.float64)
         no_input = np.empty((INPUT_DIM, 0), np.float32)
         for step in range(n):
             if step > 0:  # step 0's embedding is the last encoder step's
-                self._embed(b.t["xu"], b)
+                self._embed(b.t["xu"], b, embed)
             self._decoder_step(b, shared)
             u_next = u_cols[step + 1] if step + 1 < n else no_input
             _next_columns(
@@ -211,11 +213,13 @@ class CompiledNetworkModel:
         aux[:] = one[:, None]
         return aux
 
-    def _embed(self, cols: Tensor, b: _Buffers | None) -> Tensor:
-        """The input embedding of columns (17, R) into b's buffers (new arrays when b is None);
-        returns the last layer's output (E, R)."""
+    def _embed(
+        self, cols: Tensor, b: _Buffers | None, embed: list[tuple[Tensor, Tensor]]
+    ) -> Tensor:
+        """The input embedding (layers ``embed``: this call's) of columns (17, R) into b's
+        buffers (new arrays when b is None); returns the last layer's output (E, R)."""
         h = cols
-        for i, (weight, bias) in enumerate(self.w.embed):
+        for i, (weight, bias) in enumerate(embed):
             if b is None:
                 h = torch.addmm(bias, weight, h)
             else:
@@ -223,7 +227,9 @@ class CompiledNetworkModel:
             gelu(h.numpy())
         return h
 
-    def _encode(self, x_rel: np.ndarray, u_past: np.ndarray, b: _Buffers) -> dict:
+    def _encode(
+        self, x_rel: np.ndarray, u_past: np.ndarray, b: _Buffers, embed: list[tuple[Tensor, Tensor]]
+    ) -> dict:
         """The encoder: the M - 1 shared rows at batch 1, the last step at batch K (its input
         b.xu); leaves the decoder's starting state in b.h, b.c, the last embedding (the first
         decoder step's) in the last e buffer, the candidates' last keys and context
@@ -231,7 +237,7 @@ class CompiledNetworkModel:
         w, t = self.w, torch.from_numpy
         layers, _, hidden = w.enc_hh.shape
         rows = np.concatenate([x_rel[:-1], u_past], axis=1).astype(np.float32).T  # (17, M-1)
-        emb = self._embed(t(np.ascontiguousarray(rows)), None)  # (E, M-1)
+        emb = self._embed(t(np.ascontiguousarray(rows)), None, embed)  # (E, M-1)
         pre = torch.addmm(w.enc_b[0].t(), emb.t(), w.enc_emb.t()).numpy()  # (M-1, 4H)
         h1 = np.zeros((layers, hidden), np.float32)
         c1 = np.zeros((layers, hidden), np.float32)
@@ -239,7 +245,7 @@ class CompiledNetworkModel:
         encode_rows(pre, *self._encoder_rows, h1, c1, enc)
 
         gates, h, c = b.t["gates"], b.t["h"], b.t["c"]
-        e = self._embed(b.t["xu"], b)
+        e = self._embed(b.t["xu"], b, embed)
         for i in range(layers):  # the last step: shared state, each candidate's input
             base = torch.addmm(w.enc_b[i], w.enc_hh[i], t(h1[i][:, None]))  # (4H, 1)
             w_in, x_in = (w.enc_emb, e) if i == 0 else (w.enc_ih[i], h[i - 1])

@@ -12,7 +12,11 @@ built on it), rearranged exactly, once, in float64, then rounded to float32:
   absolute head, whose mean is then added) is folded into the head's last layer, and its slack
   rows are dropped (they are for the loss only);
 - the decoder's first LSTM layer is split into its context and embedding columns, so that the
-  encoder outputs can be projected by the context columns once per window.
+  encoder outputs can be projected by the context columns once per window;
+- the first embedding layer's columns on the constants a network may see
+  (``ModelConfig.constants_input``) are kept apart: they are the same at every step of a
+  window, so they fold into that window's first bias (``first_bias``), or into the folded
+  bias itself when f's constants are fixed.
 
 The physics-step network (``models.physics_step.PhysicsStepNet``) folds the same way; its
 decoder step adds the folded correction to f(x_k, u_k, a_k) (``physics``), in the network's
@@ -30,7 +34,7 @@ from torch import Tensor, nn
 from ...config import VehicleParams
 from ...layout import STATE_DIM
 from ...models.lstm_attention import SlungLoadNet
-from ...models.physics_step import PhysicsStepNet
+from ...models.physics_step import PhysicsStepNet, constant_ratios
 from ...physics import VehicleConstants
 from .physics import load_filters
 
@@ -79,6 +83,21 @@ class FoldedWeights(NamedTuple):
     # "window": f runs with each window's constants (``physics.adapted_constants`` of the
     # history, in place of ``vehicle``'s cable length and load mass); "dataset": ``vehicle``.
     constants: str = "dataset"
+    # (E0, C) the first embedding layer's columns on f's constants (C = 0 unless the network
+    # sees them) and the constants they are measured against (``PhysicsStepNet.reference``).
+    embed_constants: np.ndarray = np.zeros((0, 0), np.float32)
+    reference: VehicleConstants | None = None
+
+
+def first_bias(w: FoldedWeights, vehicle: VehicleConstants) -> np.ndarray:
+    """The first embedding layer's bias (E0,) for a window whose f runs with ``vehicle``: the
+    folded bias plus the constants' columns times ``constant_ratios`` (float64 sum, float32
+    out); the folded bias itself for a network that does not see its constants."""
+    bias = w.embed[0][1]
+    if w.embed_constants.shape[1] == 0:
+        return bias
+    ratios = np.array(constant_ratios(vehicle, w.reference), np.float64)
+    return (bias + w.embed_constants.astype(np.float64) @ ratios).astype(np.float32)
 
 
 def unsupported_architecture(model: nn.Module) -> str | None:
@@ -111,8 +130,14 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
     dec_0, dec_ih, dec_hh, dec_b = _lstm(d, "decoder", cfg.num_layers)
     h = cfg.hidden_size
     vehicle = VehicleConstants.of(getattr(model, "params", None) or VehicleParams())
+    reference = VehicleConstants.of(getattr(model, "reference", None) or VehicleParams())
+    embed, embed_constants = _embedding(d, len(cfg.embed_sizes))
+    if embed_constants.shape[1] and cfg.constants != "window":  # fixed constants: a fixed bias
+        ratios = torch.tensor(constant_ratios(vehicle, reference), dtype=torch.float64)
+        embed[0] = (embed[0][0], embed[0][1] + embed_constants @ ratios)
+        embed_constants = embed_constants[:, :0]
     return FoldedWeights(
-        embed=tuple((_f32(w), _f32(b)) for w, b in _embedding(d, len(cfg.embed_sizes))),
+        embed=tuple((_f32(w), _f32(b)) for w, b in embed),
         head=tuple((_f32(w), _f32(b)) for w, b in _head(head, len(model.head.layers), gain)),
         enc_emb=_f32(enc_emb), enc_ih=_f32(enc_ih), enc_hh=_f32(enc_hh), enc_b=_f32(enc_b),
         att_w=_f32(d["attention.W.weight"]), att_u=_f32(d["attention.U.weight"]),
@@ -125,6 +150,8 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         vehicle=vehicle,
         load_filters=load_filters(cfg.load_estimate, vehicle.dt),
         constants=getattr(cfg, "constants", "dataset"),
+        embed_constants=_f32(embed_constants),
+        reference=reference,
     )  # fmt: skip
 
 
@@ -132,16 +159,18 @@ def _f32(t: Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.numpy(), dtype=np.float32)
 
 
-def _embedding(d: dict[str, Tensor], layers: int) -> list[tuple[Tensor, Tensor]]:
+def _embedding(d: dict[str, Tensor], layers: int) -> tuple[list[tuple[Tensor, Tensor]], Tensor]:
     """The embedding's (W, b) per layer, the first rewritten from the standardised inputs
-    z = (x - o - mean) / std, v = (u - mean) / std onto x - o and u."""
+    z = (x - o - mean) / std, v = (u - mean) / std onto x - o and u; and the first layer's
+    columns on the constants (E0, C), C = 0 for a network that does not see them."""
     ms, ss, mu, su = d["state_mean"], d["state_std"], d["input_mean"], d["input_std"]
-    w0, b0 = d["embed.layers.0.weight"], d["embed.layers.0.bias"]  # (E0, 17) on (z, v)
-    first = torch.cat([w0[:, :STATE_DIM] / ss, w0[:, STATE_DIM:] / su], 1)  # on (x - o, u)
+    w0, b0 = d["embed.layers.0.weight"], d["embed.layers.0.bias"]  # (E0, 17 + C) on (z, v, c)
+    features = STATE_DIM + len(mu)
+    first = torch.cat([w0[:, :STATE_DIM] / ss, w0[:, STATE_DIM:features] / su], 1)  # (x - o, u)
     embed = [(first, b0 - first[:, :STATE_DIM] @ ms - first[:, STATE_DIM:] @ mu)]
     embed += [(d[f"embed.layers.{i}.weight"], d[f"embed.layers.{i}.bias"])
               for i in range(1, layers)]  # fmt: skip
-    return embed
+    return embed, w0[:, features:]
 
 
 def _head(

@@ -47,7 +47,14 @@ from ...layout import (
 )
 from ...physics import VehicleConstants
 from ..predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
-from .fold import PHYSICS_STEP, RESIDUAL, FoldedWeights, fold, unsupported_architecture
+from .fold import (
+    PHYSICS_STEP,
+    RESIDUAL,
+    FoldedWeights,
+    first_bias,
+    fold,
+    unsupported_architecture,
+)
 from .kernels import (
     accumulate,
     affine,
@@ -150,8 +157,8 @@ class CompiledPredictor:
         self.weights = w = fold(predictor.model)
         self._w = rows = _rows(w)
         t = torch.from_numpy  # shares memory with the folded arrays
-        self._embedding = [
-            (t(rows.emb0_w), t(rows.emb0_b)),
+        self._embedding = [  # the first layer's bias is each window's (``_for_window``)
+            (t(rows.emb0_w), None),
             (t(rows.emb1_w), t(rows.emb1_b)),
             (t(rows.emb2_w), t(rows.emb2_b)),
         ]
@@ -192,31 +199,36 @@ class CompiledPredictor:
         origin = np.empty((batch, STATE_DIM), dtype=np.float32)
         for b in range(batch):
             _relative_rows(hist[b], w.origin_shift, xu[b], origin[b])
+        windows = [self._for_window(xu[b]) for b in range(batch)]
         with torch_threads(p.threads):  # the only torch work: one matrix product
-            pre = self._encoder_inputs(xu)
+            pre = self._encoder_inputs(xu, np.stack([r.emb0_b for r in windows]))
         out = np.empty((batch, fut.shape[1], STATE_DIM), dtype=np.float32)
         for b in range(batch):
-            _forward(xu[b], origin[b], pre[b], fut[b], self._for_window(xu[b]), out[b])
+            _forward(xu[b], origin[b], pre[b], fut[b], windows[b], out[b])
         return unbatch(out, single)
 
     def _for_window(self, xu: np.ndarray) -> _Rows:
-        """The rows with f's constants for this window (M, 17): the network's, or, adapting to
-        its load, the window's own estimate (``physics.adapted_constants``)."""
+        """The rows for this window (M, 17): f's constants the network's, or, adapting to its
+        load, the window's own estimate (``physics.adapted_constants``); the first embedding
+        bias with them (``fold.first_bias``) for a network that sees them."""
         w = self._w
         if self.weights.constants != "window":
             return w
-        return w._replace(vehicle=adapted_constants(xu[:, :STATE_DIM], xu[:, _THRUST], w.vehicle))
+        vehicle = adapted_constants(xu[:, :STATE_DIM], xu[:, _THRUST], w.vehicle)
+        return w._replace(vehicle=vehicle, emb0_b=first_bias(self.weights, vehicle))
 
-    def _encoder_inputs(self, xu: np.ndarray) -> np.ndarray:
-        """(B, M, 17) rows -> (B, M, 4H): embedding and encoder layer 0's input part.
+    def _encoder_inputs(self, xu: np.ndarray, bias0: np.ndarray) -> np.ndarray:
+        """(B, M, 17) rows -> (B, M, 4H): embedding and encoder layer 0's input part, with each
+        window's first embedding bias ``bias0`` (B, E0).
 
         Matrix-matrix work over the M history rows, done by torch's BLAS and vectorised GELU
         (several times faster here than the compiled loops); the recurrent part stays compiled.
         """
         batch, m, _ = xu.shape
         with torch.inference_mode():
-            e = torch.from_numpy(xu).reshape(batch * m, -1)
-            for weight, bias in self._embedding:
+            e = torch.from_numpy(xu) @ self._embedding[0][0]  # (B, M, E0)
+            e = F.gelu(e + torch.from_numpy(bias0).unsqueeze(1)).reshape(batch * m, -1)
+            for weight, bias in self._embedding[1:]:
                 e = F.gelu(torch.addmm(bias, e, weight))
             pre = torch.addmm(self._enc_b0, e, self._enc_emb)
         return pre.reshape(batch, m, -1).numpy()
