@@ -305,22 +305,32 @@ def _cell(value: Any) -> str:
 
 
 def _plot(rows: Sequence[dict[str, Any]], path: Path) -> Path:
-    """The objective of each finished trial in the order the trials started, and the best so
-    far."""
+    """Left: the objective of each finished trial in the order the trials started, and the
+    best so far. Right: ASHA's view, each trial's last reported validation RMSE against the
+    epoch it reached (finished trials filled), so stopped trials show too."""
     ordered = sorted(rows, key=lambda r: r["order"])
     order, values = [r["order"] for r in ordered], [r[OBJECTIVE] for r in ordered]
-    fig = Figure(figsize=(6.0, 3.2))
-    ax = fig.add_subplot(1, 1, 1)
+    fig = Figure(figsize=(9.0, 3.4))
+    ax, asha = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
     done = [(n, v) for n, v in zip(order, values, strict=True) if math.isfinite(v)]
-    ax.plot([n for n, _ in done], [v for _, v in done], "o", label="trial")
+    ax.plot([n for n, _ in done], [v for _, v in done], "o", label="finished trial")
     best, running = math.inf, []
     for v in values:
         best = min(best, v) if math.isfinite(v) else best
         running.append(best)
     ax.step(order, running, where="post", label="best so far")
-    ax.set_xlabel("trial")
-    ax.set_ylabel("val combined RMSE, N = 50")
+    ax.set_xlabel("trial (start order)")
+    ax.set_ylabel("objective: val combined RMSE, N = 50")
     ax.legend(fontsize=8)
-    ax.grid(alpha=0.3)
+    for finished, style in ((True, {}), (False, {"facecolors": "none"})):
+        part = [r for r in ordered if math.isfinite(r[OBJECTIVE]) == finished]
+        asha.scatter([r["epochs"] for r in part], [r[VAL_LOSS] for r in part],
+                     edgecolors="C0", color="C0", s=24,
+                     label="ran to the end" if finished else "stopped early", **style)  # fmt: skip
+    asha.set_xlabel("epochs reached")
+    asha.set_ylabel("last epoch's val RMSE (ASHA's metric)")
+    asha.legend(fontsize=8)
+    for a in (ax, asha):
+        a.grid(alpha=0.3)
     fig.tight_layout()
     return save_figure(fig, path)
