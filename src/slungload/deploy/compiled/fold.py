@@ -132,11 +132,7 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
     vehicle = VehicleConstants.of(getattr(model, "params", None) or VehicleParams())
     reference = VehicleConstants.of(getattr(model, "reference", None) or VehicleParams())
     embed, embed_constants = _embedding(d, len(cfg.embed_sizes))
-    if embed_constants.shape[1] and cfg.constants != "window":  # fixed constants: a fixed bias
-        ratios = torch.tensor(constant_ratios(vehicle, reference), dtype=torch.float64)
-        embed[0] = (embed[0][0], embed[0][1] + embed_constants @ ratios)
-        embed_constants = embed_constants[:, :0]
-    return FoldedWeights(
+    folded = FoldedWeights(
         embed=tuple((_f32(w), _f32(b)) for w, b in embed),
         head=tuple((_f32(w), _f32(b)) for w, b in _head(head, len(model.head.layers), gain)),
         enc_emb=_f32(enc_emb), enc_ih=_f32(enc_ih), enc_hh=_f32(enc_hh), enc_b=_f32(enc_b),
@@ -153,6 +149,11 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         embed_constants=_f32(embed_constants),
         reference=reference,
     )  # fmt: skip
+    if folded.constants != "window":  # f's constants fixed: the constants' columns, a fixed bias
+        first = (folded.embed[0][0], first_bias(folded, vehicle))
+        folded = folded._replace(embed=(first, *folded.embed[1:]),
+                                 embed_constants=folded.embed_constants[:, :0])  # fmt: skip
+    return folded
 
 
 def _f32(t: Tensor) -> np.ndarray:
