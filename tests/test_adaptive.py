@@ -5,6 +5,7 @@ physics-step network adapts f to each window's estimate (``ModelConfig.constants
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -161,16 +162,23 @@ def adaptive_predictor(varied):
     return Predictor(net.eval(), WINDOW, ds.params, "proposed"), windows
 
 
-def test_onnx_and_compiled_adaptive_networks_match_eager(adaptive_predictor, tmp_path):
-    predictor, windows = adaptive_predictor
+def _paths_agree(predictor, windows, onnx_path):
+    """Eager, ONNX and compiled batch-1 predictions of six windows agree; returns the compiled
+    predictor and those windows' (history, future inputs)."""
     history, future = predict_args(windows[:6])
     want = predictor.predict(history, future)
-    result = export(predictor, tmp_path / "adaptive.onnx")
+    result = export(predictor, onnx_path)
     assert result.max_abs_diff <= PARITY_TOLERANCE
     got = OnnxPredictor(result.model).predict(history, future)
     np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
     compiled = CompiledPredictor(predictor)
     np.testing.assert_allclose(compiled.predict(history, future), want, atol=PARITY_TOLERANCE)
+    return compiled, (history, future)
+
+
+def test_onnx_and_compiled_adaptive_networks_match_eager(adaptive_predictor, tmp_path):
+    predictor, windows = adaptive_predictor
+    compiled, (history, future) = _paths_agree(predictor, windows, tmp_path / "adaptive.onnx")
     with pytest.raises(ValueError, match="the last 50 rows"):
         compiled.predict(history[:, :10], future)
 
@@ -372,21 +380,16 @@ def test_a_network_that_sees_its_constants_is_the_adaptive_one_when_it_ignores_t
 
 def test_a_network_that_sees_its_constants_agrees_on_every_path(seeing_predictor, tmp_path):
     predictor, windows = seeing_predictor
-    history, future = predict_args(windows[:6])
-    want = predictor.predict(history, future)
-    result = export(predictor, tmp_path / "seeing.onnx")
-    assert result.max_abs_diff <= PARITY_TOLERANCE
-    got = OnnxPredictor(result.model).predict(history, future)
-    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
-    compiled = CompiledPredictor(predictor)
-    np.testing.assert_allclose(compiled.predict(history, future), want, atol=PARITY_TOLERANCE)
-    # candidates, in flight and given fixed constants (the truth's path)
+    _paths_agree(predictor, windows, tmp_path / "seeing.onnx")
+    # candidates, in flight and given fixed constants (the truth's path; on a copy, the
+    # fixture's network stays adaptive)
     m = WINDOW.history
     x, u_past = windows.states[5, :m], windows.inputs[5, : m - 1]
     plans = windows.inputs[5, m - 1 : -1].expand(6, -1, -1) + 0.3 * torch.randn(6, 25, 4)
     net = predictor.model
     for given in (None, dataclasses.replace(net.params, cable_length=1.2, mass_load=0.3)):
         if given is not None:
+            net = copy.deepcopy(net)
             net.params, net.config = given, dataclasses.replace(net.config, constants="dataset")
         eager = NetworkModel(net, m).predict_candidates(x, u_past, plans)
         fast = CompiledNetworkModel(net, m).predict_candidates(x, u_past, plans)
