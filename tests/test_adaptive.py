@@ -329,8 +329,34 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
     assert fly_loads(adaptive_run, tmp_path, cfg, progress=None) == rows  # nothing flown again
     assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
-    with pytest.raises(ValueError, match="not an adaptive network"):
+    with pytest.raises(ValueError, match="not a physics-step network"):
         fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
+
+
+def test_a_network_with_f_fixed_flies_the_same_loads_beside_the_adaptive_one(
+    varied, train_tiny, adaptive_run, tmp_path
+):
+    from slungload.control.loads import fly_loads, write_loads_report
+    from slungload.control.study_config import UnseenLoadsConfig
+
+    ds, _ = varied
+    fixed = dataclasses.replace(ADAPTIVE, constants="dataset")
+    train_tiny(ds, tmp_path / "fixed", variant="no-physics", model=fixed, window=WINDOW,
+               max_epochs=1)  # fmt: skip
+    cfg = UnseenLoadsConfig(loads=((0.3, 0.95),), maneuvers=("xy_step",), seeds=(100,),
+                            samples=16, steps=12, backend="eager")  # fmt: skip
+    rows = fly_loads(tmp_path / "fixed", tmp_path / "flown", cfg, progress=None)
+    fixed_labels = {"mpc-fixed (in-flight)", "mpc-fixed (true constants)"}
+    assert {r["controller"] for r in rows} >= fixed_labels
+    in_flight = next(r for r in rows if r["controller"] == "mpc-fixed (in-flight)")
+    given = next(r for r in rows if r["controller"] == "mpc-fixed (true constants)")
+    assert in_flight["load_rmse"] != given["load_rmse"]  # its f runs its own constants in flight
+    report = write_loads_report(rows, cfg, tmp_path / "flown").read_text()
+    assert "fixed: load RMSE" in report and "adaptive: load RMSE" not in report
+    both = fly_loads(adaptive_run, tmp_path / "flown", cfg, progress=None)  # into the same folder
+    assert [r for r in both if r["controller"] in {r["controller"] for r in rows}] == rows
+    report = write_loads_report(both, cfg, tmp_path / "flown").read_text()
+    assert "| mpc-adaptive (in-flight) - mpc-fixed (in-flight) | 1 |" in report
 
 
 # --- a network that sees its constants (``ModelConfig.constants_input``) ------------------

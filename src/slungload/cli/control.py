@@ -115,10 +115,11 @@ def add_control(sub: Any) -> None:
     )
     loads = p.add_argument_group(
         "unseen loads (--loads)",
-        "the MPC flying loads its model never saw: an adaptive physics-step network (--model, "
-        "trained with --constants window) and the physics model, each with the load estimated "
-        "in flight and given the true load, beside the PID; a second run flies only what is "
-        "missing (docs/control.md)",
+        "the MPC flying loads its model never saw: a physics-step network (--model: adaptive, "
+        "trained with --constants window, or with f fixed, e.g. trained on one load) and the "
+        "physics model, each with the load estimated in flight and given the true load, beside "
+        "the PID; a second run flies only what is missing, and a second network flown into the "
+        "same folder is compared with the first (docs/control.md)",
     )
     loads.add_argument("--loads", action="store_true", help="fly the unseen loads instead")
     defaults = UnseenLoadsConfig()
@@ -209,7 +210,7 @@ def _cmd_loads(args: argparse.Namespace) -> int:
 
     if len(args.model) != 1:
         raise ValueError(
-            f"control --loads flies one --model (an adaptive network), got {len(args.model)}"
+            f"control --loads flies one --model (a physics-step network), got {len(args.model)}"
         )
     changes: dict[str, Any] = {}
     for name, value in (("loads", args.load and tuple(args.load)),

@@ -11,6 +11,11 @@ unmodelled effect on) x maneuver x evaluation seed:
   (``load_model(..., constants=truth)``; the cost likewise): the reference it is held to.
 - ``mpc-physics (in-flight)`` and ``mpc-physics (true constants)``: the physics model, the same
   two ways.
+- In place of the adaptive network, a physics-step network whose f keeps the constants it was
+  trained with (``mpc-fixed``, e.g. one trained on one load): "in flight" its f runs those,
+  the MPC's cost the estimate, so that it differs from the adaptive MPC only in its model;
+  "true constants" as above. Flown into the same folder as an adaptive network, the report
+  pairs the two.
 - ``pid``: the simulator's PID built for the network's nominal vehicle.
 
 Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound,
@@ -53,10 +58,9 @@ from .study_report import (
     paired_table,
 )
 
-ADAPTIVE = "mpc-adaptive"
+ADAPTIVE, FIXED = "mpc-adaptive", "mpc-fixed"  # the networks' MPCs: f on the estimate, f fixed
+NETWORKS = (ADAPTIVE, FIXED)
 IN_FLIGHT, TRUE = "in-flight", "true constants"
-SUMMARY_HEADER = ("load", "adaptive: load RMSE", "swing RMS", "lost", "physics: load RMSE",
-                  "swing RMS", "lost")  # fmt: skip
 
 
 def plant_name(load_mass: float, cable_length: float) -> str:
@@ -70,7 +74,7 @@ def label(model: str, constants: str) -> str:
 
 
 def fly_loads(
-    adaptive: str | Path,
+    network: str | Path,
     out: str | Path,
     config: UnseenLoadsConfig | None = None,
     *,
@@ -79,17 +83,19 @@ def fly_loads(
 ) -> list[dict[str, Any]]:
     """Fly what is missing into ``out`` and return every row flown so far (see the module).
 
-    adaptive: a run folder of a physics-step network trained with ``--constants window``.
+    network: a run folder of a physics-step network: adaptive (``--constants window``,
+    flown as ``mpc-adaptive``) or with f on its training constants (``mpc-fixed``).
     threads: torch threads while flying (restored after).
     """
     cfg = config or UnseenLoadsConfig()
-    adaptive = Path(adaptive)
-    eager = load_prediction_model(adaptive)
-    if getattr(eager.net.config, "constants", None) != "window":
+    network = Path(network)
+    eager = load_prediction_model(network)
+    if getattr(eager.net, "architecture", None) != "physics-step":
         raise ValueError(
-            f"{adaptive}: not an adaptive network (train it with --constants window); the loads "
-            "flights compare its in-flight estimate with the true constants"
+            f"{network}: not a physics-step network; the loads flights give its f the true "
+            "constants, which only a physics-step network runs"
         )
+    name = ADAPTIVE if eager.net.config.constants == "window" else FIXED
     trained = with_backend(eager, cfg.backend)
     nominal: VehicleParams = eager.net.params  # the prior of the in-flight estimate
     nominal_sim = SimConfig().with_load(
@@ -100,23 +106,23 @@ def fly_loads(
     window = replace(mpc, constants="window")
     physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
-    write_json(out / "loads.json", {"adaptive": str(adaptive), "config": asdict(cfg),
-                                    "nominal": asdict(nominal)})  # fmt: skip
+    write_json(out / f"loads-{name}.json", {"network": str(network), "config": asdict(cfg),
+                                            "nominal": asdict(nominal)})  # fmt: skip
     with torch_threads(threads):
         for load_mass, cable_length in cfg.loads:
             plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
             truth = vehicle_params(plant)
             limits = InputLimits.from_sim(plant)
-            name = plant_name(load_mass, cable_length)
-            flown = [Flown(name, "pid", lambda seed: PIDController(nominal_sim))]
+            plant_label = plant_name(load_mass, cable_length)
+            flown = [Flown(plant_label, "pid", lambda seed: PIDController(nominal_sim))]
             for model, in_flight, given in (
-                (PHYSICS, physics, load_model(PHYSICS, truth, backend=cfg.backend)),
-                ("adaptive", trained, load_model(adaptive, backend=cfg.backend, constants=truth)),
+                (f"mpc-{PHYSICS}", physics, load_model(PHYSICS, truth, backend=cfg.backend)),
+                (name, trained, load_model(network, backend=cfg.backend, constants=truth)),
             ):  # fmt: skip
                 flown += [
-                    Flown(name, label(f"mpc-{model}", IN_FLIGHT),
+                    Flown(plant_label, label(model, IN_FLIGHT),
                           _mpc(in_flight, limits, window, nominal)),
-                    Flown(name, label(f"mpc-{model}", TRUE), _mpc(given, limits, mpc, truth)),
+                    Flown(plant_label, label(model, TRUE), _mpc(given, limits, mpc, truth)),
                 ]  # fmt: skip
             for f in flown:
                 for maneuver in cfg.maneuvers:
@@ -146,18 +152,26 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     loads.md."""
     out = Path(out)
     plants = [plant_name(*load) for load in config.loads]
+    flown = {r["controller"] for r in rows}
+    networks = [m for m in NETWORKS if label(m, IN_FLIGHT) in flown]
+    models = [*networks, f"mpc-{PHYSICS}"]
+    header = ["load"]
+    for model in models:
+        header += [f"{model.removeprefix('mpc-')}: load RMSE", "swing RMS", "lost"]
     summary = []
     for plant in plants:
         cells = [plant]
-        for model in (ADAPTIVE, f"mpc-{PHYSICS}"):
+        for model in models:
             cells += [fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
                       for key in ("load_rmse", "swing_rms")]  # fmt: skip
             lost = [sum(not r["completed"] for r in by_flight(rows, plant, label(model, c))
                         .values()) for c in (IN_FLIGHT, TRUE)]  # fmt: skip
             cells.append(f"{lost[0]} / {lost[1]}")
         summary.append(cells)
-    pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in (ADAPTIVE, f"mpc-{PHYSICS}")]
-    pairs.append((label(ADAPTIVE, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)))
+    pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in models]
+    pairs += [(label(m, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)) for m in networks]
+    if len(networks) == 2:  # what adapting f buys, both MPCs in flight
+        pairs.append((label(ADAPTIVE, IN_FLIGHT), label(FIXED, IN_FLIGHT)))
     lines = [
         "# The MPC on loads its model never saw",
         "",
@@ -173,7 +187,7 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         "flew to the end (1.00: as good as knowing the load), and the flights each lost (in "
         "flight / given the truth):",
         "",
-        markdown_table(SUMMARY_HEADER, summary),
+        markdown_table(header, summary),
         "",
         "![load RMSE per load](loads.png)",
     ]
