@@ -21,11 +21,13 @@ from slungload.control.study_config import COST_GRID, SHIFTS, TUNING_GRID, Study
 from slungload.control.study_report import gap_closed, write_study_report
 from slungload.frames import rotation_matrix, swing_angle
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
+from slungload.sim.aero import Aero
 from slungload.sim.config import Effects, SimConfig
 from slungload.sim.controller import Measurement, PIDController
 from slungload.sim.dataset import vehicle_params
 from slungload.sim.maneuvers import Reference
 from slungload.sim.plant import Plant
+from slungload.sim.plant_batch import quat_to_matrix
 
 NOMINAL = SimConfig()
 LIMITS = InputLimits.from_sim(NOMINAL)
@@ -54,20 +56,60 @@ def test_a_fork_steps_apart_and_sync_brings_it_back():
 
 @pytest.mark.parametrize("effects", [Effects(), Effects.none()], ids=["every effect", "none"])
 def test_the_oracle_predicts_what_the_plant_then_does(effects):
-    # In still air the oracle's prediction of a plan is what the plant flies under that plan,
-    # bit for bit: the same MuJoCo state, latency, thrust scale, lag and forces.
-    cfg = replace(SimConfig(effects=effects), wind_std=0.0)
+    # The oracle's prediction of a plan is what the plant flies under that plan in the same
+    # wind: the same MuJoCo state, latency, thrust scale, lags and forces, the K plans stepped
+    # together (``PlantBatch``) against the plant's own one-by-one ``advance``. Only MuJoCo's
+    # solver warm start is not carried between the batch's calls (agreement ~1e-14 m).
+    cfg = SimConfig(effects=effects)
     plant = Plant(cfg)
-    plant.advance(14.0, np.array([0.3, -0.2, 0.1]), np.zeros(3))  # not at rest, a command held
+    wind = np.array([1.5, -0.5, 0.2])
+    plant.advance(14.0, np.array([0.3, -0.2, 0.1]), wind)  # not at rest, a command held
     oracle = PlantCandidates()
     oracle.attach(plant)
     rng = np.random.default_rng(0)
-    plans = np.tile([14.2, 0.0, 0.0, 0.0], (3, 6, 1)) + rng.normal(0, [1, 0.5, 0.5, 0.2], (3, 6, 4))
+    # hard plans: thrust and rates far from hover, so the cable goes slack and snaps taut
+    plans = np.tile([14.2, 0.0, 0.0, 0.0], (3, 20, 1)) + rng.normal(0, [3, 2, 2, 0.5], (3, 20, 4))
+    before = _truth(plant)
     states = oracle.predict_candidates(np.zeros((2, 13)), np.zeros((1, 4)), plans)
-    for u in plans[1]:
-        plant.advance(float(u[0]), u[1:], np.zeros(3))
-    assert np.array_equal(states[1, -1], _truth(plant))
+    assert np.array_equal(_truth(plant), before)  # the plant itself did not move
+    for i in (0, 2):
+        twin = plant.fork()
+        for j, u in enumerate(plans[i]):
+            twin.advance(float(u[0]), u[1:], wind)
+            np.testing.assert_allclose(states[i, j], _truth(twin), rtol=0, atol=1e-10)
     assert not np.allclose(states[0, -1], states[1, -1])  # another plan, another outcome
+
+
+def test_the_batched_forces_are_the_plants_forces():
+    # ``Aero``'s batched methods against its one-state ones, on random states: in front of
+    # and beside the rotors, wind on, every effect, drag alone and downwash alone.
+    rng = np.random.default_rng(1)
+    k = 64
+    p, v, v_load = rng.normal(0, 1, (k, 3)), rng.normal(0, 3, (k, 3)), rng.normal(0, 3, (k, 3))
+    p_load = p + rng.normal([0, 0, -0.7], 0.5, (k, 3))
+    q = rng.normal(0, 1, (k, 4))
+    rot = quat_to_matrix(q)
+    thrust, wind = rng.uniform(-1, 30, k), np.array([2.0, -1.0, 0.3])
+    for effects in (Effects(), replace(Effects(), downwash=False), replace(Effects(), drag=False)):
+        aero = Aero(SimConfig(effects=effects))
+        wake = aero.wake_velocities(p, rot, thrust, p_load)
+        assert np.any(wake != 0) and np.any(np.all(wake == 0, axis=1))  # both cases met
+        for i in range(k):
+            one = aero.wake_velocity(p[i], rot[i], thrust[i], p_load[i])
+            np.testing.assert_allclose(wake[i], one, rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(aero.vehicle_forces(v, rot, thrust, wind)[i],
+                                       aero.vehicle_force(v[i], rot[i], thrust[i], wind),
+                                       rtol=1e-12, atol=1e-15)  # fmt: skip
+            np.testing.assert_allclose(aero.load_forces(v_load, wind, wake)[i],
+                                       aero.load_force(v_load[i], wind, one),
+                                       rtol=1e-12, atol=1e-15)  # fmt: skip
+
+
+def test_the_batch_reads_mujocos_rotation():
+    plant = Plant(SimConfig())
+    plant.set_state(q=np.array([0.9, 0.1, -0.3, 0.2]))  # not unit: MuJoCo normalises
+    xmat = plant.data.xmat[plant.quad].reshape(3, 3)  # what the plant's forces read
+    np.testing.assert_allclose(quat_to_matrix(plant.data.qpos[None, 3:7])[0], xmat, atol=1e-15)
 
 
 def test_the_oracle_needs_its_plant():
@@ -83,7 +125,7 @@ def test_the_oracle_mpc_flies_with_the_flights_plant_handed_through_the_guard():
     )
     log = fly("roll_35", 100, mpc, label="oracle", config=NOMINAL, steps=5)
     assert log.stopped is None and mpc.stats.fallback_steps == 0
-    assert mpc.core.model.plant is not None
+    assert mpc.core.model.batch is not None
 
 
 # --- the geometric controller ------------------------------------------------------------
@@ -263,6 +305,26 @@ def test_the_study_flies_only_the_plants_and_controllers_asked(tmp_path):
     assert not (tmp_path / "settings.json").exists()  # no real MPC: nothing tuned or timed
     with pytest.raises(ValueError, match="unknown plants"):
         run_study(None, tmp_path, TINY, plants=("moon",), progress=None)
+
+
+def test_the_oracle_flies_the_learned_mpcs_settings_at_its_own_k():
+    # The oracle and the learned MPC differ only in their model (the gap closed compares
+    # them); without a learned model in the study the oracle flies the defaults.
+    from slungload.control.study import _plan
+
+    nominal = SimConfig()
+    learned = {"temperature": 0.1, "thrust_std": 2.0, "rate_std": [1.0, 1.0, 0.4],
+               "max_swing": 0.7}  # fmt: skip
+    settings = {"mpc": {"learned": learned}}
+    for models, expected in (({"learned": object()}, learned), ({}, {})):
+        (flown,) = _plan(TINY, settings, models, vehicle_params(nominal), LIMITS, nominal,
+                         ("oracle",), ("nominal",))  # fmt: skip
+        cfg = flown.make(100).cfg
+        assert (cfg.samples, cfg.horizon, cfg.seed) == (TINY.oracle_samples, 3, 100)
+        wanted = replace(MPCConfig(), **{k: tuple(v) if isinstance(v, list) else v
+                                          for k, v in expected.items()})  # fmt: skip
+        for name in learned:
+            assert getattr(cfg, name) == getattr(wanted, name), name
 
 
 def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():

@@ -111,6 +111,21 @@ def add_control(sub: Any) -> None:
         help=f"MPC horizons (default {','.join(map(str, StudyConfig.horizons))})",
     )
     study.add_argument(
+        "--oracle-samples",
+        type=int,
+        default=StudyConfig.oracle_samples,
+        metavar="K",
+        help=f"the oracle MPC's samples per step (default {StudyConfig.oracle_samples})",
+    )
+    study.add_argument(
+        "--oracle-horizons",
+        type=comma_ints,
+        default=list(StudyConfig.oracle_horizons),
+        metavar="N,N",
+        help=f"the oracle MPC's horizons (default "
+        f"{','.join(map(str, StudyConfig.oracle_horizons))})",
+    )
+    study.add_argument(
         "--no-tune", action="store_true", help="MPC settings at their defaults (smoke runs)"
     )
     loads = p.add_argument_group(
@@ -184,7 +199,9 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if len(args.model) > 1:
         n = len(args.model)
         raise ValueError(f"control --study flies one --model (the learned one), got {n}")
-    changes = {"horizons": tuple(args.horizons), "tune": not args.no_tune}
+    changes = {"horizons": tuple(args.horizons), "tune": not args.no_tune,
+               "oracle_samples": args.oracle_samples,
+               "oracle_horizons": tuple(args.oracle_horizons)}  # fmt: skip
     if args.samples:
         changes["samples"] = args.samples[0]
     if args.backend:

@@ -14,7 +14,9 @@ Fair by construction: each real MPC's sampling noise, temperature and cost chang
 on the separate ``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the
 evaluation seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median
 control step (sampling, prediction, cost) is within the learned model's at its K
-(``equal_compute_samples``), per horizon.
+(``equal_compute_samples``), per horizon. The oracle flies the learned MPC's settings (at its
+own K, ``oracle_samples``), so that the two differ only in their model; without a learned model
+it flies the defaults.
 
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
@@ -102,8 +104,11 @@ def run_study(
     if learned is not None:
         models["learned"] = load_model(learned, backend=cfg.backend)
     with torch_threads(threads):
-        real_mpc = {PHYSICS, "learned"} & set(controllers)
-        settings = _settings(out, cfg, models, params, limits, progress) if real_mpc else {}
+        # the oracle flies the learned MPC's settings: they are needed for it too
+        needed = bool({PHYSICS, "learned"} & set(controllers)) or (
+            ORACLE in controllers and "learned" in models
+        )
+        settings = _settings(out, cfg, models, params, limits, progress) if needed else {}
         for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
             plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
             for maneuver in cfg.maneuvers:
@@ -131,8 +136,9 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 plans.append(Flown(plant, f"mpc-{kind} N={n}",
                                    _mpc(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
+            chosen = tuples_from_json(settings["mpc"]["learned"]) if "learned" in models else {}
             for n in cfg.oracle_horizons:
-                mpc = MPCConfig(horizon=n, knots=_knots(n), samples=cfg.oracle_samples)
+                mpc = MPCConfig(**chosen, horizon=n, knots=_knots(n), samples=cfg.oracle_samples)
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
                                    _mpc(None, limits, mpc, params)))  # fmt: skip
     return plans

@@ -74,6 +74,38 @@ class Aero:
             return np.zeros(3)
         return -self.load_q * math.sqrt(rel @ rel) * rel
 
+    # --- the same forces for K states at once (``plant_batch``); tests check them equal ----
+    def wake_velocities(self, p, rot, thrust, p_load) -> np.ndarray:
+        """``wake_velocity`` for K states: p, p_load (K, 3) m; rot (K, 3, 3); thrust (K,) N."""
+        down = -rot[:, :, 2]
+        rel = p_load - p
+        along = np.einsum("ki,ki->k", rel, down)
+        lateral2 = np.einsum("ki,ki->k", rel, rel) - along * along
+        v_i = np.sqrt(np.maximum(thrust, 0.0) * self.induced_k)
+        speed = self.wake_gain * v_i * np.exp(-lateral2 * self.inv_r2)
+        return np.where(along[:, None] > 0.0, speed[:, None] * down, 0.0)
+
+    def vehicle_forces(self, v, rot, thrust, wind) -> np.ndarray:
+        """``vehicle_force`` for K states: v (K, 3) m/s, rot (K, 3, 3), thrust (K,) N, wind
+        (3,) m/s -> (K, 3) N."""
+        if not self.drag:
+            return np.zeros_like(v)
+        vb = np.einsum("ki,kij->kj", v - wind, rot)  # body frame
+        speed = np.sqrt(np.einsum("ki,ki->k", vb, vb))
+        fb = -self.body_q * speed[:, None] * vb
+        fb[:, :2] -= (self.rotor_drag_per_newton * thrust)[:, None] * vb[:, :2]
+        return np.einsum("kij,kj->ki", rot, fb)
+
+    def load_forces(self, v_load, wind, wake) -> np.ndarray:
+        """``load_force`` for K states: v_load, wake (K, 3) m/s, wind (3,) m/s -> (K, 3) N."""
+        if self.drag:
+            rel = v_load - wind - wake
+        elif self.downwash:
+            rel = -wake
+        else:
+            return np.zeros_like(v_load)
+        return -self.load_q * np.sqrt(np.einsum("ki,ki->k", rel, rel))[:, None] * rel
+
 
 def ou_wind(cfg: SimConfig, steps: int, rng: np.random.Generator) -> np.ndarray:
     """Ornstein-Uhlenbeck wind velocity at each control step, (steps, 3) m/s, stationary start.

@@ -1,0 +1,131 @@
+"""K copies of one flight's plant stepped together: the oracle MPC's look-ahead (a benchmark).
+
+``PlantBatch.advance`` does for K command plans at once what ``Plant.advance`` does for one,
+period after period: the latency (the held command first), the thrust scale and sag, the
+thrust lag and rate loop (MuJoCo actuators), and every substep the drag, downwash and wind
+forces from Python. MuJoCo steps the K states with ``mujoco.rollout``, one substep per call,
+because the Python-side forces depend on the state they act on; the forces are evaluated for
+all K in numpy (``Aero``'s batched methods). The wind is held at one value for the plans.
+
+MuJoCo's own warm start of the cable's constraint solver is not carried between the calls, so
+the states agree with ``Plant.advance`` to the solver's tolerance, not bit for bit
+(tests/test_control_study.py measures it).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from .mjcf import THRUST_ACTUATOR
+from .plant import Plant
+
+_STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, act (no mocap, no plugins)
+_CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (K, 3, 3) of quaternions (K, 4) w-x-y-z, normalised first (as MuJoCo's
+    kinematics does before it writes ``xmat``)."""
+    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], 1),
+            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], 1),
+            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1),
+        ],
+        1,
+    )
+
+
+class PlantBatch:
+    """Look-ahead of a ``Plant``: K plans from its state now, stepped together (see module).
+
+    threads: MuJoCo threads stepping the K states (``mujoco.rollout``'s pool).
+    """
+
+    def __init__(self, plant: Plant, threads: int = 1) -> None:
+        m = plant.model
+        size = mujoco.mj_stateSize(m, _STATE)
+        if size != 1 + m.nq + m.nv + m.na:
+            raise ValueError("PlantBatch expects a model whose state is time, qpos, qvel, act")
+        self.plant = plant
+        self.threads = threads
+        self._qpos = 1
+        self._qvel = 1 + m.nq
+        self._act = 1 + m.nq + m.nv + THRUST_ACTUATOR  # the lagged thrust, as Plant.thrust
+        self._ncontrol = mujoco.mj_stateSize(m, _CONTROL)
+        self._datas = [mujoco.MjData(m) for _ in range(threads)]
+        self._pool = rollout.Rollout(nthread=threads) if threads > 1 else None
+
+    def _step(self, models, state: np.ndarray, control: np.ndarray, out: np.ndarray) -> None:
+        """One MuJoCo step of every row of ``state`` (K, nstate) into ``out`` (K, 1, nstate)."""
+        runner = self._pool.rollout if self._pool is not None else rollout.rollout
+        runner(models, self._datas, state, control, control_spec=_CONTROL, skip_checks=True,
+               nstep=1, state=out)  # fmt: skip
+
+    def advance(self, plans: np.ndarray, wind: np.ndarray) -> dict[str, np.ndarray]:
+        """Fly K plans (K, N, 4) (thrust N, body rates rad/s), each command held for one
+        control period, from the plant's state now in the wind (3,) m/s; the plant is not
+        touched. Returns the state after each period: p, v, p_load, v_load (K, N, 3) world
+        frame, q (K, N, 4) w-x-y-z."""
+        plant = self.plant
+        cfg, params, aero = plant.cfg, plant.params, plant.aero
+        k_count, n_steps = plans.shape[:2]
+        m, d = plant.model, plant.data
+        qp, qv, act = self._qpos, self._qvel, self._act
+        quad, load = plant.quad, plant.load
+        use_aero = aero.drag or aero.downwash
+        ideal_rates = not cfg.effects.rate_loop
+        wind = np.asarray(wind, dtype=float)
+
+        state0 = np.empty(mujoco.mj_stateSize(m, _STATE))
+        mujoco.mj_getState(m, d, state0, _STATE)
+        state = np.tile(state0, (k_count, 1))
+        out = np.empty((k_count, 1, state.shape[1]))
+        control = np.zeros((k_count, 1, self._ncontrol))
+        ctrl = control[:, 0, : m.nu]
+        xfrc = control[:, 0, m.nu :].reshape(k_count, m.nbody, 6)
+        ctrl[:] = d.ctrl  # the command still held for the latency
+        held_rates = np.tile(plant.command[1], (k_count, 1))
+        # MuJoCo's xmat after a step is the kinematics of the state before it: what the
+        # plant's forces read at the next substep
+        rot = np.tile(d.xmat[quad].reshape(3, 3), (k_count, 1, 1))
+        models = [m] * k_count
+        thrust_cap = cfg.max_thrust
+
+        dims = {"p": 3, "v": 3, "q": 4, "p_load": 3, "v_load": 3}
+        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in dims.items()}
+        lag = cfg.effects.thrust_lag
+        for j in range(n_steps):
+            time = plant.time + j * cfg.control_dt
+            scale = params.thrust_scale * (1.0 - params.battery_sag * time)
+            command = np.empty((k_count, m.nu))
+            command[:, THRUST_ACTUATOR] = np.clip(plans[:, j, 0] * scale, 0.0, thrust_cap)
+            command[:, THRUST_ACTUATOR + 1 : THRUST_ACTUATOR + 4] = plans[:, j, 1:4]
+            for s in range(cfg.substeps):
+                if s == plant.latency_steps:
+                    ctrl[:] = command
+                    held_rates = plans[:, j, 1:4]
+                if ideal_rates:
+                    state[:, qv + 3 : qv + 6] = held_rates
+                if use_aero:
+                    thrust = state[:, act] if lag else ctrl[:, THRUST_ACTUATOR]
+                    p, p_load = state[:, qp : qp + 3], state[:, qp + 7 : qp + 10]
+                    v, v_load = state[:, qv : qv + 3], state[:, qv + 6 : qv + 9]
+                    wake = (aero.wake_velocities(p, rot, thrust, p_load) if aero.downwash
+                            else np.zeros((k_count, 3)))  # fmt: skip
+                    xfrc[:, quad, 0:3] = aero.vehicle_forces(v, rot, thrust, wind)
+                    xfrc[:, load, 0:3] = aero.load_forces(v_load, wind, wake)
+                before = state[:, qp + 3 : qp + 7]
+                self._step(models, state, control, out)
+                if use_aero:
+                    rot = quat_to_matrix(before)
+                state = out[:, 0].copy()  # the next call writes into out
+            record["p"][:, j] = state[:, qp : qp + 3]
+            record["q"][:, j] = state[:, qp + 3 : qp + 7]
+            record["p_load"][:, j] = state[:, qp + 7 : qp + 10]
+            record["v"][:, j] = state[:, qv : qv + 3]
+            record["v_load"][:, j] = state[:, qv + 6 : qv + 9]
+        return record
