@@ -292,6 +292,21 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
         run_study(None, out, replace(TINY, seeds=(101,)), progress=None)
 
 
+def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):
+    # The same rows, whichever process flew them (the compute columns aside); the parent
+    # writes the settings, the workers read them.
+    config = replace(TINY, shifts=(), horizons=(3,))
+    kinds = ("pid", "physics", "oracle")
+    alone = run_study(None, tmp_path / "one", config, controllers=kinds, progress=None)
+    lines: list[str] = []
+    pooled = run_study(None, tmp_path / "two", config, controllers=kinds, workers=2,
+                       progress=lines.append)  # fmt: skip
+    timing = {"wall_s", "compute_median", "compute_p99"}
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in timing} for r in rows]  # noqa: E731
+    assert strip(pooled) == strip(alone) and len(pooled) == 3 and len(lines) == 3
+    assert (tmp_path / "two" / "settings.json").exists()
+
+
 def test_the_study_command_refuses_two_models(run_cli, tmp_path):
     code, _, err = run_cli(
         "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"

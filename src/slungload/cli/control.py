@@ -111,6 +111,13 @@ def add_control(sub: Any) -> None:
         help=f"MPC horizons (default {','.join(map(str, StudyConfig.horizons))})",
     )
     study.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="flights flown at once, one process each (default 1; the settings are tuned "
+        "first, in one process)",
+    )
+    study.add_argument(
         "--oracle-samples",
         type=int,
         default=StudyConfig.oracle_samples,
@@ -215,7 +222,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     config = replace(StudyConfig(), **changes)
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
-                     threads=args.threads, progress=None if args.quiet else print)  # fmt: skip
+                     threads=args.threads, workers=args.workers,
+                     progress=None if args.quiet else print)  # fmt: skip
     print(write_study_report(rows, config, args.out, str(learned) if learned else None))
     return 0
 

@@ -30,6 +30,7 @@ import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
+from ..workers import run_jobs
 from .closed_loop import FlightLog, flight_metrics, fly, read_log, write_log
 from .geometric import GEOMETRIC, GeometricLoadController
 from .mpc import InputLimits, MPCConfig, SamplingMPC
@@ -78,6 +80,7 @@ def run_study(
     controllers: Sequence[str] = CONTROLLERS,
     plants: Sequence[str] | None = None,
     threads: int = 1,
+    workers: int = 1,
     progress: Callable[[str], None] | None = print,
 ) -> list[dict[str, Any]]:
     """Fly what is missing of the study into ``out`` and return every row flown so far.
@@ -87,6 +90,8 @@ def run_study(
     plants: the plants to fly now (NOMINAL and the config's shifts; default all), likewise.
     threads: torch threads while flying (restored after): one per process, so that processes
     flying side by side do not oversubscribe the cores, and the compute times are one core's.
+    workers: flights flown at once, each in its own process (``workers.run_jobs``); the
+    settings are tuned and matched first, in this process.
     """
     cfg = config or StudyConfig()
     unknown = set(controllers) - set(CONTROLLERS)
@@ -109,12 +114,70 @@ def run_study(
             ORACLE in controllers and "learned" in models
         )
         settings = _settings(out, cfg, models, params, limits, progress) if needed else {}
-        for flown in _plan(cfg, settings, models, params, limits, nominal, controllers, plants):
-            plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
-            for maneuver in cfg.maneuvers:
-                for seed in cfg.seeds:
-                    fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+        plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
+        if workers <= 1:
+            for flown in plans:
+                plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
+                for maneuver in cfg.maneuvers:
+                    for seed in cfg.seeds:
+                        fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
+        else:
+            learned_at = None if learned is None else str(learned)
+            kinds = tuple(controllers)
+            jobs = [_Job(str(out), learned_at, cfg, kinds, flown.plant, flown.label, maneuver,
+                         seed, threads)
+                    for flown in plans for maneuver in cfg.maneuvers for seed in cfg.seeds
+                    if not flight_path(out, flown.plant, flown.label, maneuver, seed)
+                    .with_suffix(".json").exists()]  # fmt: skip
+            for line in run_jobs(_fly_job, jobs, workers=workers, progress=False):
+                if progress:
+                    progress(line)
     return collect_rows(out)
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One flight of the study, as a worker process rebuilds it (it pickles)."""
+
+    out: str
+    learned: str | None
+    cfg: StudyConfig
+    controllers: tuple[str, ...]
+    plant: str
+    label: str
+    maneuver: str
+    seed: int
+    threads: int
+
+
+@lru_cache(maxsize=1)
+def _worker_plans(
+    out: str, learned: str | None, cfg: StudyConfig, controllers: tuple[str, ...]
+) -> dict[tuple[str, str], Flown]:
+    """Every (plant, label) -> ``Flown`` of the study, built once per worker process from the
+    settings its parent wrote."""
+    nominal = SimConfig()
+    params = vehicle_params(nominal)
+    models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
+    if learned is not None:
+        models["learned"] = load_model(learned, backend=cfg.backend)
+    path = Path(out) / "settings.json"
+    settings = read_json(path) if path.exists() else {}
+    plans = _plan(cfg, settings, models, params, InputLimits.from_sim(nominal), nominal,
+                  controllers, (NOMINAL, *cfg.shifts))  # fmt: skip
+    return {(f.plant, f.label): f for f in plans}
+
+
+def _fly_job(job: _Job) -> str:
+    """Fly one ``_Job`` in a worker; its progress line."""
+    flown = _worker_plans(job.out, job.learned, job.cfg, job.controllers)[(job.plant, job.label)]
+    nominal = SimConfig()
+    plant_cfg = nominal if job.plant == NOMINAL else SHIFTS[job.plant](nominal)
+    lines: list[str] = []
+    with torch_threads(job.threads):
+        fly_once(Path(job.out), flown, job.maneuver, job.seed, plant_cfg,
+                 InputLimits.from_sim(nominal), job.cfg.steps, lines.append)  # fmt: skip
+    return lines[0] if lines else ""
 
 
 def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -> list[Flown]:
