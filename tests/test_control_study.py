@@ -307,6 +307,20 @@ def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):
     assert (tmp_path / "two" / "settings.json").exists()
 
 
+def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path):
+    # With a learned model the oracle flies its settings, and the report pairs the two at
+    # each horizon the oracle flew and measures the gap closed there.
+    config = replace(TINY, shifts=(), horizons=(3, 4), oracle_horizons=(3, 4))
+    rows = run_study(tiny_run.out, tmp_path, config, controllers=("physics", "learned", "oracle"),
+                     progress=None)  # fmt: skip
+    assert len(rows) == 6
+    report = write_study_report(rows, config, tmp_path, str(tiny_run.out)).read_text()
+    for n in (3, 4):
+        assert f"## The gap to the oracle, N = {n}" in report
+        assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
+    assert "the oracle the learned one's" in report
+
+
 def test_the_study_command_refuses_two_models(run_cli, tmp_path):
     code, _, err = run_cli(
         "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"
