@@ -321,6 +321,23 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
     assert "the oracle the learned one's" in report
 
 
+def test_the_shifted_plants_fly_the_horizons_asked():
+    from slungload.control.study import _plan
+
+    nominal = SimConfig()
+    settings = {"mpc": {"physics": {}}, "samples": {"physics": {"3": 4, "4": 4}}}
+    for shift, expected in (
+        ((), {"mpc-physics N=3"}),
+        ((3, 4), {"mpc-physics N=3", "mpc-physics N=4"}),
+    ):
+        config = replace(TINY, shift_horizons=shift)
+        plans = _plan(config, settings, {"physics": object()}, vehicle_params(nominal), LIMITS,
+                      nominal, ("physics",), ("wind x2",))  # fmt: skip
+        assert {f.label for f in plans} == expected
+    with pytest.raises(ValueError, match="among the horizons"):
+        replace(TINY, shift_horizons=(50,))
+
+
 def test_the_study_command_refuses_two_models(run_cli, tmp_path):
     code, _, err = run_cli(
         "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"

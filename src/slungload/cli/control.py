@@ -111,6 +111,12 @@ def add_control(sub: Any) -> None:
         help=f"MPC horizons (default {','.join(map(str, StudyConfig.horizons))})",
     )
     study.add_argument(
+        "--shift-horizons",
+        type=comma_ints,
+        metavar="N,N",
+        help="MPC horizons on the shifted plants, among --horizons (default the first)",
+    )
+    study.add_argument(
         "--workers",
         type=int,
         default=1,
@@ -207,6 +213,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
         n = len(args.model)
         raise ValueError(f"control --study flies one --model (the learned one), got {n}")
     changes = {"horizons": tuple(args.horizons), "tune": not args.no_tune,
+               "shift_horizons": tuple(args.shift_horizons or ()),
                "oracle_samples": args.oracle_samples,
                "oracle_horizons": tuple(args.oracle_horizons)}  # fmt: skip
     if args.samples:

@@ -7,8 +7,8 @@ One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
   simulator's own plant, the ceiling), at each horizon N of ``horizons`` (the oracle at
   ``oracle_horizons``);
 - on each shifted plant of ``shifts`` (``SHIFTS``: heavier load, longer cable, stronger wind,
-  slower thrust) the PID, the geometric controller and both real MPCs at the first horizon, every
-  model built for the nominal vehicle.
+  slower thrust) the PID, the geometric controller and both real MPCs at ``shift_horizons``,
+  every model built for the nominal vehicle.
 
 Fair by construction: each real MPC's sampling noise, temperature and cost changes are chosen
 on the separate ``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the
@@ -188,7 +188,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
             plans.append(Flown(plant, "pid", lambda seed: PIDController(nominal)))
         if GEOMETRIC in controllers:
             plans.append(Flown(plant, GEOMETRIC, lambda seed: GeometricLoadController(nominal)))
-        horizons = cfg.horizons if plant == NOMINAL else cfg.horizons[:1]
+        horizons = cfg.horizons if plant == NOMINAL else cfg.shifted_horizons
         for kind in (PHYSICS, "learned"):
             if kind not in controllers or kind not in models:
                 continue

@@ -54,14 +54,24 @@ class StudyConfig:
     oracle_samples: int = 32  # K of the oracle's MPC (it is not real time)
     oracle_horizons: tuple[int, ...] = (15,)
     shifts: tuple[str, ...] = tuple(SHIFTS)
+    # N of the real MPCs on the shifted plants, among ``horizons`` (empty: the first of them)
+    shift_horizons: tuple[int, ...] = ()
     steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
     tune: bool = True  # choose each MPC's noise and temperature on the tuning seeds
     backend: str = "compiled"  # what the real models predict on
+
+    @property
+    def shifted_horizons(self) -> tuple[int, ...]:
+        """The horizons flown on the shifted plants."""
+        return self.shift_horizons or self.horizons[:1]
 
     def __post_init__(self) -> None:
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
             raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")
+        if set(self.shift_horizons) - set(self.horizons):
+            raise ValueError(f"shift horizons {list(self.shift_horizons)} must be among the "
+                             f"horizons {list(self.horizons)}")  # fmt: skip
 
 
 @dataclass(frozen=True)
