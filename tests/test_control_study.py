@@ -240,6 +240,9 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
     assert gap_closed(rows, "p", "l", "o", "load_rmse") == [
         ["m", "1", "0.300", "0.200", "0.100", "50 %"]
     ]
+    # an oracle no better than physics leaves no gap: no ratio, not a negative one
+    worse = [_row("p", "m", 1, 0.2), _row("l", "m", 1, 0.1), _row("o", "m", 1, 0.3)]
+    assert gap_closed(worse, "p", "l", "o", "load_rmse")[0][-1] == "-"
 
 
 # --- the study ---------------------------------------------------------------------------
