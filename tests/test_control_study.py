@@ -64,7 +64,7 @@ def test_the_oracle_predicts_what_the_plant_then_does(effects):
     plant = Plant(cfg)
     wind = np.array([1.5, -0.5, 0.2])
     plant.advance(14.0, np.array([0.3, -0.2, 0.1]), wind)  # not at rest, a command held
-    oracle = PlantCandidates()
+    oracle = PlantCandidates(threads=2)  # MuJoCo's pool: the same states as one thread
     oracle.attach(plant)
     rng = np.random.default_rng(0)
     # hard plans: thrust and rates far from hover, so the cable goes slack and snaps taut

@@ -1,11 +1,11 @@
 """The oracle prediction model: the simulator's own plant as the MPC's model (a benchmark).
 
-``PlantCandidates`` meets ``mppi.CandidateModel``: at every control step it rolls each of the K
-candidate plans out on a twin of the flight's plant (``sim.plant.Plant.fork``), from the true
-state, with everything the simulator applies from Python (drag, downwash, latency, thrust scale
-and sag, the rate loop, the thrust lag) and the wind held at its latest value (the future gusts
-are the one thing it does not know). The MPC with this model shows how well *any* model could
-do in this controller: the ceiling a learned model is measured against. Not real time: the K
+``PlantCandidates`` meets ``mppi.CandidateModel``: at every control step it flies the K
+candidate plans from the flight's true state on copies of its plant, with everything the
+simulator applies from Python (drag, downwash, latency, thrust scale and sag, the rate loop,
+the thrust lag) and the wind held at its latest value (the future gusts are the one thing it
+does not know). The MPC with this model shows how well a perfect model does in this controller
+(measured: no better than the learned one, docs/BENCHMARKS.md). Not real time: the K
 candidates step MuJoCo N x ``SimConfig.substeps`` times (``sim.plant_batch.PlantBatch``: one
 ``mujoco.rollout`` call per substep, the Python-side forces batched in numpy between the calls;
 ``mujoco.rollout`` over whole plans would leave those forces out and simulate another plant).
