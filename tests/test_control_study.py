@@ -322,6 +322,9 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
         assert f"## The gap to the oracle, N = {n}" in report
         assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
     assert "the oracle the learned one's" in report
+    # an oracle alone reads the settings the real MPCs wrote, and never tunes them itself
+    with pytest.raises(ValueError, match="no settings.json yet"):
+        run_study(tiny_run.out, tmp_path / "new", config, controllers=("oracle",), progress=None)
 
 
 def test_the_shifted_plants_fly_the_horizons_asked():

@@ -21,7 +21,8 @@ it flies the defaults.
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
 the same command flies only what is missing, so the expensive oracle can run as its own
-process (``controllers``) beside the rest. ``study_report`` turns the rows into the report.
+process (``controllers``) beside the rest, once the real MPCs' settings are written.
+``study_report`` turns the rows into the report.
 """
 
 from __future__ import annotations
@@ -109,10 +110,15 @@ def run_study(
     if learned is not None:
         models["learned"] = load_model(learned, backend=cfg.backend)
     with torch_threads(threads):
-        # the oracle flies the learned MPC's settings: they are needed for it too
-        needed = bool({PHYSICS, "learned"} & set(controllers)) or (
-            ORACLE in controllers and "learned" in models
-        )
+        # the oracle flies the learned MPC's settings: they are needed for it too, but an
+        # oracle alone only reads them (two processes tuning at once could disagree)
+        real = bool({PHYSICS, "learned"} & set(controllers))
+        oracle = ORACLE in controllers and "learned" in models
+        if oracle and not real and not (out / "settings.json").exists():
+            raise ValueError(f"the oracle flies the learned MPC's settings, and {out} has no "
+                             "settings.json yet: fly the real MPCs first (--controllers "
+                             "physics,learned), or all together")  # fmt: skip
+        needed = real or oracle
         settings = _settings(out, cfg, models, params, limits, progress) if needed else {}
         plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
         if workers <= 1:
@@ -130,7 +136,7 @@ def run_study(
                     if not flight_path(out, flown.plant, flown.label, maneuver, seed)
                     .with_suffix(".json").exists()]  # fmt: skip
             for line in run_jobs(_fly_job, jobs, workers=workers, progress=False):
-                if progress:
+                if progress and line:
                     progress(line)
     return collect_rows(out)
 

@@ -219,7 +219,7 @@ def write_study_report(
         for c in ("geometric", "pid")
         if has(c) and has(f"mpc-learned N={first}")
     ]
-    # what is left between the learned model and the perfect one (same settings, same K)
+    # what is left between the learned model and the perfect one (same MPC settings)
     ceiling = [
         (f"mpc-learned N={n}", f"mpc-oracle N={n}")
         for n in horizons
@@ -258,7 +258,8 @@ def write_study_report(
             f"## The gap to the oracle, N = {n}",
             "",
             f"(physics - learned) / (physics - oracle) at N = {n}, per maneuver (the oracle "
-            "flies the learned MPC's settings and K; - where it is no better than physics).",
+            "flies the learned MPC's settings at its own K; - where it is no better than "
+            "physics).",
             "",
         ]
         for key, head, _ in KEYS[:2]:
