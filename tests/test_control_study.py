@@ -27,7 +27,6 @@ from slungload.sim.controller import Measurement, PIDController
 from slungload.sim.dataset import vehicle_params
 from slungload.sim.maneuvers import Reference
 from slungload.sim.plant import Plant
-from slungload.sim.plant_batch import quat_to_matrix
 
 NOMINAL = SimConfig()
 LIMITS = InputLimits.from_sim(NOMINAL)
@@ -88,7 +87,7 @@ def test_the_batched_forces_are_the_plants_forces():
     p, v, v_load = rng.normal(0, 1, (k, 3)), rng.normal(0, 3, (k, 3)), rng.normal(0, 3, (k, 3))
     p_load = p + rng.normal([0, 0, -0.7], 0.5, (k, 3))
     q = rng.normal(0, 1, (k, 4))
-    rot = quat_to_matrix(q)
+    rot = rotation_matrix(q)
     thrust, wind = rng.uniform(-1, 30, k), np.array([2.0, -1.0, 0.3])
     for effects in (Effects(), replace(Effects(), downwash=False), replace(Effects(), drag=False)):
         aero = Aero(SimConfig(effects=effects))
@@ -109,7 +108,7 @@ def test_the_batch_reads_mujocos_rotation():
     plant = Plant(SimConfig())
     plant.set_state(q=np.array([0.9, 0.1, -0.3, 0.2]))  # not unit: MuJoCo normalises
     xmat = plant.data.xmat[plant.quad].reshape(3, 3)  # what the plant's forces read
-    np.testing.assert_allclose(quat_to_matrix(plant.data.qpos[None, 3:7])[0], xmat, atol=1e-15)
+    np.testing.assert_allclose(rotation_matrix(plant.data.qpos[None, 3:7])[0], xmat, atol=1e-15)
 
 
 def test_the_oracle_needs_its_plant():

@@ -18,25 +18,12 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from ..frames import rotation_matrix
 from .mjcf import THRUST_ACTUATOR
 from .plant import Plant
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, act (no mocap, no plugins)
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (K, 3, 3) of quaternions (K, 4) w-x-y-z, normalised first (as MuJoCo's
-    kinematics does before it writes ``xmat``)."""
-    w, x, y, z = (q / np.linalg.norm(q, axis=1, keepdims=True)).T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], 1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], 1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], 1),
-        ],
-        1,
-    )
 
 
 class PlantBatch:
@@ -121,7 +108,7 @@ class PlantBatch:
                 before = state[:, qp + 3 : qp + 7]
                 self._step(models, state, control, out)
                 if use_aero:
-                    rot = quat_to_matrix(before)
+                    rot = rotation_matrix(before)  # normalised, as MuJoCo's xmat
                 state = out[:, 0].copy()  # the next call writes into out
             record["p"][:, j] = state[:, qp : qp + 3]
             record["q"][:, j] = state[:, qp + 3 : qp + 7]
