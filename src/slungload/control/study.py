@@ -106,9 +106,7 @@ def run_study(
     nominal = SimConfig()
     params = vehicle_params(nominal)
     limits = InputLimits.from_sim(nominal)
-    models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
-    if learned is not None:
-        models["learned"] = load_model(learned, backend=cfg.backend)
+    models = _models(learned, params, cfg.backend)
     with torch_threads(threads):
         # the oracle flies the learned MPC's settings: they are needed for it too, but an
         # oracle alone only reads them (two processes tuning at once could disagree)
@@ -123,7 +121,7 @@ def run_study(
         plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
         if workers <= 1:
             for flown in plans:
-                plant_cfg = nominal if flown.plant == NOMINAL else SHIFTS[flown.plant](nominal)
+                plant_cfg = _plant_config(flown.plant)
                 for maneuver in cfg.maneuvers:
                     for seed in cfg.seeds:
                         fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
@@ -133,8 +131,7 @@ def run_study(
             jobs = [_Job(str(out), learned_at, cfg, kinds, flown.plant, flown.label, maneuver,
                          seed, threads)
                     for flown in plans for maneuver in cfg.maneuvers for seed in cfg.seeds
-                    if not flight_path(out, flown.plant, flown.label, maneuver, seed)
-                    .with_suffix(".json").exists()]  # fmt: skip
+                    if not _landed(out, flown, maneuver, seed)]  # fmt: skip
             for line in run_jobs(_fly_job, jobs, workers=workers, progress=False):
                 if progress and line:
                     progress(line)
@@ -164,9 +161,7 @@ def _worker_plans(
     settings its parent wrote."""
     nominal = SimConfig()
     params = vehicle_params(nominal)
-    models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
-    if learned is not None:
-        models["learned"] = load_model(learned, backend=cfg.backend)
+    models = _models(learned, params, cfg.backend)
     path = Path(out) / "settings.json"
     settings = read_json(path) if path.exists() else {}
     plans = _plan(cfg, settings, models, params, InputLimits.from_sim(nominal), nominal,
@@ -177,13 +172,27 @@ def _worker_plans(
 def _fly_job(job: _Job) -> str:
     """Fly one ``_Job`` in a worker; its progress line."""
     flown = _worker_plans(job.out, job.learned, job.cfg, job.controllers)[(job.plant, job.label)]
-    nominal = SimConfig()
-    plant_cfg = nominal if job.plant == NOMINAL else SHIFTS[job.plant](nominal)
     lines: list[str] = []
     with torch_threads(job.threads):
-        fly_once(Path(job.out), flown, job.maneuver, job.seed, plant_cfg,
-                 InputLimits.from_sim(nominal), job.cfg.steps, lines.append)  # fmt: skip
+        fly_once(Path(job.out), flown, job.maneuver, job.seed, _plant_config(job.plant),
+                 InputLimits.from_sim(SimConfig()), job.cfg.steps, lines.append)  # fmt: skip
     return lines[0] if lines else ""
+
+
+def _models(
+    learned: str | Path | None, params: VehicleParams, backend: str
+) -> dict[str, PredictionModel]:
+    """The physics model and, given a run folder, the learned one, on ``backend``."""
+    models = {PHYSICS: load_model(PHYSICS, params, backend=backend)}
+    if learned is not None:
+        models["learned"] = load_model(learned, backend=backend)
+    return models
+
+
+def _plant_config(plant: str) -> SimConfig:
+    """The simulator's config of a study plant: NOMINAL or a ``SHIFTS`` name."""
+    nominal = SimConfig()
+    return nominal if plant == NOMINAL else SHIFTS[plant](nominal)
 
 
 def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -> list[Flown]:
@@ -230,9 +239,9 @@ def _mpc(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleP
 
 def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:
     """Fly one flight of ``flown`` and land it under ``out`` (``flight_path``) unless there."""
-    path = flight_path(out, flown.plant, flown.label, maneuver, seed)
-    if path.with_suffix(".json").exists():
+    if _landed(out, flown, maneuver, seed):
         return
+    path = flight_path(out, flown.plant, flown.label, maneuver, seed)
     start = time.perf_counter()
     log = fly(maneuver, seed, flown.make(seed), label=flown.label, config=plant_cfg, steps=steps)
     row = flight_metrics(log, limits, plant_cfg.cable_length)
@@ -246,6 +255,11 @@ def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progre
             f"{flown.plant} {maneuver} s{seed} {flown.label}: load {row['load_rmse']:.3f} m, "
             f"swing {row['swing_rms']:.1f} deg, {row['wall_s']:.0f} s ({status})"
         )
+
+
+def _landed(out: Path, flown: Flown, maneuver: str, seed: int) -> bool:
+    """Whether that flight's row is already under ``out`` (written last: the flight is done)."""
+    return flight_path(out, flown.plant, flown.label, maneuver, seed).with_suffix(".json").exists()
 
 
 def flight_path(out: Path, plant: str, label: str, maneuver: str, seed: int) -> Path:
