@@ -108,6 +108,24 @@ def test_the_truth_beats_the_nominal_constants_and_the_estimate_comes_close(vari
     assert bool((est.mass_load <= high * ds.params.mass_load).all())
 
 
+def test_the_estimates_mass_prior_pulls_physics_towards_the_nominal_load(varied):
+    from dataclasses import replace
+
+    ds, windows = varied
+    m = WINDOW.history
+    x, u_past = windows.states[5, :m].double(), windows.inputs[5, : m - 1].double()
+    plans = windows.inputs[5, m - 1 : -1].double().expand(4, -1, -1) + 0.3 * torch.randn(4, 25, 4)
+    u = torch.cat([u_past, plans[0, :1]])
+    # An overwhelming prior keeps the nominal mass: physics on the window's cable length alone.
+    cable = float(adapted(x, u, ds.params, 1e12).cable_length)
+    held = PhysicsModel(ds.params, constants="window", prior_weight=1e12)
+    own = PhysicsModel(replace(ds.params, cable_length=cable))
+    want = own.predict_candidates(x, u_past, plans)
+    torch.testing.assert_close(held.predict_candidates(x, u_past, plans), want, atol=1e-9, rtol=0)
+    free = PhysicsModel(ds.params, constants="window", prior_weight=0.0)
+    assert (free.predict_candidates(x, u_past, plans) - want).abs().max() > 1e-4  # mass moves it
+
+
 def test_physics_with_the_flights_constants_needs_them(physics_flight):
     from slungload.data.windows import make_windows
 

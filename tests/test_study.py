@@ -103,6 +103,7 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
 
     from slungload.data.dataset import load_dataset
     from slungload.study import LoadsStudyConfig, study_loads
+    from slungload.study.loads import choose_estimate_prior
     from slungload.study.loads_config import NETWORK_ROWS, PHYSICS_ROWS, TRUTH
 
     config = LoadsStudyConfig(flights=4, beyond_flights=2, size="tiny")
@@ -132,6 +133,12 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
     assert beyond and min(beyond) >= config.beyond_mass[0]
     for name in ("loads.md", "loads.csv", "loads.png", "inside/report.md", "beyond/report.md"):
         assert (out / name).is_file()
+    # The estimate's mass prior is chosen on the validation flights of many, and said so.
+    chosen, scores = choose_estimate_prior(out / "data" / "many", one.params, config)
+    assert set(scores) == set(config.estimate_priors) and scores[chosen] == min(scores.values())
+    assert f"the prior {chosen:g} (m/s^2)^2 per equation, chosen on the validation" in (
+        out / "loads.md"
+    ).read_text().replace("\n", " ")
     # Every network's seed-0 run is kept in its dataset's folder (a re-run trains nothing).
     runs = sorted(p.parent.parent.name for p in (out / "runs").glob("*/*/run.json"))
     assert runs == sorted(source for source, _, _ in NETWORK_ROWS.values())

@@ -113,15 +113,20 @@ def estimate_constants(
     return _solve(window_stats(states, inputs, params, smoothing, prior_weight))
 
 
-def adapted(states: Tensor, inputs: Tensor, params: VehicleParams) -> VehicleConstants:
+def adapted(
+    states: Tensor,
+    inputs: Tensor,
+    params: VehicleParams,
+    prior_weight: float = ADAPT_PRIOR_WEIGHT,
+) -> VehicleConstants:
     """The constants a model adapting to its load runs f with, one set per window: the
     ``params``' with the window's cable length and load mass (``estimate_constants`` with the
-    prior ``ADAPT_PRIOR_WEIGHT``, each clipped to ``ADAPT_RANGE`` times ``params``'). states
+    mass prior ``prior_weight``, each clipped to ``ADAPT_RANGE`` times ``params``'). states
     (..., M, 13), inputs (..., M, 4) -> those two as tensors (...,) in the states' dtype, the
     other constants floats; no gradient (the
     estimate is the data's, not the model's)."""
     with torch.no_grad():
-        est = estimate_constants(states, inputs, params, prior_weight=ADAPT_PRIOR_WEIGHT)
+        est = estimate_constants(states, inputs, params, prior_weight=prior_weight)
         clipped = {
             name: getattr(est, name).clamp(
                 low * getattr(params, name), high * getattr(params, name)

@@ -46,7 +46,7 @@ from torch import Tensor, nn
 
 from .. import physics
 from ..config import CONSTANTS_SOURCES, VehicleParams, WindowConfig
-from ..constants_estimate import adapted
+from ..constants_estimate import ADAPT_PRIOR_WEIGHT, adapted
 from ..data.windows import Windows, physics_rollout
 from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
 from ..load_state import estimate_load_state
@@ -76,8 +76,9 @@ class PhysicsModel:
     (``params``, one set), "window" (each window's cable length and load mass estimated from
     its history, ``constants_estimate.adapted``; M >= 17, candidates take the network's 50)
     or "flight" (each window's flight's recorded constants, ``Windows.constants``: the truth
-    of simulated varied loads; windows only). batch_size: windows per rollout in
-    ``predict_windows``.
+    of simulated varied loads; windows only). prior_weight: the in-flight estimate's mass
+    prior ("window"; ``constants_estimate.estimate_constants``), (m/s^2)^2 per equation.
+    batch_size: windows per rollout in ``predict_windows``.
     """
 
     params: VehicleParams
@@ -85,6 +86,7 @@ class PhysicsModel:
     history: int = 2
     batch_size: int = 8192
     constants: str = "dataset"
+    prior_weight: float = ADAPT_PRIOR_WEIGHT
 
     def __post_init__(self) -> None:
         if self.constants not in CONSTANTS_SOURCES:
@@ -105,7 +107,9 @@ class PhysicsModel:
                 )
         elif self.constants == "window":
             history = windows.history
-            params = adapted(history.states.double(), history.inputs.double(), self.params)
+            params = adapted(
+                history.states.double(), history.inputs.double(), self.params, self.prior_weight
+            )
         states = physics_rollout(windows, params, self.batch_size)
         return states.to(windows.states.dtype)
 
@@ -120,7 +124,7 @@ class PhysicsModel:
         params: physics.Vehicle = self.params
         if self.constants == "window":  # the history's inputs; u_k is not used by the estimate
             u = torch.cat([u_past.to(plans.dtype), plans[0, :1]])
-            est = adapted(x_hist, u, self.params)
+            est = adapted(x_hist, u, self.params, self.prior_weight)
             params = est._replace(
                 mass_load=float(est.mass_load), cable_length=float(est.cable_length)
             )

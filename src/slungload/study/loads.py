@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import VehicleParams, WindowConfig
+from ..constants_estimate import ADAPT_PRIOR_WEIGHT
 from ..data.dataset import load_dataset, resolve_params
 from ..data.windows import Windows, make_windows
 from ..evaluation.evaluator import Candidate, evaluate_predictors
@@ -39,7 +40,14 @@ from ..models.prediction import NetworkModel, PhysicsModel
 from ..reporting import markdown_table, model_colors, save_figure
 from ..run_config import RunConfig
 from ..sim import SimConfig, simulate_dataset
-from .loads_config import NETWORK_ROWS, PHYSICS_ROWS, SETS, TRUTH, LoadsStudyConfig
+from .loads_config import (
+    ESTIMATE_ROW,
+    NETWORK_ROWS,
+    PHYSICS_ROWS,
+    SETS,
+    TRUTH,
+    LoadsStudyConfig,
+)
 from .size import size_run
 
 
@@ -82,12 +90,14 @@ def study_loads(
     run_training_jobs(jobs, workers=workers, progress=progress, cluster=cluster)
 
     params, _ = resolve_params(data["many"], None)  # the nominal constants
+    prior, priors = choose_estimate_prior(data["many"], params, config)
     rows: list[LoadsRow] = []
     per_flight: list[tuple[str, str, str, float, float]] = []
     worse: dict[tuple[str, str], tuple[int, int]] = {}
     for test_set in SETS:
         windows = _test_windows(data, test_set, params, config.horizons)
-        candidates = [Candidate(label, PhysicsModel(params, name=label, constants=source))
+        candidates = [Candidate(label, PhysicsModel(params, name=label, constants=source,
+                                                    prior_weight=prior))
                       for label, source in PHYSICS_ROWS.items()]  # fmt: skip
         for label, (source, _, _) in NETWORK_ROWS.items():
             for run in runs[label]:
@@ -103,8 +113,29 @@ def study_loads(
                  for r in report.results]  # fmt: skip
         per_flight += _per_flight(candidates, windows[max(config.horizons)], test_set)
         worse.update(_steps_worse(report.curves, max(config.horizons), test_set))
-    write_loads_study(rows, per_flight, worse, out, config, params)
+    write_loads_study(rows, per_flight, worse, out, config, params, priors)
     return rows
+
+
+def choose_estimate_prior(
+    folder: Path, params: VehicleParams, config: LoadsStudyConfig
+) -> tuple[float, dict[float, float]]:
+    """The mass prior of ``config.estimate_priors`` with which physics on the in-flight estimate
+    predicts the validation flights of ``folder`` (``many``) best (combined RMSE at the longest
+    horizon), and each prior's RMSE. The test loads play no part in the choice."""
+    ds = load_dataset(folder, window=WindowConfig(), params=params)
+    names = ds.splits["val"].names
+    if not names:
+        raise ValueError(
+            f"{folder}: no validation flights to choose the in-flight estimate's mass prior on"
+        )
+    window = WindowConfig(history=ds.window.history, horizon=max(config.horizons))
+    windows = make_windows([ds.flights[n] for n in names], window, params)
+    scores = {}
+    for weight in config.estimate_priors:
+        model = PhysicsModel(params, constants="window", prior_weight=weight)
+        scores[weight] = compute_metrics(model.predict_windows(windows), windows).rmse[COMBINED]
+    return min(scores, key=scores.__getitem__), scores
 
 
 def _datasets(
@@ -211,10 +242,11 @@ def write_loads_study(
     out: Path,
     config: LoadsStudyConfig,
     params: VehicleParams,
+    priors: dict[float, float],
 ) -> None:
     """loads.csv (every run), flights.csv, loads.md (mean +- std over seeds, the ratios to
-    physics with the true constants, the horizon steps worse than it: ``worse``) and
-    loads.png."""
+    physics with the true constants, the horizon steps worse than it: ``worse``; the in-flight
+    estimate's mass prior chosen, from ``priors``: prior -> validation RMSE) and loads.png."""
     lines = ["set,label,seed,horizon,combined_rmse"]
     lines += [f"{r.test_set},{r.label},{'' if r.seed is None else r.seed},{r.horizon},{r.rmse}"
               for r in rows]  # fmt: skip
@@ -237,6 +269,14 @@ def write_loads_study(
         f"{config.beyond_mass[0]:g}-{config.beyond_mass[1]:g} kg, "
         f"{config.beyond_length[0]:g}-{config.beyond_length[1]:g} m beyond it. Combined RMSE "
         f"(mean ± std over seeds) and its ratio to {truth!r}.",
+        "",
+        f"{ESTIMATE_ROW!r} runs f on each window's cable length and load mass estimated from "
+        f"its history, the mass with the prior {min(priors, key=priors.__getitem__):g} "
+        f"(m/s^2)^2 per equation, chosen on the validation flights of the training loads "
+        f"(combined RMSE at N = {max(config.horizons)}: "
+        + ", ".join(f"{w:g}: {e:.3f}" for w, e in priors.items())
+        + f"). The adaptive networks' f runs on the same estimate with the prior "
+        f"{ADAPT_PRIOR_WEIGHT:g}.",
     ]
     for test_set in SETS:
         header = ["model"]

@@ -28,6 +28,10 @@ class LoadsStudyConfig:
     beyond_flights: int = 12  # flights of ``beyond``, all tested
     size: str = "small"  # the network's named size (``config.MODEL_SIZES``)
     horizons: tuple[int, ...] = (25, 50)  # evaluated horizons N, steps
+    # The in-flight estimate's mass priors, (m/s^2)^2 per equation
+    # (``constants_estimate.estimate_constants``), that the physics row with the estimate
+    # chooses from on the validation flights of ``many`` (combined RMSE at the longest horizon).
+    estimate_priors: tuple[float, ...] = (0.2, 0.5, 1.0, 2.0, 5.0)
 
     @property
     def nominal(self) -> tuple[float, float]:
@@ -37,11 +41,9 @@ class LoadsStudyConfig:
 
 # The rows of the study, by label (no commas: they are CSV cells): which constants the physics
 # model runs with.
-PHYSICS_ROWS = {
-    "physics (nominal)": "dataset",
-    "physics (in-flight estimate)": "window",
-    "physics (true constants)": "flight",
-}
+TRUTH = "physics (true constants)"  # the reference row
+ESTIMATE_ROW = "physics (in-flight estimate)"  # its mass prior chosen on validation
+PHYSICS_ROWS = {"physics (nominal)": "dataset", ESTIMATE_ROW: "window", TRUTH: "flight"}
 # The networks: the dataset each trains on, the constants its f runs with and whether its
 # correction sees them (``ModelConfig.constants_input``).
 NETWORK_ROWS = {
@@ -50,7 +52,6 @@ NETWORK_ROWS = {
     "many loads (adaptive)": ("many", "window", False),
     "many loads (adaptive sees constants)": ("many", "window", True),
 }
-TRUTH = "physics (true constants)"  # the reference row
 # The test sets, unseen loads inside and beyond the range: the dataset whose flights each tests
 # (inside: the test flights of "many"; beyond: every flight of "beyond").
 SETS = {"inside": "many", "beyond": "beyond"}
