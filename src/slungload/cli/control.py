@@ -11,6 +11,7 @@ from ..control.study_config import (
     DEFAULT_MANEUVERS,
     NOMINAL,
     SHIFTS,
+    RecordConfig,
     StudyConfig,
     UnseenLoadsConfig,
 )
@@ -162,9 +163,43 @@ def add_control(sub: Any) -> None:
         f"{','.join(map(str, defaults.seeds))}), --samples (default {defaults.samples}), "
         f"--horizon (default {defaults.horizon}), --steps and --backend)",
     )
+    record = p.add_argument_group(
+        "training data from the MPC's own flights (--record)",
+        "fly the MPC over --model on sim seeds no benchmark flies and write a new dataset (--out):"
+        " --base's flights and splits with the recorded flights added to its train split, each "
+        "kept until the arena stopped it; train on it to teach the model the states its MPC "
+        "leads it into (one round of DAgger; docs/control.md)",
+    )
+    record.add_argument("--record", action="store_true", help="record flights instead")
+    record.add_argument(
+        "--base", type=Path, metavar="DATASET",
+        help="the dataset the model was trained on (simulated, nominal vehicle)",
+    )  # fmt: skip
+    rec = RecordConfig()
+    record.add_argument(
+        "--flights",
+        type=_flight_counts,
+        metavar="NAME:COUNT,...",
+        help="flights per maneuver (default "
+        + ",".join(f"{m}:{n}" for m, n in rec.flights)
+        + f"), sim seeds from {rec.first_seed} on; with --samples (default {rec.samples}), "
+        f"--horizon (default {rec.horizon}), --steps (default {rec.steps}), --backend and "
+        "--workers",
+    )
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no line per flight")
     p.set_defaults(func=cmd_control)
+
+
+def _flight_counts(text: str) -> tuple[tuple[str, int], ...]:
+    """'NAME:COUNT,NAME:COUNT' -> ((name, count), ...)."""
+    try:
+        pairs = [item.split(":") for item in text.split(",") if item.strip()]
+        return tuple((name.strip(), int(count)) for name, count in pairs)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected NAME:COUNT,... (e.g. xy_step:30,roll_35:5), got {text!r}"
+        ) from None
 
 
 def _load(text: str) -> tuple[float, float]:
@@ -179,8 +214,11 @@ def _load(text: str) -> tuple[float, float]:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
-    if args.study and args.loads:
-        raise ValueError("control: --study and --loads are two runs; give one")
+    modes = [name for name in ("study", "loads", "record") if getattr(args, name)]
+    if len(modes) > 1:
+        raise ValueError(f"control: --{' and --'.join(modes)} are separate runs; give one")
+    if args.record:
+        return _cmd_record(args)
     if args.study:
         return _cmd_study(args)
     if args.loads:
@@ -257,4 +295,28 @@ def _cmd_loads(args: argparse.Namespace) -> int:
     rows = fly_loads(args.model[0], args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
     print(write_loads_report(rows, config, args.out))
+    return 0
+
+
+def _cmd_record(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..control.record import record_flights
+
+    if len(args.model) != 1 or args.base is None:
+        raise ValueError("control --record needs one --model (the MPC's) and --base (a dataset)")
+    changes: dict[str, Any] = {}
+    for name, value in (("flights", args.flights), ("samples", args.samples and args.samples[0]),
+                        ("horizon", args.horizon), ("steps", args.steps),
+                        ("backend", args.backend)):  # fmt: skip
+        if value:
+            changes[name] = value
+    config = replace(RecordConfig(), **changes)
+    done = record_flights(args.model[0], args.base, args.out, config, workers=args.workers,
+                          threads=args.threads, progress=not args.quiet)  # fmt: skip
+    print(
+        f"{done.folder}: {len(done.flights)} recorded flights added to the train split "
+        f"({len(done.stopped)} stopped by the arena, kept up to there; "
+        f"{len(done.skipped)} too short for a training window, left out)"
+    )
     return 0

@@ -29,10 +29,10 @@ import numpy as np
 
 from ..fileio import write_npz
 from ..frames import swing_angle
-from ..layout import LOAD_POS, POS
+from ..layout import LOAD_POS, POS, QUAT, RATES, THRUST, VEL
 from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
-from ..sim.flight import simulate_flight
+from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
 from .mpc import InputLimits
 
@@ -112,6 +112,15 @@ class FlightLog:
     compute: np.ndarray  # (S,) s per controller call
     stopped: str | None = None  # why the run ended early, None when it flew to the end
     stats: dict[str, Any] = field(default_factory=dict)  # the controller's counters
+
+    def published(self, dt: float) -> dict[str, np.ndarray]:
+        """The recorded part (t >= 0, up to where the flight stopped) in the published flight
+        schema, as ``simulate`` writes a flight: what the controller measured and commanded,
+        ``dt`` s apart."""
+        x, u = self.states[self.t >= 0], self.inputs[self.t >= 0]
+        rec = {"p": x[:, POS], "v": x[:, VEL], "q": x[:, QUAT], "p_load": x[:, LOAD_POS],
+               "w_ref": u[:, RATES], "T_ref": u[:, THRUST]}  # fmt: skip
+        return published(rec, dt)
 
 
 def fly(

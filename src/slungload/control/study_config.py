@@ -97,3 +97,49 @@ class UnseenLoadsConfig:
     min_height: float = FLOOR
     steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
     backend: str = "compiled"  # what the models predict on
+
+
+# Sim seeds the closed-loop benchmarks fly: recorded training flights must not use them (the
+# cost changes of docs/BENCHMARKS.md were also flown by hand on tuning seeds 200-209).
+BENCHMARK_SEEDS = frozenset(
+    {*StudyConfig.seeds, *StudyConfig.tuning_seeds, *UnseenLoadsConfig.seeds, *range(200, 210)}
+)
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """What ``control --record`` flies (``record.record_flights``): the MPC over a trained model
+    on ``flights`` (maneuver, count) with sim seeds ``first_seed``, ``first_seed`` + 1, ...,
+    each flight recorded until it ends or the arena stops it, as training data on the states
+    that MPC visits (docs/control.md). Defaults: the control study's learned MPC at N = 15 (its
+    K, temperature and swing bound), most flights position steps, where that MPC lost flights."""
+
+    flights: tuple[tuple[str, int], ...] = (
+        ("xy_step", 30),
+        ("xyz_step", 10),
+        *((maneuver, 5) for maneuver in STUDY_MANEUVERS if maneuver != "xy_step"),
+    )
+    first_seed: int = 1000  # none of the benchmarks' seeds (``BENCHMARK_SEEDS``)
+    samples: int = 256  # K
+    horizon: int = 15  # N, steps of 0.03 s
+    temperature: float = 0.1
+    max_swing: float = SWING_BOUND  # rad
+    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
+    backend: str = "compiled"  # what the model predicts on
+
+    def __post_init__(self) -> None:
+        counts = [n for _, n in self.flights]
+        if not counts or min(counts) < 1:
+            raise ValueError(f"RecordConfig.flights: each maneuver needs >= 1 flight, got "
+                             f"{list(self.flights)}")  # fmt: skip
+        taken = sorted(BENCHMARK_SEEDS.intersection(self.seeds))
+        if taken:
+            raise ValueError(
+                f"recorded flights would fly the benchmarks' sim seeds {taken} (evaluation and "
+                f"tuning); start them elsewhere (first seed now {self.first_seed})"
+            )
+
+    @property
+    def seeds(self) -> range:
+        """The sim seeds flown (each maneuver from ``first_seed`` on)."""
+        return range(self.first_seed, self.first_seed + max(n for _, n in self.flights))

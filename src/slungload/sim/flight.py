@@ -122,12 +122,13 @@ def simulate_flight(
             truth["wind"][i] = wind[k]
         plant.advance(thrust, rates, wind[k])
 
-    arrays = _published(rec, h, flown if cfg.loads.active else None)
+    arrays = published(rec, h, flown if cfg.loads.active else None)
     return Flight(man.name, arrays, truth, plant.params, flown)
 
 
-def _published(rec: dict[str, np.ndarray], h: float, flown: SimConfig | None) -> dict:
-    """The recorded arrays in the published schema (attitude x-y-z-w); with ``flown`` (loads
+def published(rec: dict[str, np.ndarray], h: float, flown: SimConfig | None = None) -> dict:
+    """The recorded arrays (p, v, q w-x-y-z, p_load, w_ref, T_ref (n, 1), each (n, ...)) in
+    the published schema (attitude x-y-z-w), ``h`` s apart; with ``flown`` (loads
     that vary from flight to flight) also this flight's constants, ``fileio.CONSTANT_KEYS``:
     without ranges the file is what it always was."""
     q = rec["q"] / np.linalg.norm(rec["q"], axis=1, keepdims=True)

@@ -1,0 +1,79 @@
+"""Training data from the MPC's own flights (``control --record``): the recorded flights are
+what ``simulate`` would write of the same flight, they join the base's train split only, and
+bad bases and seeds are refused before anything is written."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from slungload.control.closed_loop import fly
+from slungload.control.record import record_flights
+from slungload.control.study_config import BENCHMARK_SEEDS, RecordConfig
+from slungload.data.dataset import load_dataset, read_splits
+from slungload.sim import SimConfig, simulate_dataset, simulate_flight
+from slungload.sim.controller import PIDController
+
+SMALL = RecordConfig(flights=(("xy_step", 2), ("roll_35", 1)), samples=8, horizon=5, steps=120)
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    out = tmp_path_factory.mktemp("record") / "base"
+    simulate_dataset(out, flights=3, seed=5, workers=1, progress=False, maneuvers=("roll_35",))
+    return out
+
+
+def test_a_logged_flight_is_published_as_simulate_writes_it():
+    cfg = SimConfig()
+    want = simulate_flight("roll_35", seed=3, config=cfg, steps=90).arrays
+    log = fly("roll_35", 3, PIDController(cfg.nominal), label="pid", config=cfg, steps=90)
+    got = log.published(cfg.control_dt)
+    assert set(got) == set(want)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+
+
+def test_recorded_flights_join_the_train_split_only(tiny_run, base, tmp_path):
+    out = tmp_path / "recorded"
+    done = record_flights(tiny_run.out, base, out, SMALL, progress=False)
+    names = ("mpc_xy_step_1000", "mpc_xy_step_1001", "mpc_roll_35_1000")
+    assert done.folder == out and set(done.flights) | set(done.skipped) == set(names)
+    before, after = read_splits(base), read_splits(out)
+    assert after["val"] == before["val"] and after["test"] == before["test"]
+    assert after["train"] == [*before["train"], *done.flights]
+    ds = load_dataset(out, use_cache=False)
+    for name in done.flights:
+        flight = ds.flights[name]
+        assert 100 <= len(flight.states) <= SMALL.steps
+        assert np.isfinite(flight.states).all() and np.isfinite(flight.inputs).all()
+    made = json.loads((out / "vehicle.json").read_text())
+    assert made["recorded"]["first_seed"] == SMALL.first_seed and made["base"] == str(base)
+
+
+def test_a_base_of_another_vehicle_is_refused_and_nothing_is_written(tiny_run, tmp_path):
+    with pytest.raises(ValueError, match="nominal vehicle"):
+        record_flights(tiny_run.out, tiny_run.data, tmp_path / "x", SMALL, progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def test_recorded_flights_never_fly_a_benchmarks_seeds():
+    assert 100 in BENCHMARK_SEEDS and 200 in BENCHMARK_SEEDS
+    with pytest.raises(ValueError, match="benchmarks' sim seeds"):
+        RecordConfig(first_seed=98)
+    with pytest.raises(ValueError, match=">= 1 flight"):
+        RecordConfig(flights=(("xy_step", 0),))
+
+
+def test_the_command_line_records(run_cli, tiny_run, base, tmp_path):
+    code, out, err = run_cli("control", "--record", "--model", str(tiny_run.out),
+                             "--base", str(base), "--flights", "roll_35:1", "--samples", "8",
+                             "--horizon", "5", "--steps", "110", "--out", str(tmp_path / "r"),
+                             "--quiet")  # fmt: skip
+    assert code == 0, err
+    assert "recorded flights added to the train split" in out
+    code, _, err = run_cli("control", "--record", "--model", str(tiny_run.out),
+                           "--out", str(tmp_path / "q"))  # fmt: skip
+    assert code == 2 and "--base" in err
