@@ -5,6 +5,7 @@ bad bases and seeds are refused before anything is written."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from slungload.data.dataset import load_dataset, read_splits
 from slungload.sim import SimConfig, simulate_dataset, simulate_flight
 from slungload.sim.controller import PIDController
 
-SMALL = RecordConfig(flights=(("xy_step", 2), ("roll_35", 1)), samples=8, horizon=5, steps=120)
+SMALL = RecordConfig(flights=(("xy_step", 2), ("roll_35", 1)), samples=32, horizon=10, steps=120)
 
 
 @pytest.fixture(scope="module")
@@ -36,21 +37,34 @@ def test_a_logged_flight_is_published_as_simulate_writes_it():
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
 
 
-def test_recorded_flights_join_the_train_split_only(tiny_run, base, tmp_path):
+def test_recorded_flights_join_the_train_split_only(base, tmp_path):
     out = tmp_path / "recorded"
-    done = record_flights(tiny_run.out, base, out, SMALL, progress=False)
+    done = record_flights("physics", base, out, SMALL, progress=False)  # flies 120 steps
     names = ("mpc_xy_step_1000", "mpc_xy_step_1001", "mpc_roll_35_1000")
-    assert done.folder == out and set(done.flights) | set(done.skipped) == set(names)
+    assert done.folder == out and done.flights == names and not done.skipped
     before, after = read_splits(base), read_splits(out)
     assert after["val"] == before["val"] and after["test"] == before["test"]
-    assert after["train"] == [*before["train"], *done.flights]
+    assert after["train"] == [*before["train"], *names]
     ds = load_dataset(out, use_cache=False)
-    for name in done.flights:
+    for name in names:
         flight = ds.flights[name]
-        assert 100 <= len(flight.states) <= SMALL.steps
+        assert len(flight.states) == SMALL.steps
         assert np.isfinite(flight.states).all() and np.isfinite(flight.inputs).all()
     made = json.loads((out / "vehicle.json").read_text())
     assert made["recorded"]["first_seed"] == SMALL.first_seed and made["base"] == str(base)
+    # A second round on the recorded data needs other seeds: the names would collide.
+    with pytest.raises(ValueError, match="another first seed"):
+        record_flights("physics", out, tmp_path / "again", SMALL, progress=False)
+    assert not (tmp_path / "again").exists()
+
+
+def test_flights_stopped_before_one_training_window_are_left_out(tiny_run, base, tmp_path):
+    # One epoch of the tiny network: its MPC leaves the arena within a second.
+    config = replace(SMALL, flights=(("roll_35", 1),))
+    done = record_flights(tiny_run.out, base, tmp_path / "r", config, progress=False)
+    assert done.skipped == ("mpc_roll_35_1000",) and not done.flights
+    assert read_splits(tmp_path / "r") == read_splits(base)
+    assert not (tmp_path / "r" / "mpc_roll_35_1000.npz").exists()
 
 
 def test_a_base_of_another_vehicle_is_refused_and_nothing_is_written(tiny_run, tmp_path):

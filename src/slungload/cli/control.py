@@ -186,6 +186,11 @@ def add_control(sub: Any) -> None:
         f"--horizon (default {rec.horizon}), --steps (default {rec.steps}), --backend and "
         "--workers",
     )
+    record.add_argument(
+        "--first-seed", type=int, default=rec.first_seed, metavar="SEED",
+        help=f"the first sim seed of each maneuver's flights (default {rec.first_seed}; a "
+        "second round on a dataset that holds the first needs another)",
+    )  # fmt: skip
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--quiet", action="store_true", help="no line per flight")
     p.set_defaults(func=cmd_control)
@@ -306,7 +311,8 @@ def _cmd_record(args: argparse.Namespace) -> int:
     if len(args.model) != 1 or args.base is None:
         raise ValueError("control --record needs one --model (the MPC's) and --base (a dataset)")
     changes: dict[str, Any] = {}
-    for name, value in (("flights", args.flights), ("samples", args.samples and args.samples[0]),
+    for name, value in (("flights", args.flights), ("first_seed", args.first_seed),
+                        ("samples", args.samples and args.samples[0]),
                         ("horizon", args.horizon), ("steps", args.steps),
                         ("backend", args.backend)):  # fmt: skip
         if value:

@@ -22,13 +22,14 @@ from ..config import VEHICLE_FILE, WindowConfig, to_dict
 from ..data.dataset import read_splits
 from ..data.readers import flight_files
 from ..data.writer import DatasetWriter
+from ..deploy.compiled.batched import load_model
 from ..deploy.predictor import torch_threads
 from ..fileio import read_json, write_npz
 from ..sim.config import SimConfig, vehicle_params
 from ..workers import run_jobs
 from .closed_loop import fly
 from .mpc import InputLimits, MPCConfig
-from .study import _knots, _models, _mpc
+from .study import _knots, _mpc
 from .study_config import RecordConfig
 
 
@@ -62,7 +63,8 @@ def record_flights(
     threads: int = 1,
     progress: bool = True,
 ) -> Recorded:
-    """Fly the MPC over the run ``model`` on ``config.flights`` in the nominal simulator and
+    """Fly the MPC over ``model`` (a run folder, or "physics") on ``config.flights`` in the
+    nominal simulator and
     write ``out``: the dataset ``base`` (flights of the simulator's nominal vehicle) with the
     recorded flights joining its train split. Nothing is left at ``out`` if it fails."""
     base = Path(base)
@@ -76,17 +78,24 @@ def record_flights(
         )
     splits = read_splits(base)
     files = flight_files(base)
+    plan = [(maneuver, seed, f"mpc_{maneuver}_{seed}")
+            for maneuver, count in config.flights
+            for seed in range(config.first_seed, config.first_seed + count)]  # fmt: skip
+    taken = sorted({name for _, _, name in plan} & set(files))
+    if taken:
+        raise ValueError(
+            f"{base} already holds flights named {taken[:3]}{' ...' if len(taken) > 3 else ''} "
+            f"(recorded from sim seed {config.first_seed} on before?); record from another first "
+            "seed"
+        )
     shortest = WindowConfig().history + WindowConfig().horizon
     writer = DatasetWriter(out)
     with writer:
-        for name in (n for names in splits.values() for n in names):
-            shutil.copyfile(files[name], writer.folder / files[name].name)
-        jobs = [
-            _Job(str(model), maneuver, config.first_seed + i, config,
-                 writer.flight_path(f"mpc_{maneuver}_{config.first_seed + i}"), threads)
-            for maneuver, count in config.flights
-            for i in range(count)
-        ]  # fmt: skip
+        for split in splits.values():
+            for name in split:
+                shutil.copyfile(files[name], writer.folder / files[name].name)
+        jobs = [_Job(str(model), maneuver, seed, config, writer.flight_path(name), threads)
+                for maneuver, seed, name in plan]  # fmt: skip
         results = list(run_jobs(_record, jobs, workers=workers, progress=progress, start="fork",
                                 desc="recording MPC flights", unit="flight"))  # fmt: skip
         kept = tuple(name for name, steps, _ in results if steps >= shortest)
@@ -110,7 +119,7 @@ def _record(job: _Job) -> tuple[str, int, str | None]:
     nominal = SimConfig()
     params = vehicle_params(nominal)
     with torch_threads(job.threads):
-        model = _models(job.model, params, cfg.backend)["learned"]
+        model = load_model(job.model, params, backend=cfg.backend)
         mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, knots=_knots(cfg.horizon),
                         temperature=cfg.temperature, max_swing=cfg.max_swing)  # fmt: skip
         controller = _mpc(model, InputLimits.from_sim(nominal), mpc, params)(job.seed)
