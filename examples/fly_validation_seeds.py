@@ -18,7 +18,8 @@ from slungload.cli.common import comma_names, seed_range
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.results import paired_interval
-from slungload.control.study_config import BENCHMARK_SEEDS, NOMINAL, SHIFTS
+from slungload.control.study import knots_for
+from slungload.control.study_config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig
 from slungload.deploy.compiled.batched import load_model
 from slungload.deploy.predictor import torch_threads
 from slungload.fileio import read_json
@@ -63,11 +64,11 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
     seeds = seed_range(args.seeds)
-    taken = sorted(BENCHMARK_SEEDS.intersection(seeds))
+    taken = sorted(BENCHMARK_SEEDS.union(RecordConfig().seeds).intersection(seeds))
     if taken:
-        parser.error(f"seeds {taken} are a benchmark's (evaluation or tuning)")
+        parser.error(f"seeds {taken} are a benchmark's (evaluation or tuning) or recorded ones")
     tuned = tuples_from_json(read_json(args.settings)["mpc"]["learned"]) if args.settings else {}
-    mpc = MPCConfig(**tuned, horizon=args.horizon, knots=min(MPCConfig().knots, args.horizon),
+    mpc = MPCConfig(**tuned, horizon=args.horizon, knots=knots_for(args.horizon),
                     samples=args.samples)  # fmt: skip
     plants = [p.strip() for p in args.plants.split(";") if p.strip()]
     jobs = [Job(run, plant, m, s, mpc) for plant in plants for run in args.runs

@@ -17,6 +17,7 @@ from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.constants_estimate import ADAPT_RANGE, adapted
 from slungload.data import load_dataset
 from slungload.deploy.compiled import CompiledNetworkModel, CompiledPhysicsModel, CompiledPredictor
+from slungload.deploy.compiled.batched import with_backend
 from slungload.deploy.onnx import OnnxPredictor, export
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
 from slungload.load_state import estimate_load_state
@@ -124,6 +125,17 @@ def test_the_estimates_mass_prior_pulls_physics_towards_the_nominal_load(varied)
     torch.testing.assert_close(held.predict_candidates(x, u_past, plans), want, atol=1e-9, rtol=0)
     free = PhysicsModel(ds.params, constants="window", prior_weight=0.0)
     assert (free.predict_candidates(x, u_past, plans) - want).abs().max() > 1e-4  # mass moves it
+    # The compiled copy takes the same prior, also when made from the eager model.
+    for prior, model in ((1e12, held), (0.0, free)):
+        compiled = with_backend(model, "compiled")
+        assert compiled.prior_weight == prior
+        torch.testing.assert_close(compiled.predict_candidates(x, u_past, plans),
+                                   model.predict_candidates(x, u_past, plans),
+                                   atol=1e-10, rtol=0)  # fmt: skip
+    with pytest.raises(ValueError, match="no estimate"):
+        PhysicsModel(ds.params, prior_weight=1.0)
+    with pytest.raises(ValueError, match=">= 0"):
+        PhysicsModel(ds.params, constants="window", prior_weight=-1.0)
 
 
 def test_physics_with_the_flights_constants_needs_them(physics_flight):

@@ -14,7 +14,7 @@ from slungload.control.closed_loop import fly
 from slungload.control.record import record_flights
 from slungload.control.study_config import BENCHMARK_SEEDS, RecordConfig
 from slungload.data.dataset import load_dataset, read_splits
-from slungload.sim import SimConfig, simulate_dataset, simulate_flight
+from slungload.sim import Effects, SimConfig, simulate_dataset, simulate_flight
 from slungload.sim.controller import PIDController
 
 SMALL = RecordConfig(flights=(("xy_step", 2), ("roll_35", 1)), samples=32, horizon=10, steps=120)
@@ -39,7 +39,8 @@ def test_a_logged_flight_is_published_as_simulate_writes_it():
 
 def test_recorded_flights_join_the_train_split_only(base, tmp_path):
     out = tmp_path / "recorded"
-    done = record_flights("physics", base, out, SMALL, progress=False)  # flies 120 steps
+    # Two processes: the split lists the flights in the plan's order, not as they finish.
+    done = record_flights("physics", base, out, SMALL, workers=2, progress=False)
     names = ("mpc_xy_step_1000", "mpc_xy_step_1001", "mpc_roll_35_1000")
     assert done.folder == out and done.flights == names and not done.skipped
     before, after = read_splits(base), read_splits(out)
@@ -67,18 +68,31 @@ def test_flights_stopped_before_one_training_window_are_left_out(tiny_run, base,
     assert not (tmp_path / "r" / "mpc_roll_35_1000.npz").exists()
 
 
-def test_a_base_of_another_vehicle_is_refused_and_nothing_is_written(tiny_run, tmp_path):
-    with pytest.raises(ValueError, match="nominal vehicle"):
-        record_flights(tiny_run.out, tiny_run.data, tmp_path / "x", SMALL, progress=False)
-    assert not (tmp_path / "x").exists()
+def test_only_flights_of_the_nominal_simulator_make_a_base(tiny_run, tmp_path):
+    # Files without the simulator's config (the paper's constants alike), another load, another
+    # effect: each refused, naming the file, before anything is written.
+    heavier, windless = tmp_path / "heavier", tmp_path / "windless"
+    for folder, config in ((heavier, SimConfig().with_load(load_mass=0.2)),
+                           (windless, SimConfig(effects=Effects().without("wind")))):  # fmt: skip
+        simulate_dataset(folder, flights=1, seed=1, workers=1, progress=False, config=config,
+                         maneuvers=("roll_35",))  # fmt: skip
+    for folder, why in ((tiny_run.data, "nominal vehicle"), (heavier, "nominal vehicle"),
+                        (windless, "another simulator config")):  # fmt: skip
+        with pytest.raises(ValueError, match=why) as err:
+            record_flights("physics", folder, tmp_path / "x", SMALL, progress=False)
+        assert str(folder / "vehicle.json") in str(err.value)
+        assert not (tmp_path / "x").exists()
 
 
 def test_recorded_flights_never_fly_a_benchmarks_seeds():
     assert 100 in BENCHMARK_SEEDS and 200 in BENCHMARK_SEEDS
     with pytest.raises(ValueError, match="benchmarks' sim seeds"):
         RecordConfig(first_seed=98)
-    with pytest.raises(ValueError, match=">= 1 flight"):
-        RecordConfig(flights=(("xy_step", 0),))
+    for bad in ((("xy_step", 0),), (("xy_step", 1), ("xy_step", 2)), ()):
+        with pytest.raises(ValueError, match="each maneuver once"):
+            RecordConfig(flights=bad)
+    with pytest.raises(ValueError, match="unknown maneuvers"):
+        RecordConfig(flights=(("xy_stepp", 1),))
 
 
 def test_the_command_line_records(run_cli, tiny_run, base, tmp_path):

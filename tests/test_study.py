@@ -135,7 +135,8 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
         assert (out / name).is_file()
     # The estimate's mass prior is chosen on the validation flights of many, and said so.
     chosen, scores = choose_estimate_prior(out / "data" / "many", one.params, config)
-    assert set(scores) == set(config.estimate_priors) and scores[chosen] == min(scores.values())
+    assert set(scores) == set(config.estimate_priors)
+    assert len(set(scores.values())) == len(scores)  # the prior moves the validation error
     assert f"the prior {chosen:g} (m/s^2)^2 per equation, chosen on the validation" in (
         out / "loads.md"
     ).read_text().replace("\n", " ")

@@ -310,12 +310,15 @@ def _cmd_record(args: argparse.Namespace) -> int:
 
     if len(args.model) != 1 or args.base is None:
         raise ValueError("control --record needs one --model (the MPC's) and --base (a dataset)")
+    if args.maneuvers or args.seeds or (args.samples and len(args.samples) > 1):
+        raise ValueError("control --record flies --flights NAME:COUNT from --first-seed at one "
+                         "--samples K; --maneuvers and --seeds are the other modes'")  # fmt: skip
     changes: dict[str, Any] = {}
     for name, value in (("flights", args.flights), ("first_seed", args.first_seed),
                         ("samples", args.samples and args.samples[0]),
                         ("horizon", args.horizon), ("steps", args.steps),
                         ("backend", args.backend)):  # fmt: skip
-        if value:
+        if value is not None:
             changes[name] = value
     config = replace(RecordConfig(), **changes)
     done = record_flights(args.model[0], args.base, args.out, config, workers=args.workers,

@@ -115,8 +115,9 @@ class FlightLog:
 
     def published(self, dt: float) -> dict[str, np.ndarray]:
         """The recorded part (t >= 0, up to where the flight stopped) in the published flight
-        schema, as ``simulate`` writes a flight: what the controller measured and commanded,
-        ``dt`` s apart."""
+        schema, ``dt`` s apart: what the controller measured and commanded. That is what
+        ``simulate`` writes of the same flight when the simulator adds no excitation to the
+        commands and flies one load (no per-flight constants)."""
         x, u = self.states[self.t >= 0], self.inputs[self.t >= 0]
         rec = {"p": x[:, POS], "v": x[:, VEL], "q": x[:, QUAT], "p_load": x[:, LOAD_POS],
                "w_ref": u[:, RATES], "T_ref": u[:, THRUST]}  # fmt: skip

@@ -44,8 +44,8 @@ from ..reporting import markdown_table, save_figure
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
-from .mpc import InputLimits, MPCConfig, SamplingMPC
-from .study import Flown, collect_rows, fly_once
+from .mpc import InputLimits, MPCConfig
+from .study import Flown, collect_rows, fly_once, mpc_maker
 from .study_config import UnseenLoadsConfig
 from .study_report import (
     KEYS,
@@ -121,18 +121,14 @@ def fly_loads(
             ):  # fmt: skip
                 flown += [
                     Flown(plant_label, label(model, IN_FLIGHT),
-                          _mpc(in_flight, limits, window, nominal)),
-                    Flown(plant_label, label(model, TRUE), _mpc(given, limits, mpc, truth)),
+                          mpc_maker(in_flight, limits, window, nominal)),
+                    Flown(plant_label, label(model, TRUE), mpc_maker(given, limits, mpc, truth)),
                 ]  # fmt: skip
             for f in flown:
                 for maneuver in cfg.maneuvers:
                     for seed in cfg.seeds:
                         fly_once(out, f, maneuver, seed, plant, limits, cfg.steps, progress)
     return [r for r in collect_rows(out) if r["plant"] in {plant_name(*x) for x in cfg.loads}]
-
-
-def _mpc(model, limits, mpc, params) -> Callable[[int], SamplingMPC]:
-    return lambda seed: SamplingMPC(model, limits, replace(mpc, seed=seed), params)
 
 
 # --- the report -------------------------------------------------------------------------

@@ -3,22 +3,22 @@
 A network trained on excited PID flights has seen swings up to about 40 deg; the MPC over it,
 on a position step, swings the load past 60 deg and then predicts with a model that never saw
 such a swing. Recording the MPC's own flights (sim seeds no benchmark flies) and training on
-them beside the first data is one round of DAgger (Ross et al., 2011): the model learns the
-states its controller leads it into. Each flight is kept until it ends or the arena stops it
-(what the vehicle did up to there is valid flight), in the published schema, as ``simulate``
-writes it. The new dataset is the base's flights and splits with the recorded flights added to
-its train split: its validation and test flights stay the base's, so validation figures compare
-across the two.
+them beside the first data is one round of DAgger (Ross, Gordon and Bagnell, 2011): the model
+learns the states its controller leads it into. Each flight is kept until it ends or the arena
+stops it (what the vehicle did up to there is valid flight), in the published schema, as
+``simulate`` writes a flight without excitation. The new dataset is the base's flights and
+splits with the recorded flights added to its train split: its validation and test flights stay
+the base's, so validation figures compare across the two.
 """
 
 from __future__ import annotations
 
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from .._version import __version__
-from ..config import VEHICLE_FILE, WindowConfig, to_dict
+from ..config import VEHICLE_FILE, WindowConfig, load_vehicle, to_dict
 from ..data.dataset import read_splits
 from ..data.readers import flight_files
 from ..data.writer import DatasetWriter
@@ -29,7 +29,7 @@ from ..sim.config import SimConfig, vehicle_params
 from ..workers import run_jobs
 from .closed_loop import fly
 from .mpc import InputLimits, MPCConfig
-from .study import _knots, _mpc
+from .study import knots_for, mpc_maker
 from .study_config import RecordConfig
 
 
@@ -64,18 +64,12 @@ def record_flights(
     progress: bool = True,
 ) -> Recorded:
     """Fly the MPC over ``model`` (a run folder, or "physics") on ``config.flights`` in the
-    nominal simulator and
-    write ``out``: the dataset ``base`` (flights of the simulator's nominal vehicle) with the
-    recorded flights joining its train split. Nothing is left at ``out`` if it fails."""
+    nominal simulator and write ``out``: the dataset ``base`` (simulated flights of that
+    simulator, ``_base_sim``) with the recorded flights joining its train split, in the order of
+    ``config.flights``. Flights shorter than one training window (``WindowConfig().length``)
+    are left out. Nothing is left at ``out`` if it fails."""
     base = Path(base)
-    params = vehicle_params(SimConfig())
-    about = base / VEHICLE_FILE
-    if not about.is_file() or read_json(about).get("vehicle") != to_dict(params):
-        raise ValueError(
-            f"{base}: the recorded flights fly the simulator's nominal vehicle "
-            f"({params.summary()}); the base must be simulated flights of that vehicle "
-            f"(its {VEHICLE_FILE} says which)"
-        )
+    sim = _base_sim(base)
     splits = read_splits(base)
     files = flight_files(base)
     plan = [(maneuver, seed, f"mpc_{maneuver}_{seed}")
@@ -88,29 +82,56 @@ def record_flights(
             f"(recorded from sim seed {config.first_seed} on before?); record from another first "
             "seed"
         )
-    shortest = WindowConfig().history + WindowConfig().horizon
     writer = DatasetWriter(out)
     with writer:
         for split in splits.values():
             for name in split:
-                shutil.copyfile(files[name], writer.folder / files[name].name)
+                shutil.copyfile(
+                    files[name], writer.flight_path(name).with_suffix(files[name].suffix)
+                )
         jobs = [_Job(str(model), maneuver, seed, config, writer.flight_path(name), threads)
                 for maneuver, seed, name in plan]  # fmt: skip
-        results = list(run_jobs(_record, jobs, workers=workers, progress=progress, start="fork",
-                                desc="recording MPC flights", unit="flight"))  # fmt: skip
-        kept = tuple(name for name, steps, _ in results if steps >= shortest)
-        for name, steps, _ in results:
-            if steps < shortest:
-                writer.flight_path(name).unlink()
-        made = {"base": str(base), "recorded": {"model": str(model), **asdict(config)},
-                "version": __version__}  # fmt: skip
-        folder = writer.finish({**splits, "train": [*splits["train"], *kept]}, params, made)
-    return Recorded(
-        folder,
-        kept,
-        tuple(name for name, _, stopped in results if stopped and name in kept),
-        tuple(name for name, steps, _ in results if steps < shortest),
-    )
+        done = {name: (steps, stopped) for name, steps, stopped in run_jobs(
+            _record, jobs, workers=workers, progress=progress, desc="recording MPC flights",
+            unit="flight")}  # fmt: skip
+        names = [name for _, _, name in plan]
+        short = [n for n in names if done[n][0] < WindowConfig().length]
+        for name in short:
+            writer.flight_path(name).unlink()
+        kept = [n for n in names if n not in short]
+        made = {"sim": sim, "base": str(base.resolve()), "version": __version__,
+                "recorded": {"model": str(model), **_jsonable(config)}}  # fmt: skip
+        folder = writer.finish({**splits, "train": [*splits["train"], *kept]},
+                               vehicle_params(SimConfig()), made)  # fmt: skip
+    return Recorded(folder, tuple(kept), tuple(n for n in kept if done[n][1]), tuple(short))
+
+
+def _base_sim(base: Path) -> dict:
+    """The base's simulator config (its ``vehicle.json``), checked to be the nominal simulator
+    the MPC flies, excitation aside; a ValueError naming the file otherwise."""
+    path = base / VEHICLE_FILE
+    nominal = SimConfig()
+    sim = read_json(path).get("sim") if path.is_file() else None
+    if sim is None or load_vehicle(base) != vehicle_params(nominal):
+        raise ValueError(
+            f"{path}: the recorded flights fly the simulator's nominal vehicle "
+            f"({vehicle_params(nominal).summary()}); the base must be flights `simulate` wrote "
+            "of that vehicle (a vehicle.json with its constants and simulator config)"
+        )
+    if replace(SimConfig.from_dict(dict(sim)), excitation=nominal.excitation) != nominal:
+        raise ValueError(
+            f"{path}: the base was simulated with another simulator config (effects, noise or "
+            "loads) than the nominal one the recorded flights fly"
+        )
+    return sim
+
+
+def _jsonable(config: RecordConfig) -> dict:
+    """``config`` for vehicle.json: an unbounded swing (inf) as null."""
+    data = to_dict(config)
+    if data["max_swing"] == float("inf"):
+        data["max_swing"] = None
+    return data
 
 
 def _record(job: _Job) -> tuple[str, int, str | None]:
@@ -120,12 +141,11 @@ def _record(job: _Job) -> tuple[str, int, str | None]:
     params = vehicle_params(nominal)
     with torch_threads(job.threads):
         model = load_model(job.model, params, backend=cfg.backend)
-        mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, knots=_knots(cfg.horizon),
+        mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, knots=knots_for(cfg.horizon),
                         temperature=cfg.temperature, max_swing=cfg.max_swing)  # fmt: skip
-        controller = _mpc(model, InputLimits.from_sim(nominal), mpc, params)(job.seed)
-        log = fly(
-            job.maneuver, job.seed, controller, label="record", config=nominal, steps=cfg.steps
-        )
+        controller = mpc_maker(model, InputLimits.from_sim(nominal), mpc, params)(job.seed)
+        log = fly(job.maneuver, job.seed, controller, label="record", config=nominal,
+                  steps=cfg.steps)  # fmt: skip
     arrays = log.published(nominal.control_dt)
     write_npz(job.path, arrays)
     return job.path.stem, len(arrays["time"]), log.stopped

@@ -209,25 +209,25 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 continue
             for n in horizons:
                 tuned = tuples_from_json(settings["mpc"][kind])
-                mpc = MPCConfig(**tuned, horizon=n, knots=_knots(n),
+                mpc = MPCConfig(**tuned, horizon=n, knots=knots_for(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
                 plans.append(Flown(plant, f"mpc-{kind} N={n}",
-                                   _mpc(models[kind], limits, mpc, params)))  # fmt: skip
+                                   mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
             chosen = tuples_from_json(settings["mpc"]["learned"]) if "learned" in models else {}
             for n in cfg.oracle_horizons:
-                mpc = MPCConfig(**chosen, horizon=n, knots=_knots(n), samples=cfg.oracle_samples)
+                mpc = MPCConfig(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
-                                   _mpc(None, limits, mpc, params)))  # fmt: skip
+                                   mpc_maker(None, limits, mpc, params)))  # fmt: skip
     return plans
 
 
-def _knots(horizon: int) -> int:
+def knots_for(horizon: int) -> int:
     """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
     return min(MPCConfig().knots, horizon)
 
 
-def _mpc(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleParams):
+def mpc_maker(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleParams):
     """seed -> a fresh MPC over ``model`` (None: a fresh oracle) seeded by the flight."""
 
     def make(seed: int) -> SamplingMPC:
@@ -300,8 +300,8 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
 
             def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
                 tuned = tuples_from_json(mpc[kind])
-                return lambda k: _mpc(models[kind], limits, MPCConfig(
-                    **tuned, horizon=n, knots=_knots(n), samples=k), params)(0)  # fmt: skip
+                return lambda k: mpc_maker(models[kind], limits, MPCConfig(
+                    **tuned, horizon=n, knots=knots_for(n), samples=k), params)(0)  # fmt: skip
 
             samples[PHYSICS][str(n)] = equal_compute_samples(
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
@@ -347,8 +347,8 @@ def _best(
     nominal, n = SimConfig(), cfg.horizons[0]
     best, best_score = start or (choices[0], (np.inf, np.inf))
     for choice in choices:
-        mpc = MPCConfig(**choice, horizon=n, knots=_knots(n), samples=cfg.samples)
-        rows = [flight_metrics(fly(man, seed, _mpc(model, limits, mpc, params)(seed),
+        mpc = MPCConfig(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
+        rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
                                limits, nominal.cable_length)
                 for man in cfg.maneuvers for seed in cfg.tuning_seeds]  # fmt: skip

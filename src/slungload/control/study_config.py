@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from ..sim.config import SimConfig
+from ..sim.maneuvers import MANEUVERS
 
 # The simulator's three fastest maneuvers, what ``slungload control`` flies by default: back and
 # forth along a line at 2.8-3.6 s a cycle, roll doublets of 25-35 degrees, and figure eights
@@ -128,10 +129,13 @@ class RecordConfig:
     backend: str = "compiled"  # what the model predicts on
 
     def __post_init__(self) -> None:
-        counts = [n for _, n in self.flights]
-        if not counts or min(counts) < 1:
-            raise ValueError(f"RecordConfig.flights: each maneuver needs >= 1 flight, got "
+        names = [m for m, _ in self.flights]
+        if not names or min(n for _, n in self.flights) < 1 or len(set(names)) < len(names):
+            raise ValueError(f"RecordConfig.flights: each maneuver once, with >= 1 flight; got "
                              f"{list(self.flights)}")  # fmt: skip
+        unknown = sorted(set(names) - set(MANEUVERS))
+        if unknown:
+            raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
         taken = sorted(BENCHMARK_SEEDS.intersection(self.seeds))
         if taken:
             raise ValueError(

@@ -93,6 +93,13 @@ class PhysicsModel:
             raise ValueError(
                 f"unknown constants source {self.constants!r}; known: {list(CONSTANTS_SOURCES)}"
             )
+        if not self.prior_weight >= 0:
+            raise ValueError(f"PhysicsModel.prior_weight must be >= 0, got {self.prior_weight}")
+        if self.prior_weight != ADAPT_PRIOR_WEIGHT and self.constants != "window":
+            raise ValueError(
+                f"PhysicsModel.prior_weight is the in-flight estimate's (constants='window'); "
+                f"with constants={self.constants!r} there is no estimate to give it"
+            )
         if self.constants == "window":  # the estimate wants seconds of swing: the network's M
             self.history = max(self.history, WindowConfig().history)
 

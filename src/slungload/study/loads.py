@@ -96,9 +96,11 @@ def study_loads(
     worse: dict[tuple[str, str], tuple[int, int]] = {}
     for test_set in SETS:
         windows = _test_windows(data, test_set, params, config.horizons)
-        candidates = [Candidate(label, PhysicsModel(params, name=label, constants=source,
-                                                    prior_weight=prior))
-                      for label, source in PHYSICS_ROWS.items()]  # fmt: skip
+        candidates = [
+            Candidate(label, PhysicsModel(params, name=label, constants=source,
+                                          **_prior(source, prior)))
+            for label, source in PHYSICS_ROWS.items()
+        ]  # fmt: skip
         for label, (source, _, _) in NETWORK_ROWS.items():
             for run in runs[label]:
                 loaded = load_checkpoint(out / "runs" / source / run.folder())
@@ -115,6 +117,11 @@ def study_loads(
         worse.update(_steps_worse(report.curves, max(config.horizons), test_set))
     write_loads_study(rows, per_flight, worse, out, config, params, priors)
     return rows
+
+
+def _prior(source: str, prior: float) -> dict[str, float]:
+    """``PhysicsModel``'s keyword for the estimate's prior: only f on the estimate takes one."""
+    return {"prior_weight": prior} if source == "window" else {}
 
 
 def choose_estimate_prior(
@@ -242,7 +249,7 @@ def write_loads_study(
     out: Path,
     config: LoadsStudyConfig,
     params: VehicleParams,
-    priors: dict[float, float],
+    priors: dict[float, float] | None = None,
 ) -> None:
     """loads.csv (every run), flights.csv, loads.md (mean +- std over seeds, the ratios to
     physics with the true constants, the horizon steps worse than it: ``worse``; the in-flight
@@ -269,15 +276,18 @@ def write_loads_study(
         f"{config.beyond_mass[0]:g}-{config.beyond_mass[1]:g} kg, "
         f"{config.beyond_length[0]:g}-{config.beyond_length[1]:g} m beyond it. Combined RMSE "
         f"(mean ± std over seeds) and its ratio to {truth!r}.",
-        "",
-        f"{ESTIMATE_ROW!r} runs f on each window's cable length and load mass estimated from "
-        f"its history, the mass with the prior {min(priors, key=priors.__getitem__):g} "
-        f"(m/s^2)^2 per equation, chosen on the validation flights of the training loads "
-        f"(combined RMSE at N = {max(config.horizons)}: "
-        + ", ".join(f"{w:g}: {e:.3f}" for w, e in priors.items())
-        + f"). The adaptive networks' f runs on the same estimate with the prior "
-        f"{ADAPT_PRIOR_WEIGHT:g}.",
     ]
+    if priors:
+        parts += [
+            "",
+            f"{ESTIMATE_ROW!r} runs f on each window's cable length and load mass estimated from "
+            f"its history, the mass with the prior {min(priors, key=priors.__getitem__):g} "
+            f"(m/s^2)^2 per equation, chosen on the validation flights of the training loads "
+            f"(combined RMSE at N = {max(config.horizons)}: "
+            + ", ".join(f"{w:g}: {e:.3f}" for w, e in priors.items())
+            + f"). The adaptive networks' f runs on the same estimate with the prior "
+            f"{ADAPT_PRIOR_WEIGHT:g}.",
+        ]
     for test_set in SETS:
         header = ["model"]
         for n in config.horizons:

@@ -33,6 +33,13 @@ class LoadsStudyConfig:
     # chooses from on the validation flights of ``many`` (combined RMSE at the longest horizon).
     estimate_priors: tuple[float, ...] = (0.2, 0.5, 1.0, 2.0, 5.0)
 
+    def __post_init__(self) -> None:
+        if not self.estimate_priors or min(self.estimate_priors) < 0:
+            raise ValueError(
+                f"LoadsStudyConfig.estimate_priors: at least one prior, each >= 0; got "
+                f"{self.estimate_priors}"
+            )
+
     @property
     def nominal(self) -> tuple[float, float]:
         """The nominal load mass and cable length: the training range's midpoints."""

@@ -39,6 +39,7 @@ import torch
 from torch import Tensor
 
 from ...config import PREDICTION_BACKENDS, VehicleParams
+from ...constants_estimate import ADAPT_PRIOR_WEIGHT
 from ...data.windows import Windows
 from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
 from ...models.prediction import (
@@ -73,9 +74,11 @@ class CompiledPhysicsModel:
     name: str = PHYSICS
     history: int = 2
     constants: str = "dataset"  # or "window" (``PhysicsModel``'s; "flight" predicts windows only)
+    prior_weight: float = ADAPT_PRIOR_WEIGHT  # the in-flight estimate's mass prior ("window")
 
     def __post_init__(self) -> None:
-        self._eager = PhysicsModel(self.params, self.name, self.history, constants=self.constants)
+        self._eager = PhysicsModel(self.params, self.name, self.history, constants=self.constants,
+                                   prior_weight=self.prior_weight)  # fmt: skip
         self.history = self._eager.history
         self._vehicle = VehicleConstants.of(self.params)
 
@@ -87,7 +90,7 @@ class CompiledPhysicsModel:
         vehicle = self._vehicle
         if self.constants == "window":
             history = x_hist.detach().cpu().numpy(), u_past.detach().cpu().numpy()
-            vehicle = history_constants(*history, vehicle)
+            vehicle = history_constants(*history, vehicle, self.prior_weight)
         elif self.constants != "dataset":
             self._eager.predict_candidates(x_hist, u_past, plans)  # its error
         x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
@@ -378,7 +381,9 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
     if backend == "eager":
         return model
     if isinstance(model, PhysicsModel):
-        return CompiledPhysicsModel(model.params, model.name, model.history, model.constants)
+        return CompiledPhysicsModel(
+            model.params, model.name, model.history, model.constants, model.prior_weight
+        )
     if isinstance(model, NetworkModel):
         if torch.device(model.device).type != "cpu":
             raise ValueError(

@@ -267,22 +267,28 @@ def load_filters(load_estimate: str, dt: float) -> np.ndarray:
 
 
 def history_constants(
-    x_hist: np.ndarray, u_past: np.ndarray, c: VehicleConstants
+    x_hist: np.ndarray,
+    u_past: np.ndarray,
+    c: VehicleConstants,
+    prior_weight: float = ADAPT_PRIOR_WEIGHT,
 ) -> VehicleConstants:
     """``adapted_constants`` of a candidate call's history (numpy): x_hist (M, 13), u_past
     (M-1, 4), the inputs applied at all but the last state (whose input the estimate does not
     use)."""
     thrust = np.append(np.asarray(u_past)[:, THRUST.start], 0.0)
-    return adapted_constants(x_hist, thrust, c)
+    return adapted_constants(x_hist, thrust, c, prior_weight)
 
 
 def adapted_constants(
-    states: np.ndarray, thrust: np.ndarray, c: VehicleConstants
+    states: np.ndarray,
+    thrust: np.ndarray,
+    c: VehicleConstants,
+    prior_weight: float = ADAPT_PRIOR_WEIGHT,
 ) -> VehicleConstants:
     """``constants_estimate.adapted`` for one window, numpy float64: states (M, 13) (positions
-    relative or absolute), thrust (M,) commanded, N (the last row is not used) -> ``c`` with
-    the window's cable length and load mass. Once per prediction (every candidate of an MPC
-    step shares the history), so numpy rather than a compiled loop."""
+    relative or absolute), thrust (M,) commanded, N (the last row is not used), the mass prior
+    -> ``c`` with the window's cable length and load mass. Once per prediction (every candidate
+    of an MPC step shares the history), so numpy rather than a compiled loop."""
     s = np.asarray(states, np.float64)
     h, half = c.dt, ESTIMATE_SMOOTHING_STEPS
     p, p_load = s[:, POS], s[:, LOAD_POS]
@@ -300,7 +306,7 @@ def adapted_constants(
         return sum(kernel[i] * v[i : len(v) - 2 * half + i] for i in range(2 * half + 1))
 
     load, drag, vehicle = smoothed(acc_load), smoothed(vel), smoothed(acc)
-    prior = ADAPT_PRIOR_WEIGHT * 3 * len(load)
+    prior = prior_weight * 3 * len(load)
     target = -c.mass_quad * vehicle
     g_bb, g_bv = (load * load).sum() + prior, (load * drag).sum()
     g_vv = (drag * drag).sum()
