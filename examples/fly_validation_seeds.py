@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import argparse
 import statistics
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from slungload.cli.common import comma_names, seed_range
 from slungload.control.closed_loop import flight_metrics, fly
-from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
+from slungload.control.mpc import InputLimits, MPCConfig
 from slungload.control.results import paired_interval
-from slungload.control.study import knots_for
+from slungload.control.study import knots_for, mpc_maker, plant_config
 from slungload.control.study_config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig
 from slungload.deploy.compiled.batched import load_model
 from slungload.deploy.predictor import torch_threads
@@ -40,15 +40,16 @@ class Job:
 
 def fly_one(job: Job) -> tuple[Job, dict]:
     nominal = SimConfig()
-    plant = nominal if job.plant == NOMINAL else SHIFTS[job.plant](nominal)
-    params = vehicle_params(nominal)
+    plant, params, limits = (
+        plant_config(job.plant),
+        vehicle_params(nominal),
+        InputLimits.from_sim(nominal),
+    )
     with torch_threads(1):
         model = load_model(job.run, params, backend="compiled")
-        mpc = SamplingMPC(
-            model, InputLimits.from_sim(nominal), replace(job.mpc, seed=job.seed), params
-        )
+        mpc = mpc_maker(model, limits, job.mpc, params)(job.seed)
         log = fly(job.maneuver, job.seed, mpc, label=job.run, config=plant, steps=300)
-    return job, flight_metrics(log, InputLimits.from_sim(nominal), plant.cable_length)
+    return job, flight_metrics(log, limits, plant.cable_length)
 
 
 def main() -> None:
@@ -74,9 +75,7 @@ def main() -> None:
     jobs = [Job(run, plant, m, s, mpc) for plant in plants for run in args.runs
             for m in args.maneuvers for s in seeds]  # fmt: skip
     rows: dict[tuple[str, str], dict[tuple[str, int], dict]] = {}
-    for job, row in run_jobs(
-        fly_one, jobs, workers=args.workers, start="fork", desc="flights", unit="flight"
-    ):
+    for job, row in run_jobs(fly_one, jobs, workers=args.workers, desc="flights", unit="flight"):
         rows.setdefault((job.plant, job.run), {})[(job.maneuver, job.seed)] = row
     for plant in plants:
         ref = rows[(plant, args.runs[0])]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from pathlib import Path
 
 from .._version import __version__
@@ -25,6 +26,7 @@ from ..data.writer import DatasetWriter
 from ..deploy.compiled.batched import load_model
 from ..deploy.predictor import torch_threads
 from ..fileio import read_json, write_npz
+from ..models.prediction import PredictionModel
 from ..sim.config import SimConfig, vehicle_params
 from ..workers import run_jobs
 from .closed_loop import fly
@@ -134,13 +136,19 @@ def _jsonable(config: RecordConfig) -> dict:
     return data
 
 
+@lru_cache(maxsize=1)
+def _model(spec: str, backend: str) -> PredictionModel:
+    """The MPC's model, loaded once per process (every flight of a recording flies the same)."""
+    return load_model(spec, vehicle_params(SimConfig()), backend=backend)
+
+
 def _record(job: _Job) -> tuple[str, int, str | None]:
     """Fly one recorded flight and write it; (name, recorded steps, why it stopped or None)."""
     cfg = job.config
     nominal = SimConfig()
     params = vehicle_params(nominal)
     with torch_threads(job.threads):
-        model = load_model(job.model, params, backend=cfg.backend)
+        model = _model(job.model, cfg.backend)
         mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, knots=knots_for(cfg.horizon),
                         temperature=cfg.temperature, max_swing=cfg.max_swing)  # fmt: skip
         controller = mpc_maker(model, InputLimits.from_sim(nominal), mpc, params)(job.seed)

@@ -121,7 +121,7 @@ def run_study(
         plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
         if workers <= 1:
             for flown in plans:
-                plant_cfg = _plant_config(flown.plant)
+                plant_cfg = plant_config(flown.plant)
                 for maneuver in cfg.maneuvers:
                     for seed in cfg.seeds:
                         fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
@@ -174,7 +174,7 @@ def _fly_job(job: _Job) -> str:
     flown = _worker_plans(job.out, job.learned, job.cfg, job.controllers)[(job.plant, job.label)]
     lines: list[str] = []
     with torch_threads(job.threads):
-        fly_once(Path(job.out), flown, job.maneuver, job.seed, _plant_config(job.plant),
+        fly_once(Path(job.out), flown, job.maneuver, job.seed, plant_config(job.plant),
                  InputLimits.from_sim(SimConfig()), job.cfg.steps, lines.append)  # fmt: skip
     return lines[0] if lines else ""
 
@@ -189,7 +189,7 @@ def _models(
     return models
 
 
-def _plant_config(plant: str) -> SimConfig:
+def plant_config(plant: str) -> SimConfig:
     """The simulator's config of a study plant: NOMINAL or a ``SHIFTS`` name."""
     nominal = SimConfig()
     return nominal if plant == NOMINAL else SHIFTS[plant](nominal)

@@ -130,14 +130,8 @@ def choose_estimate_prior(
     """The mass prior of ``config.estimate_priors`` with which physics on the in-flight estimate
     predicts the validation flights of ``folder`` (``many``) best (combined RMSE at the longest
     horizon), and each prior's RMSE. The test loads play no part in the choice."""
-    ds = load_dataset(folder, window=WindowConfig(), params=params)
-    names = ds.splits["val"].names
-    if not names:
-        raise ValueError(
-            f"{folder}: no validation flights to choose the in-flight estimate's mass prior on"
-        )
-    window = WindowConfig(history=ds.window.history, horizon=max(config.horizons))
-    windows = make_windows([ds.flights[n] for n in names], window, params)
+    horizon = max(config.horizons)
+    windows = _split_windows(folder, "val", params, (horizon,))[horizon]
     scores = {}
     for weight in config.estimate_priors:
         model = PhysicsModel(params, constants="window", prior_weight=weight)
@@ -193,12 +187,22 @@ def _runs(
 def _test_windows(
     data: dict[str, Path], test_set: str, params: VehicleParams, horizons: Sequence[int]
 ) -> dict[int, Windows]:
-    """Windows (stride 1) of the test flights of ``many`` (inside) or every flight of
-    ``beyond``, for each horizon, carrying each flight's true constants; the dataset read with
-    the nominal constants (``params``)."""
-    folder = data[SETS[test_set]]
+    """Windows of the test flights of ``many`` (inside) or every flight of ``beyond``, for each
+    horizon (``_split_windows``)."""
+    split = "test" if test_set == "inside" else None
+    return _split_windows(data[SETS[test_set]], split, params, horizons)
+
+
+def _split_windows(
+    folder: Path, split: str | None, params: VehicleParams, horizons: Sequence[int]
+) -> dict[int, Windows]:
+    """Windows (stride 1) of the flights of ``split`` of ``folder`` (None: every flight), for
+    each horizon, carrying each flight's true constants; the dataset read with the nominal
+    constants (``params``). A split without flights is a ValueError naming the folder."""
     ds = load_dataset(folder, window=WindowConfig(), params=params)
-    names = ds.splits["test"].names if test_set == "inside" else tuple(ds.flights)
+    names = ds.splits[split].names if split else tuple(ds.flights)
+    if not names:
+        raise ValueError(f"{folder}: no {split} flights")
     flights = [ds.flights[n] for n in names]
     return {
         n: make_windows(flights, WindowConfig(history=ds.window.history, horizon=n), params)
