@@ -363,6 +363,14 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
         fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
 
 
+def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(adaptive_run, run_cli,
+                                                                          tmp_path):
+    code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), "--horizon", "0",
+                           "--out", str(tmp_path / "x"), "--quiet")  # fmt: skip
+    assert code == 2 and "horizon >= 2" in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
+
+
 def test_a_network_with_f_fixed_flies_the_same_loads_beside_the_adaptive_one(
     varied, train_tiny, adaptive_run, tmp_path
 ):

@@ -278,6 +278,12 @@ def _cmd_study(args: argparse.Namespace) -> int:
     return 0
 
 
+def _given(**options: Any) -> dict[str, Any]:
+    """The options the user gave (argparse leaves the others None): a config's changes. A value
+    given as 0 is kept, so that the config refuses it rather than the default replacing it."""
+    return {name: value for name, value in options.items() if value is not None}
+
+
 def _cmd_loads(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -287,15 +293,11 @@ def _cmd_loads(args: argparse.Namespace) -> int:
         raise ValueError(
             f"control --loads flies one --model (a physics-step network), got {len(args.model)}"
         )
-    changes: dict[str, Any] = {}
-    for name, value in (("loads", args.load and tuple(args.load)),
-                        ("maneuvers", args.maneuvers and tuple(args.maneuvers)),
-                        ("seeds", args.seeds and seed_range(args.seeds)),
-                        ("samples", args.samples and args.samples[0]),
-                        ("horizon", args.horizon), ("steps", args.steps),
-                        ("backend", args.backend)):  # fmt: skip
-        if value:
-            changes[name] = value
+    changes = _given(loads=args.load and tuple(args.load),
+                     maneuvers=args.maneuvers and tuple(args.maneuvers),
+                     seeds=args.seeds and seed_range(args.seeds),
+                     samples=args.samples and args.samples[0], horizon=args.horizon,
+                     steps=args.steps, backend=args.backend)  # fmt: skip
     config = replace(UnseenLoadsConfig(), **changes)
     rows = fly_loads(args.model[0], args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
@@ -313,13 +315,9 @@ def _cmd_record(args: argparse.Namespace) -> int:
     if args.maneuvers or args.seeds or (args.samples and len(args.samples) > 1):
         raise ValueError("control --record flies --flights NAME:COUNT from --first-seed at one "
                          "--samples K; --maneuvers and --seeds are the other modes'")  # fmt: skip
-    changes: dict[str, Any] = {}
-    for name, value in (("flights", args.flights), ("first_seed", args.first_seed),
-                        ("samples", args.samples and args.samples[0]),
-                        ("horizon", args.horizon), ("steps", args.steps),
-                        ("backend", args.backend)):  # fmt: skip
-        if value is not None:
-            changes[name] = value
+    changes = _given(flights=args.flights, first_seed=args.first_seed,
+                     samples=args.samples and args.samples[0], horizon=args.horizon,
+                     steps=args.steps, backend=args.backend)  # fmt: skip
     config = replace(RecordConfig(), **changes)
     done = record_flights(args.model[0], args.base, args.out, config, workers=args.workers,
                           threads=args.threads, progress=not args.quiet)  # fmt: skip
