@@ -363,8 +363,9 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
         fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
 
 
-def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(adaptive_run, run_cli,
-                                                                          tmp_path):
+def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(
+    adaptive_run, run_cli, tmp_path
+):
     code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), "--horizon", "0",
                            "--out", str(tmp_path / "x"), "--quiet")  # fmt: skip
     assert code == 2 and "horizon >= 2" in err and "Traceback" not in err
