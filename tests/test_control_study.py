@@ -290,8 +290,17 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
     assert all((out / name).stat().st_size > 0 for name in ("horizons.png", "paths_3d.png"))
     settings = json.loads((out / "settings.json").read_text())
     assert settings["samples"]["physics"] == {"3": 4, "4": 4}
-    with pytest.raises(ValueError, match="another study configuration"):
-        run_study(None, out, replace(TINY, seeds=(101,)), progress=None)
+    for other in (replace(TINY, tuning_seeds=(202,)), replace(TINY, horizons=(3, 5))):
+        with pytest.raises(ValueError, match="another study configuration"):
+            run_study(None, out, other, progress=None)
+    # more evaluation seeds and shifted-plant horizons fly on the settings already chosen
+    wider = replace(TINY, seeds=(100, 101), shift_horizons=(3, 4))
+    stamp = (out / "settings.json").stat().st_mtime_ns
+    rows = run_study(None, out, wider, controllers=("physics",), plants=("wind x2",), progress=None)
+    assert (out / "settings.json").stat().st_mtime_ns == stamp
+    new = {(r["controller"], r["seed"]) for r in rows if r["plant"] == "wind x2"} - {
+        ("pid", 100), ("geometric", 100), ("mpc-physics N=3", 100)}  # fmt: skip
+    assert new == {("mpc-physics N=3", 101), ("mpc-physics N=4", 100), ("mpc-physics N=4", 101)}
 
 
 def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):
@@ -313,13 +322,14 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
     # With a learned model the oracle flies its settings, and the report pairs the two at
     # each horizon the oracle flew and measures the gap closed there.
     config = replace(TINY, shifts=(), horizons=(3, 4), oracle_horizons=(3, 4))
-    rows = run_study(tiny_run.out, tmp_path, config, controllers=("physics", "learned", "oracle"),
-                     progress=None)  # fmt: skip
-    assert len(rows) == 6
+    kinds = ("geometric", "physics", "learned", "oracle")
+    rows = run_study(tiny_run.out, tmp_path, config, controllers=kinds, progress=None)
+    assert len(rows) == 7
     report = write_study_report(rows, config, tmp_path, str(tiny_run.out)).read_text()
     for n in (3, 4):
         assert f"## The gap to the oracle, N = {n}" in report
         assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
+        assert f"| mpc-learned N={n} - geometric |" in report  # the classic one, every horizon
     assert "the oracle the learned one's" in report
     # an oracle alone reads the settings the real MPCs wrote, and never tunes them itself
     with pytest.raises(ValueError, match="no settings.json yet"):

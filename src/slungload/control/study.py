@@ -58,6 +58,7 @@ from .study_config import (
     COST_GRID,
     NOMINAL,
     PHYSICS_SAMPLES,
+    SETTINGS_FIELDS,
     SHIFTS,
     TUNING_GRID,
     StudyConfig,
@@ -288,9 +289,14 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
     path = Path(out) / "settings.json"
     if path.exists():
         settings = read_json(path)
-        if settings["config"] != _jsonable(asdict(cfg)):
-            raise ValueError(f"{path} was written for another study configuration; use a new "
-                             "--out, or delete it to start over")  # fmt: skip
+        mine = _jsonable(asdict(cfg))
+        differ = [k for k in SETTINGS_FIELDS if settings["config"].get(k) != mine[k]]
+        if differ:
+            raise ValueError(
+                f"{path} was written for another study configuration ({', '.join(differ)} "
+                "differ, and the MPC settings follow from them); use a new --out, or delete it "
+                "to start over"
+            )
         return settings
     mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
            for kind, model in models.items()}  # fmt: skip

@@ -43,6 +43,12 @@ COST_GRID: tuple[dict[str, float], ...] = (
 )
 
 
+# The ``StudyConfig`` fields a study's MPC settings and Ks follow from (the tuning flights and
+# the equal-compute timing): a study folder's settings.json serves any config that agrees on
+# these, so evaluation seeds, shifted plants, their horizons and the oracle can be added later.
+SETTINGS_FIELDS = ("maneuvers", "tuning_seeds", "horizons", "samples", "steps", "tune", "backend")
+
+
 @dataclass(frozen=True)
 class StudyConfig:
     """What the study flies (defaults: the benchmark's; docs/control.md)."""

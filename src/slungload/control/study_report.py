@@ -214,10 +214,12 @@ def write_study_report(
         for n in horizons[1:]
         if has(f"mpc-{m} N={n}") and has(f"mpc-{m} N={first}")
     ]
+    # the payload-aware controller against the learned MPC at every horizon, the PID at the first
     classic = [
-        (f"mpc-learned N={first}", c)
-        for c in ("geometric", "pid")
-        if has(c) and has(f"mpc-learned N={first}")
+        (f"mpc-learned N={n}", c)
+        for c, ns in (("geometric", horizons), ("pid", horizons[:1]))
+        for n in ns
+        if has(c) and has(f"mpc-learned N={n}")
     ]
     # what is left between the learned model and the perfect one (same MPC settings)
     ceiling = [
