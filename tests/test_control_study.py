@@ -301,6 +301,9 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
     new = {(r["controller"], r["seed"]) for r in rows if r["plant"] == "wind x2"} - {
         ("pid", 100), ("geometric", 100), ("mpc-physics N=3", 100)}  # fmt: skip
     assert new == {("mpc-physics N=3", 101), ("mpc-physics N=4", 100), ("mpc-physics N=4", 101)}
+    assert "evaluation seeds 100, 101;" in write_study_report(rows, TINY, out).read_text()
+    with pytest.raises(ValueError, match="oracle_samples differ"):
+        run_study(None, out, replace(TINY, oracle_samples=5), progress=None)
 
 
 def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):

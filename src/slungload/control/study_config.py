@@ -43,10 +43,14 @@ COST_GRID: tuple[dict[str, float], ...] = (
 )
 
 
-# The ``StudyConfig`` fields a study's MPC settings and Ks follow from (the tuning flights and
-# the equal-compute timing): a study folder's settings.json serves any config that agrees on
-# these, so evaluation seeds, shifted plants, their horizons and the oracle can be added later.
-SETTINGS_FIELDS = ("maneuvers", "tuning_seeds", "horizons", "samples", "steps", "tune", "backend")
+# The ``StudyConfig`` fields that settle what a study folder's flights are: the MPC settings and
+# Ks (the tuning flights, the equal-compute timing), the recorded steps, the oracle's K. A
+# folder's settings.json and flights serve any config that agrees on these, so evaluation
+# seeds, shifted plants, their horizons and the oracle's horizons can be added later.
+SETTINGS_FIELDS = (
+    "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps", "tune",
+    "backend",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -231,7 +231,7 @@ def write_study_report(
     parts = [
         "# Closed-loop control study",
         "",
-        _settings_line(config, settings),
+        _settings_line(config, settings, sorted({r["seed"] for r in rows})),
         "",
         f"The learned model: `{learned}`." if learned else "No learned model was flown.",
         "",
@@ -309,7 +309,9 @@ def _past_60(rows, labels: Sequence[str], limit: float = 60.0) -> str:
     return "\n".join(lines)
 
 
-def _settings_line(config: StudyConfig, settings: dict[str, Any]) -> str:
+def _settings_line(config: StudyConfig, settings: dict[str, Any], seeds: list[int]) -> str:
+    """What was flown; ``seeds``: the evaluation seeds of the flights reported (a folder may hold
+    more than one configuration's, ``SETTINGS_FIELDS``)."""
     cfg = asdict(config)
     mpc, samples = settings.get("mpc", {}), settings.get("samples", {})
     tuned = "; ".join(
@@ -321,7 +323,7 @@ def _settings_line(config: StudyConfig, settings: dict[str, Any]) -> str:
     oracle = "; the oracle the learned one's" if "learned" in mpc else ""
     return (
         f"Maneuvers {', '.join(cfg['maneuvers'])}; evaluation seeds "
-        f"{', '.join(map(str, cfg['seeds']))}; MPC settings chosen on seeds "
+        f"{', '.join(map(str, seeds))}; MPC settings chosen on seeds "
         f"{', '.join(map(str, cfg['tuning_seeds']))} ({tuned or 'defaults'}{oracle}); "
         f"samples ({ks}; the oracle K={cfg['oracle_samples']}); "
         f"{cfg['steps'] or 'all'} recorded steps per flight; "
