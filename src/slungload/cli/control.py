@@ -295,7 +295,7 @@ def _cmd_loads(args: argparse.Namespace) -> int:
         )
     changes = _given(loads=args.load and tuple(args.load),
                      maneuvers=args.maneuvers and tuple(args.maneuvers),
-                     seeds=args.seeds and seed_range(args.seeds),
+                     seeds=None if args.seeds is None else seed_range(args.seeds),
                      samples=args.samples and args.samples[0], horizon=args.horizon,
                      steps=args.steps, backend=args.backend)  # fmt: skip
     config = replace(UnseenLoadsConfig(), **changes)
