@@ -366,10 +366,15 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
 def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(
     adaptive_run, run_cli, tmp_path
 ):
+    fast = ("--load", "0.3,0.95", "--maneuvers", "xy_step", "--seeds", "100", "--samples", "4",
+            "--steps", "2", "--backend", "eager", "--quiet")  # fmt: skip
     code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), "--horizon", "0",
-                           "--out", str(tmp_path / "x"), "--quiet")  # fmt: skip
-    assert code == 2 and "horizon >= 2" in err and "Traceback" not in err
+                           "--out", str(tmp_path / "x"), *fast)  # fmt: skip
+    assert code == 2 and "got 4, 0, " in err and "Traceback" not in err
     assert not (tmp_path / "x").exists()
+    code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), *fast,
+                           "--maneuvers", ",", "--out", str(tmp_path / "y"))  # fmt: skip
+    assert code == 2 and "--maneuvers: give at least one value" in err
 
 
 def test_a_network_with_f_fixed_flies_the_same_loads_beside_the_adaptive_one(

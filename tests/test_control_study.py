@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -17,7 +17,13 @@ from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
 from slungload.control.results import paired_interval
 from slungload.control.study import collect_rows, run_study, tune_settings
-from slungload.control.study_config import COST_GRID, SHIFTS, TUNING_GRID, StudyConfig
+from slungload.control.study_config import (
+    COST_GRID,
+    SETTINGS_FIELDS,
+    SHIFTS,
+    TUNING_GRID,
+    StudyConfig,
+)
 from slungload.control.study_report import gap_closed, write_study_report
 from slungload.frames import rotation_matrix, swing_angle
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
@@ -304,6 +310,21 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
     assert "evaluation seeds 100, 101;" in write_study_report(rows, TINY, out).read_text()
     with pytest.raises(ValueError, match="oracle_samples differ"):
         run_study(None, out, replace(TINY, oracle_samples=5), progress=None)
+    with pytest.raises(ValueError, match="steps differ"):  # whatever flies
+        run_study(None, out, replace(TINY, steps=7), controllers=("pid",), progress=None)
+
+
+def test_the_fields_a_study_folder_follows_from_are_study_config_fields():
+    assert set(SETTINGS_FIELDS) < {f.name for f in fields(StudyConfig)}
+    with pytest.raises(ValueError, match="steps"):
+        StudyConfig(steps=0)
+
+
+def test_control_study_refuses_zero_steps_and_empty_lists(run_cli, tmp_path):
+    for bad, says in ((("--steps", "0"), "steps"), (("--maneuvers", ","), "--maneuvers")):
+        code, _, err = run_cli("control", "--study", *bad, "--out", str(tmp_path / "x"))
+        assert code == 2 and says in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()
 
 
 def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):
@@ -334,6 +355,9 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
         assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
         assert f"| mpc-learned N={n} - geometric |" in report  # the classic one, every horizon
     assert "the oracle the learned one's" in report
+    # without the learned model the oracle would fly other settings under the same label
+    with pytest.raises(ValueError, match="give the learned model"):
+        run_study(None, tmp_path, config, controllers=("oracle",), progress=None)
     # an oracle alone reads the settings the real MPCs wrote, and never tunes them itself
     with pytest.raises(ValueError, match="no settings.json yet"):
         run_study(tiny_run.out, tmp_path / "new", config, controllers=("oracle",), progress=None)

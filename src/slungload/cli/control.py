@@ -246,6 +246,16 @@ def cmd_control(args: argparse.Namespace) -> int:
     return 0
 
 
+def _given(**options: Any) -> dict[str, Any]:
+    """The options the user gave (argparse leaves the others None): a config's changes. A value
+    given as 0 is kept, so that the config refuses it rather than the default replacing it; a
+    list given empty (``--maneuvers ,``) is refused by name."""
+    for name, value in options.items():
+        if isinstance(value, (list, tuple)) and not value:
+            raise ValueError(f"--{name.replace('_', '-')}: give at least one value")
+    return {name: value for name, value in options.items() if value is not None}
+
+
 def _cmd_study(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
@@ -259,16 +269,10 @@ def _cmd_study(args: argparse.Namespace) -> int:
                "shift_horizons": tuple(args.shift_horizons or ()),
                "oracle_samples": args.oracle_samples,
                "oracle_horizons": tuple(args.oracle_horizons)}  # fmt: skip
-    if args.samples:
-        changes["samples"] = args.samples[0]
-    if args.backend:
-        changes["backend"] = args.backend  # fmt: skip
-    if args.maneuvers:
-        changes["maneuvers"] = tuple(args.maneuvers)
-    if args.seeds:
-        changes["seeds"] = seed_range(args.seeds)
-    if args.steps:
-        changes["steps"] = args.steps
+    changes |= _given(samples=args.samples and args.samples[0], backend=args.backend,
+                      maneuvers=args.maneuvers and tuple(args.maneuvers),
+                      seeds=None if args.seeds is None else seed_range(args.seeds),
+                      steps=args.steps)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
@@ -276,12 +280,6 @@ def _cmd_study(args: argparse.Namespace) -> int:
                      progress=None if args.quiet else print)  # fmt: skip
     print(write_study_report(rows, config, args.out, str(learned) if learned else None))
     return 0
-
-
-def _given(**options: Any) -> dict[str, Any]:
-    """The options the user gave (argparse leaves the others None): a config's changes. A value
-    given as 0 is kept, so that the config refuses it rather than the default replacing it."""
-    return {name: value for name, value in options.items() if value is not None}
 
 
 def _cmd_loads(args: argparse.Namespace) -> int:

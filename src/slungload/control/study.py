@@ -117,8 +117,16 @@ def run_study(
             raise ValueError(f"the oracle flies the learned MPC's settings, and {out} has no "
                              "settings.json yet: fly the real MPCs first (--controllers "
                              "physics,learned), or all together")  # fmt: skip
-        needed = real or oracle
+        # a folder's settings are checked whenever it has them, whatever flies now
+        needed = real or oracle or (out / "settings.json").exists()
         settings = _settings(out, cfg, models, params, limits, progress) if needed else {}
+        if (
+            ORACLE in controllers
+            and "learned" not in models
+            and "learned" in settings.get("mpc", {})
+        ):
+            raise ValueError(f"{out}'s oracle flies its learned MPC's settings: give the "
+                             "learned model (--model) with the oracle")  # fmt: skip
         plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
         if workers <= 1:
             for flown in plans:
@@ -297,6 +305,10 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
                 "differ, and the MPC settings follow from them); use a new --out, or delete it "
                 "to start over"
             )
+        missing = sorted(set(models) - set(settings["mpc"]))
+        if missing:
+            raise ValueError(f"{path} holds no settings for the {', '.join(missing)} model (the "
+                             "study was tuned without it); use a new --out")  # fmt: skip
         return settings
     mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
            for kind, model in models.items()}  # fmt: skip

@@ -77,6 +77,7 @@ class StudyConfig:
         return self.shift_horizons or self.horizons[:1]
 
     def __post_init__(self) -> None:
+        _check_steps("StudyConfig", self.steps)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
             raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")
@@ -109,6 +110,15 @@ class UnseenLoadsConfig:
     steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
     backend: str = "compiled"  # what the models predict on
 
+    def __post_init__(self) -> None:
+        _check_steps("UnseenLoadsConfig", self.steps)
+
+
+def _check_steps(owner: str, steps: int | None) -> None:
+    """Recorded steps per flight: None (the whole maneuver) or at least one."""
+    if steps is not None and steps < 1:
+        raise ValueError(f"{owner}.steps: None (the whole maneuver) or >= 1, got {steps}")
+
 
 # Sim seeds the closed-loop benchmarks fly: recorded training flights must not use them (the
 # cost changes of docs/BENCHMARKS.md were also flown by hand on tuning seeds 200-209).
@@ -139,6 +149,7 @@ class RecordConfig:
     backend: str = "compiled"  # what the model predicts on
 
     def __post_init__(self) -> None:
+        _check_steps("RecordConfig", self.steps)
         names = [m for m, _ in self.flights]
         if not names or min(n for _, n in self.flights) < 1 or len(set(names)) < len(names):
             raise ValueError(f"RecordConfig.flights: each maneuver once, with >= 1 flight; got "

@@ -3,8 +3,8 @@
 - the nominal plant: every controller's means (completed flights) and lost flights;
 - error against horizon (``horizons.png``): load RMSE and swing RMS of each MPC model per N;
 - paired differences (``paired.png`` and tables): the learned MPC against the physics MPC at
-  each N, against itself at N = 15, against the geometric controller; means over the flights
-  both flew to the end with a 95 % t-interval;
+  each N, against itself at the first N, against the geometric controller at each N and the
+  PID at the first; means over the flights both flew to the end with a 95 % t-interval;
 - the share of the physics-to-oracle gap the learned model closes, per maneuver at each horizon
   the oracle flew, and the learned MPC against the oracle, paired;
 - the shifted plants: lost flights and errors per controller;
@@ -236,8 +236,9 @@ def write_study_report(
         f"The learned model: `{learned}`." if learned else "No learned model was flown.",
         "",
         "Means over the flights each controller flew to the end; `lost`: flights that left the "
-        "arena or went non-finite. Differences: paired by maneuver and seed over the flights "
-        "both flew to the end, mean [95 % t-interval].",
+        "arena or went non-finite, of the flights it flew (a controller flown on fewer seeds, "
+        "such as the oracle on a subset, is averaged over its own). Differences: paired by "
+        "maneuver and seed over the flights both flew to the end, mean [95 % t-interval].",
         "",
         "## Nominal plant",
         "",
