@@ -10,6 +10,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
+import torch
 
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
@@ -355,6 +356,15 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
         assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
         assert f"| mpc-learned N={n} - geometric |" in report  # the classic one, every horizon
     assert "the oracle the learned one's" in report
+    tuned_for = json.loads((tmp_path / "settings.json").read_text())["learned_network"]
+    assert f"`{tuned_for['checkpoint']}` (SHA-256 {tuned_for['sha256'][:12]})" in report
+    # another network (here: the same weights saved again) would mix two networks' flights
+    other = tmp_path / "other_run"
+    other.mkdir()
+    checkpoint = torch.load(tiny_run.out / "best.ckpt", weights_only=False)
+    torch.save({**checkpoint, "saved_again": True}, other / "best.ckpt")
+    with pytest.raises(ValueError, match="tuned for the learned network"):
+        run_study(other, tmp_path, config, controllers=("learned",), progress=None)
     # without the learned model the oracle would fly other settings under the same label
     with pytest.raises(ValueError, match="give the learned model"):
         run_study(None, tmp_path, config, controllers=("oracle",), progress=None)

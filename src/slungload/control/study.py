@@ -39,10 +39,12 @@ import numpy as np
 
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
+from ..deploy.onboard import sha256
 from ..deploy.predictor import torch_threads
 from ..deploy.timing import time_calls
 from ..fileio import read_json, write_json
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
+from ..models.checkpoints import checkpoint_path
 from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
@@ -119,7 +121,8 @@ def run_study(
                              "physics,learned), or all together")  # fmt: skip
         # a folder's settings are checked whenever it has them, whatever flies now
         needed = real or oracle or (out / "settings.json").exists()
-        settings = _settings(out, cfg, models, params, limits, progress) if needed else {}
+        settings = (_settings(out, cfg, models, learned, params, limits, progress)
+                    if needed else {})  # fmt: skip
         if (
             ORACLE in controllers
             and "learned" not in models
@@ -291,10 +294,12 @@ def load_log(out: str | Path, row: dict[str, Any]) -> FlightLog:
 # --- settings: chosen once, written once --------------------------------------------------
 
 
-def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
+def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, Any]:
     """The MPC settings and Ks of the study (``out/settings.json``): read back when there, so
-    every process of one study flies the same ones; else tuned and matched now."""
+    every process of one study flies the same ones; else tuned and matched now. The file names
+    the learned network they were tuned for (``learned_network``): another one is refused."""
     path = Path(out) / "settings.json"
+    network = learned_network(learned) if "learned" in models else None
     if path.exists():
         settings = read_json(path)
         mine = _jsonable(asdict(cfg))
@@ -309,6 +314,13 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
         if missing:
             raise ValueError(f"{path} holds no settings for the {', '.join(missing)} model (the "
                              "study was tuned without it); use a new --out")  # fmt: skip
+        tuned_for = settings.get("learned_network")
+        if network and tuned_for and tuned_for["sha256"] != network["sha256"]:
+            raise ValueError(
+                f"{path} was tuned for the learned network {tuned_for['checkpoint']}, and "
+                f"{network['checkpoint']} is another one (its checkpoint differs): its flights "
+                "would mix two networks; use a new --out"
+            )
         return settings
     mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
            for kind, model in models.items()}  # fmt: skip
@@ -325,8 +337,16 @@ def _settings(out, cfg, models, params, limits, progress) -> dict[str, Any]:
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
     settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
+    if network:
+        settings["learned_network"] = network
     write_json(path, settings)
     return settings
+
+
+def learned_network(learned: str | Path) -> dict[str, str]:
+    """Which network a study's learned MPC flies: its checkpoint's path and SHA-256."""
+    path = checkpoint_path(learned)
+    return {"checkpoint": str(path), "sha256": sha256(path)}
 
 
 def _jsonable(value: Any) -> Any:

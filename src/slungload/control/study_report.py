@@ -233,7 +233,7 @@ def write_study_report(
         "",
         _settings_line(config, settings, sorted({r["seed"] for r in rows})),
         "",
-        f"The learned model: `{learned}`." if learned else "No learned model was flown.",
+        _learned_line(settings, learned),
         "",
         "Means over the flights each controller flew to the end; `lost`: flights that left the "
         "arena or went non-finite, of the flights it flew (a controller flown on fewer seeds, "
@@ -294,6 +294,14 @@ def write_study_report(
     ]
     plot_paths([load_log(out, r) for r in shown], out / "paths_3d.png")
     return out / "study.md"
+
+
+def _learned_line(settings: dict[str, Any], learned: str | None) -> str:
+    """The learned network flown: the one the folder's settings were tuned for, else as given."""
+    network = settings.get("learned_network")
+    if network:
+        return f"The learned network: `{network['checkpoint']}` (SHA-256 {network['sha256'][:12]})."
+    return f"The learned model: `{learned}`." if learned else "No learned model was flown."
 
 
 def _past_60(rows, labels: Sequence[str], limit: float = 60.0) -> str:
