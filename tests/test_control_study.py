@@ -17,12 +17,13 @@ from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
 from slungload.control.results import paired_interval
-from slungload.control.study import collect_rows, run_study, tune_settings
+from slungload.control.study import collect_rows, run_study, tune_settings, tuning_score
 from slungload.control.study_config import (
     COST_GRID,
     SETTINGS_FIELDS,
     SHIFTS,
     TUNING_GRID,
+    UNSAFE_SWING,
     StudyConfig,
 )
 from slungload.control.study_report import gap_closed, write_study_report
@@ -440,3 +441,17 @@ def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
         (t, MPCConfig().thrust_std * scale) for t, scale in TUNING_GRID
     }
     MPCConfig(**chosen)  # fields of the MPC's config
+
+
+def test_the_tuning_score_puts_lost_flights_then_large_swings_before_the_error():
+    def row(completed=True, swing_max=30.0, load=0.2):
+        return {"completed": completed, "swing_max": swing_max, "load_rmse": load}
+
+    safe = [row(load=0.3), row(load=0.3)]
+    swinging = [row(load=0.1), row(swing_max=UNSAFE_SWING + 1, load=0.1)]
+    lost = [row(load=0.1), row(completed=False, swing_max=120.0)]
+    assert tuning_score(safe) == (0, 0, pytest.approx(0.3))
+    assert tuning_score(swinging)[:2] == (0, 1)
+    assert tuning_score(lost) == (1, 0, pytest.approx(0.1))  # counted once, as lost
+    assert sorted([lost, swinging, safe], key=tuning_score) == [safe, swinging, lost]
+    assert tuning_score([row(completed=False)]) == (1, 0, math.inf)

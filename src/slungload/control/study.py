@@ -63,6 +63,7 @@ from .study_config import (
     SETTINGS_FIELDS,
     SHIFTS,
     TUNING_GRID,
+    UNSAFE_SWING,
     StudyConfig,
 )
 
@@ -362,8 +363,9 @@ def tune_settings(
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
     """The MPC settings that fly the tuning seeds (nominal plant, first horizon, K =
-    ``cfg.samples`` for every model) with the fewest lost flights, then the lowest mean load
-    RMSE, chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
+    ``cfg.samples`` for every model) best by ``tuning_score`` (the fewest lost flights, then
+    the fewest swinging the load past ``UNSAFE_SWING``, then the lowest mean load RMSE),
+    chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
     with the default cost, then the cost changes of ``COST_GRID`` at that choice (the default
     cost there is the first round's winner, not flown again). Returns the
     ``MPCConfig`` fields chosen, e.g. {"temperature", "thrust_std", "rate_std", "max_swing"}."""
@@ -380,25 +382,34 @@ def _best(
     model, limits, params, cfg: StudyConfig, choices, progress, start=None
 ) -> tuple[dict[str, Any], tuple[float, float]]:
     """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds, and
-    its score (lost flights, mean load RMSE); ``start``: a (choice, score) already flown, kept
+    its ``tuning_score``; ``start``: a (choice, score) already flown, kept
     unless one scores strictly better."""
     nominal, n = SimConfig(), cfg.horizons[0]
-    best, best_score = start or (choices[0], (np.inf, np.inf))
+    best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
         mpc = MPCConfig(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
         rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
                                limits, nominal.cable_length)
                 for man in cfg.maneuvers for seed in cfg.tuning_seeds]  # fmt: skip
-        lost = sum(not r["completed"] for r in rows)
-        done = [r["load_rmse"] for r in rows if r["completed"]]
-        score = (lost, float(np.mean(done)) if done else np.inf)
+        score = tuning_score(rows)
         if progress:
             shown = ", ".join(f"{k} {v}" for k, v in choice.items())
-            progress(f"tuning {model.name}: {shown}: {lost} lost, load RMSE {score[1]:.3f} m")
+            progress(f"tuning {model.name}: {shown}: {score[0]} lost, {score[1]} past "
+                     f"{UNSAFE_SWING:g} deg, load RMSE {score[2]:.3f} m")  # fmt: skip
         if score < best_score:
             best, best_score = choice, score
     return best, best_score
+
+
+def tuning_score(rows: Sequence[dict[str, Any]]) -> tuple[int, int, float]:
+    """How a choice flew its tuning flights (``flight_metrics`` rows), lower is better: flights
+    lost, flights that swung the load past ``UNSAFE_SWING`` deg (a lost one counts once, as
+    lost), mean load RMSE (m) of the flights flown to the end."""
+    lost = sum(not r["completed"] for r in rows)
+    unsafe = sum(r["completed"] and r["swing_max"] > UNSAFE_SWING for r in rows)
+    done = [r["load_rmse"] for r in rows if r["completed"]]
+    return lost, unsafe, float(np.mean(done)) if done else np.inf
 
 
 def equal_compute_samples(

@@ -31,7 +31,7 @@ from ..sim.config import SimConfig
 from .report import plot_paths
 from .results import finite_mean, fmt, paired_interval
 from .study import load_log
-from .study_config import NOMINAL, StudyConfig
+from .study_config import NOMINAL, UNSAFE_SWING, StudyConfig
 
 KEYS = (
     ("load_rmse", "load RMSE (m)", "{:.3f}"),
@@ -276,7 +276,7 @@ def write_study_report(
                 "",
             ]
     if has("geometric"):
-        parts += ["## Swings past 60 deg", "", _past_60(rows, labels), ""]
+        parts += [f"## Swings past {UNSAFE_SWING:g} deg", "", _past_limit(rows, labels), ""]
     for plant in dict.fromkeys(r["plant"] for r in rows):
         if plant != NOMINAL:
             parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
@@ -304,7 +304,7 @@ def _learned_line(settings: dict[str, Any], learned: str | None) -> str:
     return f"The learned model: `{learned}`." if learned else "No learned model was flown."
 
 
-def _past_60(rows, labels: Sequence[str], limit: float = 60.0) -> str:
+def _past_limit(rows, labels: Sequence[str], limit: float = UNSAFE_SWING) -> str:
     """Per MPC: flights whose swing passed ``limit`` deg where the geometric controller's did
     not (the same maneuver and seed; a lost flight counts with the swing it reached)."""
     geo = by_flight(rows, NOMINAL, "geometric")
