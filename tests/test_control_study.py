@@ -356,7 +356,8 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
         assert f"## The gap to the oracle, N = {n}" in report
         assert f"| mpc-learned N={n} - mpc-oracle N={n} |" in report
         assert f"| mpc-learned N={n} - geometric |" in report  # the classic one, every horizon
-    assert "the oracle the learned one's" in report
+    assert "the oracle flies the learned one's" in report
+    assert "| learned | 4 | 4 | defaults |" in report  # the settings per horizon (TINY: untuned)
     tuned_for = json.loads((tmp_path / "settings.json").read_text())["learned_network"]
     assert f"`{tuned_for['checkpoint']}` (SHA-256 {tuned_for['sha256'][:12]})" in report
     # another network (here: the same weights saved again) would mix two networks' flights
@@ -378,7 +379,7 @@ def test_the_shifted_plants_fly_the_horizons_asked():
     from slungload.control.study import _plan
 
     nominal = SimConfig()
-    settings = {"mpc": {"physics": {}}, "samples": {"physics": {"3": 4, "4": 4}}}
+    settings = {"mpc": {"physics": {"3": {}, "4": {}}}, "samples": {"physics": {"3": 4, "4": 4}}}
     for shift, expected in (
         ((), {"mpc-physics N=3"}),
         ((3, 4), {"mpc-physics N=3", "mpc-physics N=4"}),
@@ -414,7 +415,7 @@ def test_the_oracle_flies_the_learned_mpcs_settings_at_its_own_k():
     nominal = SimConfig()
     learned = {"temperature": 0.1, "thrust_std": 2.0, "rate_std": [1.0, 1.0, 0.4],
                "max_swing": 0.7}  # fmt: skip
-    settings = {"mpc": {"learned": learned}}
+    settings = {"mpc": {"learned": {"3": learned}}}
     for models, expected in (({"learned": object()}, learned), ({}, {})):
         (flown,) = _plan(TINY, settings, models, vehicle_params(nominal), LIMITS, nominal,
                          ("oracle",), ("nominal",))  # fmt: skip
@@ -433,7 +434,7 @@ def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
     params = vehicle_params(nominal)
     lines: list[str] = []
     chosen = tune_settings(load_model("physics", params), InputLimits.from_sim(nominal), params,
-                           replace(TINY, tune=True), lines.append)  # fmt: skip
+                           replace(TINY, tune=True), 4, lines.append)  # fmt: skip
     assert len(lines) == len(TUNING_GRID) + len(COST_GRID)
     noise = {k: chosen[k] for k in ("temperature", "thrust_std", "rate_std")}
     cost = {k: v for k, v in chosen.items() if k not in noise}
@@ -455,3 +456,22 @@ def test_the_tuning_score_puts_lost_flights_then_large_swings_before_the_error()
     assert tuning_score(lost) == (1, 0, pytest.approx(0.1))  # counted once, as lost
     assert sorted([lost, swinging, safe], key=tuning_score) == [safe, swinging, lost]
     assert tuning_score([row(completed=False)]) == (1, 0, math.inf)
+
+
+def test_each_horizon_gets_its_own_settings(tmp_path):
+    # The settings that suit a short horizon need not suit a long one: each N is tuned.
+    lines: list[str] = []
+    config = replace(TINY, tune=True, shifts=())
+    run_study(None, tmp_path, config, controllers=("physics",), progress=lines.append)
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    assert set(settings["mpc"]["physics"]) == {"3", "4"}
+    per_round = len(TUNING_GRID) + len(COST_GRID)
+    for n in (3, 4):
+        assert sum(line.startswith(f"tuning physics N={n}:") for line in lines) == per_round
+    # a folder written with one setting for every horizon is refused, not misread
+    settings["mpc"]["physics"] = settings["mpc"]["physics"]["3"]
+    (tmp_path / "settings.json").write_text(json.dumps(settings))
+    with pytest.raises(ValueError, match="one MPC setting for every horizon"):
+        run_study(None, tmp_path, config, controllers=("physics",), progress=None)
+    with pytest.raises(ValueError, match="oracle horizons"):
+        replace(TINY, oracle_horizons=(5,))

@@ -11,12 +11,12 @@ One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
   every model built for the nominal vehicle.
 
 Fair by construction: each real MPC's sampling noise, temperature and cost changes are chosen
-on the separate ``tuning_seeds`` (``tune_settings``, nominal plant, first horizon), never on the
-evaluation seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median
+at each horizon on the separate ``tuning_seeds`` (``tune_settings``, nominal plant), never on
+the evaluation seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median
 control step (sampling, prediction, cost) is within the learned model's at its K
-(``equal_compute_samples``), per horizon. The oracle flies the learned MPC's settings (at its
-own K, ``oracle_samples``), so that the two differ only in their model; without a learned model
-it flies the defaults.
+(``equal_compute_samples``), per horizon. The oracle flies the learned MPC's settings at its
+horizon (at its own K, ``oracle_samples``), so that the two differ only in their model; without
+a learned model it flies the defaults.
 
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
@@ -221,14 +221,15 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
             if kind not in controllers or kind not in models:
                 continue
             for n in horizons:
-                tuned = tuples_from_json(settings["mpc"][kind])
+                tuned = tuples_from_json(settings["mpc"][kind][str(n)])
                 mpc = MPCConfig(**tuned, horizon=n, knots=knots_for(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
                 plans.append(Flown(plant, f"mpc-{kind} N={n}",
                                    mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
-            chosen = tuples_from_json(settings["mpc"]["learned"]) if "learned" in models else {}
             for n in cfg.oracle_horizons:
+                chosen = (tuples_from_json(settings["mpc"]["learned"][str(n)])
+                          if "learned" in models else {})  # fmt: skip
                 mpc = MPCConfig(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
                                    mpc_maker(None, limits, mpc, params)))  # fmt: skip
@@ -315,6 +316,10 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
         if missing:
             raise ValueError(f"{path} holds no settings for the {', '.join(missing)} model (the "
                              "study was tuned without it); use a new --out")  # fmt: skip
+        per_horizon = {str(n) for n in cfg.horizons}
+        if any(set(chosen) != per_horizon for chosen in settings["mpc"].values()):
+            raise ValueError(f"{path} holds one MPC setting for every horizon (written before "
+                             "they were tuned per horizon); use a new --out")  # fmt: skip
         tuned_for = settings.get("learned_network")
         if network and tuned_for and tuned_for["sha256"] != network["sha256"]:
             raise ValueError(
@@ -323,14 +328,15 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 "would mix two networks; use a new --out"
             )
         return settings
-    mpc = {kind: tune_settings(model, limits, params, cfg, progress) if cfg.tune else {}
+    mpc = {kind: {str(n): tune_settings(model, limits, params, cfg, n, progress) if cfg.tune
+                  else {} for n in cfg.horizons}
            for kind, model in models.items()}  # fmt: skip
     samples = {kind: {str(n): cfg.samples for n in cfg.horizons} for kind in models}
     if "learned" in models:
         for n in cfg.horizons:
 
             def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
-                tuned = tuples_from_json(mpc[kind])
+                tuned = tuples_from_json(mpc[kind][str(n)])
                 return lambda k: mpc_maker(models[kind], limits, MPCConfig(
                     **tuned, horizon=n, knots=knots_for(n), samples=k), params)(0)  # fmt: skip
 
@@ -360,9 +366,10 @@ def tune_settings(
     limits: InputLimits,
     params: VehicleParams,
     cfg: StudyConfig,
+    horizon: int,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """The MPC settings that fly the tuning seeds (nominal plant, first horizon, K =
+    """The MPC settings that fly the tuning seeds (nominal plant, N = ``horizon``, K =
     ``cfg.samples`` for every model) best by ``tuning_score`` (the fewest lost flights, then
     the fewest swinging the load past ``UNSAFE_SWING``, then the lowest mean load RMSE),
     chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
@@ -373,18 +380,18 @@ def tune_settings(
     noise = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
               "rate_std": tuple(r * scale for r in base.rate_std)}
              for temperature, scale in TUNING_GRID]  # fmt: skip
-    chosen = _best(model, limits, params, cfg, noise, progress)
+    chosen = _best(model, limits, params, cfg, horizon, noise, progress)
     costs = [{**chosen[0], **change} for change in COST_GRID]
-    return _best(model, limits, params, cfg, costs, progress, start=chosen)[0]
+    return _best(model, limits, params, cfg, horizon, costs, progress, start=chosen)[0]
 
 
 def _best(
-    model, limits, params, cfg: StudyConfig, choices, progress, start=None
-) -> tuple[dict[str, Any], tuple[float, float]]:
+    model, limits, params, cfg: StudyConfig, n: int, choices, progress, start=None
+) -> tuple[dict[str, Any], tuple[int, int, float]]:
     """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds, and
     its ``tuning_score``; ``start``: a (choice, score) already flown, kept
     unless one scores strictly better."""
-    nominal, n = SimConfig(), cfg.horizons[0]
+    nominal = SimConfig()
     best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
         mpc = MPCConfig(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
@@ -395,7 +402,7 @@ def _best(
         score = tuning_score(rows)
         if progress:
             shown = ", ".join(f"{k} {v}" for k, v in choice.items())
-            progress(f"tuning {model.name}: {shown}: {score[0]} lost, {score[1]} past "
+            progress(f"tuning {model.name} N={n}: {shown}: {score[0]} lost, {score[1]} past "
                      f"{UNSAFE_SWING:g} deg, load RMSE {score[2]:.3f} m")  # fmt: skip
         if score < best_score:
             best, best_score = choice, score

@@ -86,6 +86,10 @@ class StudyConfig:
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
             raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")
+        if set(self.oracle_horizons) - set(self.horizons):
+            raise ValueError(f"oracle horizons {list(self.oracle_horizons)} must be among the "
+                             f"horizons {list(self.horizons)} (the oracle flies the learned "
+                             "MPC's settings at its horizon)")  # fmt: skip
         if set(self.shift_horizons) - set(self.horizons):
             raise ValueError(f"shift horizons {list(self.shift_horizons)} must be among the "
                              f"horizons {list(self.horizons)}")  # fmt: skip

@@ -235,6 +235,8 @@ def write_study_report(
         "",
         _learned_line(settings, learned),
         "",
+        _settings_table(settings),
+        "",
         "Means over the flights each controller flew to the end; `lost`: flights that left the "
         "arena or went non-finite, of the flights it flew (a controller flown on fewer seeds, "
         "such as the oracle on a subset, is averaged over its own). Differences: paired by "
@@ -322,19 +324,24 @@ def _settings_line(config: StudyConfig, settings: dict[str, Any], seeds: list[in
     """What was flown; ``seeds``: the evaluation seeds of the flights reported (a folder may hold
     more than one configuration's, ``SETTINGS_FIELDS``)."""
     cfg = asdict(config)
-    mpc, samples = settings.get("mpc", {}), settings.get("samples", {})
-    tuned = "; ".join(
-        f"{k}: {', '.join(f'{n} {v}' for n, v in s.items()) or 'defaults'}" for k, s in mpc.items()
-    )
-    ks = "; ".join(
-        f"{k}: " + ", ".join(f"N={n} K={v}" for n, v in s.items()) for k, s in samples.items()
-    )
-    oracle = "; the oracle the learned one's" if "learned" in mpc else ""
+    learned = "learned" in settings.get("mpc", {})
+    oracle = f"; the oracle flies the learned one's at K={cfg['oracle_samples']}" if learned else ""
     return (
         f"Maneuvers {', '.join(cfg['maneuvers'])}; evaluation seeds "
-        f"{', '.join(map(str, seeds))}; MPC settings chosen on seeds "
-        f"{', '.join(map(str, cfg['tuning_seeds']))} ({tuned or 'defaults'}{oracle}); "
-        f"samples ({ks}; the oracle K={cfg['oracle_samples']}); "
+        f"{', '.join(map(str, seeds))}; MPC settings chosen per horizon on seeds "
+        f"{', '.join(map(str, cfg['tuning_seeds']))} (below{oracle}); "
         f"{cfg['steps'] or 'all'} recorded steps per flight; "
         f"backend {cfg['backend']}; every unmodelled effect on."
     )
+
+
+def _settings_table(settings: dict[str, Any]) -> str:
+    """Each real MPC's settings and K per horizon (``settings.json``)."""
+    mpc, samples = settings.get("mpc", {}), settings.get("samples", {})
+    rows = [
+        [kind, n, str(samples.get(kind, {}).get(n, "")),
+         ", ".join(f"{k} {v}" for k, v in chosen.items()) or "defaults"]
+        for kind, per_horizon in mpc.items()
+        for n, chosen in per_horizon.items()
+    ]  # fmt: skip
+    return markdown_table(["model", "N", "K", "settings"], rows) if rows else "(defaults)"
