@@ -84,7 +84,7 @@ def add_control(sub: Any) -> None:
         "where the learned model pays: the PID, the payload-aware geometric controller and the "
         "MPC with the physics model, the --model (one) and the oracle (the simulator itself) "
         "at several horizons, on every maneuver x seed, and on shifted plants; MPC settings "
-        "chosen on separate tuning seeds, the physics MPC at the learned one's compute; a "
+        "chosen per horizon on separate tuning seeds, the physics MPC at the learned one's compute; a "
         "second run flies only what is missing (docs/control.md)",
     )
     study.add_argument("--study", action="store_true", help="fly the study instead")
@@ -136,7 +136,7 @@ def add_control(sub: Any) -> None:
         type=comma_ints,
         default=list(StudyConfig.oracle_horizons),
         metavar="N,N",
-        help=f"the oracle MPC's horizons (default "
+        help=f"the oracle MPC's horizons, among --horizons (default "
         f"{','.join(map(str, StudyConfig.oracle_horizons))})",
     )
     study.add_argument(
