@@ -84,8 +84,8 @@ def add_control(sub: Any) -> None:
         "where the learned model pays: the PID, the payload-aware geometric controller and the "
         "MPC with the physics model, the --model (one) and the oracle (the simulator itself) "
         "at several horizons, on every maneuver x seed, and on shifted plants; MPC settings "
-        "chosen per horizon on separate tuning seeds, the physics MPC at the learned one's compute; a "
-        "second run flies only what is missing (docs/control.md)",
+        "chosen per horizon on separate tuning seeds, the physics MPC at the learned one's "
+        "compute; a second run flies only what is missing (docs/control.md)",
     )
     study.add_argument("--study", action="store_true", help="fly the study instead")
     study.add_argument(
