@@ -2,7 +2,7 @@
 lost flights, swings past 60 deg, and the paired differences of each run against the first.
 A choice between models (e.g. before and after `control --record`) made here never touches the
 control study's evaluation seeds. The MPC flies the learned settings of a study's
-settings.json (or the defaults), at N = --horizon, K = --samples.
+settings.json at N = --horizon (or the defaults), K = --samples.
 
     python examples/fly_validation_seeds.py runs/ps-small-s0 runs/rec-s0 --maneuvers xy_step \\
         --seeds 300..339 --settings study/settings.json --workers 2
@@ -68,7 +68,13 @@ def main() -> None:
     taken = sorted(BENCHMARK_SEEDS.union(RecordConfig().seeds).intersection(seeds))
     if taken:
         parser.error(f"seeds {taken} are a benchmark's (evaluation or tuning) or recorded ones")
-    tuned = tuples_from_json(read_json(args.settings)["mpc"]["learned"]) if args.settings else {}
+    tuned = {}
+    if args.settings:  # the learned MPC's settings at this horizon
+        per_horizon = read_json(args.settings)["mpc"]["learned"]
+        if str(args.horizon) not in per_horizon:
+            parser.error(f"{args.settings} holds the learned MPC's settings for N = "
+                         f"{', '.join(per_horizon)}, not {args.horizon}")  # fmt: skip
+        tuned = tuples_from_json(per_horizon[str(args.horizon)])
     mpc = MPCConfig(**tuned, horizon=args.horizon, knots=knots_for(args.horizon),
                     samples=args.samples)  # fmt: skip
     plants = [p.strip() for p in args.plants.split(";") if p.strip()]
