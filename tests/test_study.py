@@ -101,6 +101,7 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
 def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyond(tmp_path):
     import csv
 
+    from slungload.config import WindowConfig
     from slungload.data.dataset import load_dataset
     from slungload.study import LoadsStudyConfig, study_loads
     from slungload.study.loads import choose_estimate_prior
@@ -134,7 +135,8 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
     for name in ("loads.md", "loads.csv", "loads.png", "inside/report.md", "beyond/report.md"):
         assert (out / name).is_file()
     # The estimate's mass prior is chosen on the validation flights of many, and said so.
-    chosen, scores = choose_estimate_prior(out / "data" / "many", one.params, config)
+    many = load_dataset(out / "data" / "many", window=WindowConfig(), params=one.params)
+    chosen, scores = choose_estimate_prior(many, one.params, config)
     assert set(scores) == set(config.estimate_priors)
     assert len(set(scores.values())) == len(scores)  # the prior moves the validation error
     assert f"the prior {chosen:g} (m/s^2)^2 per equation, chosen on the validation" in (

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..config import VehicleParams, WindowConfig
 from ..constants_estimate import ADAPT_PRIOR_WEIGHT
-from ..data.dataset import load_dataset, resolve_params
+from ..data.dataset import Dataset, load_dataset, resolve_params
 from ..data.windows import Windows, make_windows
 from ..evaluation.evaluator import Candidate, evaluate_predictors
 from ..evaluation.metrics import COMBINED, compute_metrics
@@ -90,12 +90,14 @@ def study_loads(
     run_training_jobs(jobs, workers=workers, progress=progress, cluster=cluster)
 
     params, _ = resolve_params(data["many"], None)  # the nominal constants
-    prior, priors = choose_estimate_prior(data["many"], params, config)
+    tested = {name: load_dataset(data[name], window=WindowConfig(), params=params)
+              for name in dict.fromkeys(SETS.values())}  # fmt: skip
+    prior, priors = choose_estimate_prior(tested["many"], params, config)
     rows: list[LoadsRow] = []
     per_flight: list[tuple[str, str, str, float, float]] = []
     worse: dict[tuple[str, str], tuple[int, int]] = {}
     for test_set in SETS:
-        windows = _test_windows(data, test_set, params, config.horizons)
+        windows = _test_windows(tested[SETS[test_set]], test_set, params, config.horizons)
         candidates = [
             Candidate(label, PhysicsModel(params, name=label, constants=source,
                                           **_prior(source, prior)))
@@ -125,13 +127,13 @@ def _prior(source: str, prior: float) -> dict[str, float]:
 
 
 def choose_estimate_prior(
-    folder: Path, params: VehicleParams, config: LoadsStudyConfig
+    ds: Dataset, params: VehicleParams, config: LoadsStudyConfig
 ) -> tuple[float, dict[float, float]]:
     """The mass prior of ``config.estimate_priors`` with which physics on the in-flight estimate
-    predicts the validation flights of ``folder`` (``many``) best (combined RMSE at the longest
+    predicts the validation flights of ``ds`` (``many``) best (combined RMSE at the longest
     horizon), and each prior's RMSE. The test loads play no part in the choice."""
     horizon = max(config.horizons)
-    windows = _split_windows(folder, "val", params, (horizon,))[horizon]
+    windows = _split_windows(ds, "val", params, (horizon,))[horizon]
     scores = {}
     for weight in config.estimate_priors:
         model = PhysicsModel(params, constants="window", prior_weight=weight)
@@ -185,24 +187,23 @@ def _runs(
 
 
 def _test_windows(
-    data: dict[str, Path], test_set: str, params: VehicleParams, horizons: Sequence[int]
+    ds: Dataset, test_set: str, params: VehicleParams, horizons: Sequence[int]
 ) -> dict[int, Windows]:
-    """Windows of the test flights of ``many`` (inside) or every flight of ``beyond``, for each
-    horizon (``_split_windows``)."""
+    """Windows of the test flights of ``many`` (inside) or every flight of ``beyond`` (``ds``,
+    the set's dataset), for each horizon (``_split_windows``)."""
     split = "test" if test_set == "inside" else None
-    return _split_windows(data[SETS[test_set]], split, params, horizons)
+    return _split_windows(ds, split, params, horizons)
 
 
 def _split_windows(
-    folder: Path, split: str | None, params: VehicleParams, horizons: Sequence[int]
+    ds: Dataset, split: str | None, params: VehicleParams, horizons: Sequence[int]
 ) -> dict[int, Windows]:
-    """Windows (stride 1) of the flights of ``split`` of ``folder`` (None: every flight), for
-    each horizon, carrying each flight's true constants; the dataset read with the nominal
-    constants (``params``). A split without flights is a ValueError naming the folder."""
-    ds = load_dataset(folder, window=WindowConfig(), params=params)
+    """Windows (stride 1) of the flights of ``split`` of ``ds`` (None: every flight), for each
+    horizon, carrying each flight's true constants; ``ds`` read with the nominal constants
+    (``params``). A split without flights is a ValueError naming the dataset."""
     names = ds.splits[split].names if split else tuple(ds.flights)
     if not names:
-        raise ValueError(f"{folder}: no {split} flights")
+        raise ValueError(f"{ds.folder}: no {split} flights")
     flights = [ds.flights[n] for n in names]
     return {
         n: make_windows(flights, WindowConfig(history=ds.window.history, horizon=n), params)
