@@ -97,7 +97,7 @@ def study_loads(
     per_flight: list[tuple[str, str, str, float, float]] = []
     worse: dict[tuple[str, str], tuple[int, int]] = {}
     for test_set in SETS:
-        windows = _test_windows(tested[SETS[test_set]], test_set, params, config.horizons)
+        windows = _test_windows(tested, test_set, params, config.horizons)
         candidates = [
             Candidate(label, PhysicsModel(params, name=label, constants=source,
                                           **_prior(source, prior)))
@@ -187,12 +187,12 @@ def _runs(
 
 
 def _test_windows(
-    ds: Dataset, test_set: str, params: VehicleParams, horizons: Sequence[int]
+    tested: dict[str, Dataset], test_set: str, params: VehicleParams, horizons: Sequence[int]
 ) -> dict[int, Windows]:
-    """Windows of the test flights of ``many`` (inside) or every flight of ``beyond`` (``ds``,
-    the set's dataset), for each horizon (``_split_windows``)."""
+    """Windows of the test flights of ``many`` (inside) or every flight of ``beyond``, for each
+    horizon (``_split_windows``); ``tested``: the datasets by name."""
     split = "test" if test_set == "inside" else None
-    return _split_windows(ds, split, params, horizons)
+    return _split_windows(tested[SETS[test_set]], split, params, horizons)
 
 
 def _split_windows(
