@@ -245,11 +245,16 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
         _row("o", "m", 2, 0.1),
     ]
     assert gap_closed(rows, "p", "l", "o", "load_rmse") == [
-        ["m", "1", "0.300", "0.200", "0.100", "50 %"]
+        ["m", "1", "0.300", "0.200", "0.100", "50 %", "+0.100 [-, -]"]
     ]
     # an oracle no better than physics leaves no gap: no ratio, not a negative one
     worse = [_row("p", "m", 1, 0.2), _row("l", "m", 1, 0.1), _row("o", "m", 1, 0.3)]
-    assert gap_closed(worse, "p", "l", "o", "load_rmse")[0][-1] == "-"
+    assert gap_closed(worse, "p", "l", "o", "load_rmse")[0][-2] == "-"
+    # learned - oracle is paired per seed: its interval excludes zero only where the seeds agree
+    seeds = [_row(c, "m", s, v) for s, vals in enumerate([(0.5, 0.30, 0.20), (0.6, 0.41, 0.30),
+             (0.4, 0.22, 0.10)]) for c, v in zip("plo", vals)]  # fmt: skip
+    mean, interval = gap_closed(seeds, "p", "l", "o", "load_rmse")[0][-1].split(" ", 1)
+    assert mean == "+0.110" and interval == "[+0.085, +0.135]"
 
 
 # --- the study ---------------------------------------------------------------------------

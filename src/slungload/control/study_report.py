@@ -118,8 +118,10 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
 
 
 def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[list[str]]:
-    """Per maneuver: means over the seeds all three flew to the end, and (physics - learned) /
-    (physics - oracle); "-" where the oracle is no better than physics (no gap to close)."""
+    """Per maneuver: means over the seeds all three flew to the end, (physics - learned) /
+    (physics - oracle) ("-" where the oracle is no better than physics: no gap to close), and
+    learned - oracle paired over those seeds with its 95 % t-interval, which says whether a
+    ratio below 100 % is more than the seeds' spread."""
     sets = [by_flight(rows, NOMINAL, label) for label in (physics, learned, oracle)]
     out = []
     for maneuver in dict.fromkeys(m for m, _ in sets[0]):
@@ -129,10 +131,12 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
             if k[0] == maneuver and all(k in s and s[k]["completed"] for s in sets)
         ]
         if not keys:
-            out.append([maneuver, "0", "-", "-", "-", "-"])
+            out.append([maneuver, "0", "-", "-", "-", "-", "-"])
             continue
         p, learn, o = (float(np.mean([s[k][key] for k in keys])) for s in sets)
         gap = (p - learn) / (p - o) if p - o > 1e-12 else math.nan
+        mean, lo, hi = paired_interval([sets[1][k][key] - sets[2][k][key] for k in keys])
+        spec = "{:+.3f}"
         out.append(
             [
                 maneuver,
@@ -141,6 +145,7 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
                 f"{learn:.3f}",
                 f"{o:.3f}",
                 fmt(100 * gap, "{:.0f} %"),
+                f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]",
             ]
         )
     return out
@@ -272,7 +277,8 @@ def write_study_report(
                 f"{head}:",
                 "",
                 markdown_table(
-                    ["maneuver", "seeds", "physics", "learned", "oracle", "gap closed"],
+                    ["maneuver", "seeds", "physics", "learned", "oracle", "gap closed",
+                     "learned - oracle"],  # fmt: skip
                     gap_closed(rows, *trio, key),
                 ),
                 "",
