@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 from slungload.cli.common import comma_names, seed_range
 from slungload.control.closed_loop import flight_metrics, fly
-from slungload.control.mpc import InputLimits, MPCConfig
+from slungload.control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
 from slungload.control.results import paired_interval
-from slungload.control.study import knots_for, mpc_maker, plant_config
+from slungload.control.study import plant_config
 from slungload.control.study_config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig
 from slungload.deploy.compiled.batched import load_model
 from slungload.deploy.predictor import torch_threads

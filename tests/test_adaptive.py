@@ -361,6 +361,13 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
     with pytest.raises(ValueError, match="not a physics-step network"):
         fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
+    # a folder holding flights of a network with another nominal vehicle is refused: its PID
+    # and physics flights (built on that nominal) would be reused
+    other = tmp_path / "other_nominal"
+    other.mkdir()
+    (other / "loads-mpc-fixed.json").write_text('{"nominal": {"mass_load": 0.5}}')
+    with pytest.raises(ValueError, match="another nominal vehicle"):
+        fly_loads(adaptive_run, other, cfg, progress=None)
 
 
 def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(

@@ -4,6 +4,7 @@ flies, resumes and reports (docs/control.md, "The control study")."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from dataclasses import fields, replace
@@ -16,8 +17,8 @@ from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
-from slungload.control.results import paired_interval
-from slungload.control.study import collect_rows, run_study, tune_settings, tuning_score
+from slungload.control.results import paired_interval, t975
+from slungload.control.study import run_study, tune_settings, tuning_score
 from slungload.control.study_config import (
     COST_GRID,
     SETTINGS_FIELDS,
@@ -218,9 +219,18 @@ def test_paired_interval_is_the_t_interval():
     assert lo == pytest.approx(2.0 - 4.303 / math.sqrt(3))
     assert math.isnan(paired_interval([1.0])[1]) and paired_interval([1.0])[0] == 1.0
     assert all(math.isnan(v) for v in paired_interval([]))
-    many = paired_interval(np.r_[np.zeros(50), np.ones(50)])
+    many = paired_interval(np.r_[np.zeros(50), np.ones(50)])  # t at 99 dof: 1.9842, not 1.96
     assert many[2] - many[0] == pytest.approx(
-        1.96 * np.std(np.r_[np.zeros(50), np.ones(50)], ddof=1) / 10
+        1.9842 * np.std(np.r_[np.zeros(50), np.ones(50)], ddof=1) / 10, abs=1e-4
+    )
+
+
+def test_t_beyond_the_table_is_students_and_falls_to_the_normals():
+    # published t at 97.5 %: 40 dof 2.0211, 60 dof 2.0003, 120 dof 1.9799
+    assert [round(t975(n), 4) for n in (40, 60, 120)] == [2.0211, 2.0003, 1.9799]
+    ts = [t975(n) for n in range(1, 400)]
+    assert all(a > b for a, b in itertools.pairwise(ts)) and t975(10**6) == pytest.approx(
+        1.959964, abs=1e-5
     )
 
 
@@ -252,7 +262,7 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
     assert gap_closed(worse, "p", "l", "o", "load_rmse")[0][-2] == "-"
     # learned - oracle is paired per seed: its interval excludes zero only where the seeds agree
     seeds = [_row(c, "m", s, v) for s, vals in enumerate([(0.5, 0.30, 0.20), (0.6, 0.41, 0.30),
-             (0.4, 0.22, 0.10)]) for c, v in zip("plo", vals)]  # fmt: skip
+             (0.4, 0.22, 0.10)]) for c, v in zip("plo", vals, strict=True)]  # fmt: skip
     mean, interval = gap_closed(seeds, "p", "l", "o", "load_rmse")[0][-1].split(" ", 1)
     assert mean == "+0.110" and interval == "[+0.085, +0.135]"
 
@@ -291,7 +301,7 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
     assert len(lines) == len(rows) == 8
     lines.clear()
     again = run_study(None, out, TINY, progress=lines.append)  # nothing left to fly
-    assert lines == [] and again == collect_rows(out) and len(again) == 8
+    assert lines == [] and again == rows  # the same rows (wall times too): none flown again
     report = write_study_report(again, TINY, out).read_text()
     for part in (
         "## Nominal plant",

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from slungload import frames
 from slungload.config import VehicleParams
 from slungload.physics import (
     VehicleConstants,
@@ -210,6 +211,17 @@ def test_rotation_matrix_matches_quaternion_convention():
         torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64),
         atol=1e-12,
     )
+
+
+def test_the_numpy_rotation_matrix_is_the_torch_one():
+    # frames.rotation_matrix (numpy: the MPC, the oracle) and quat_to_rotmat (torch: physics)
+    q = torch.nn.functional.normalize(torch.randn(16, 4, dtype=torch.float64), dim=-1)
+    np.testing.assert_allclose(frames.rotation_matrix(q.numpy()), quat_to_rotmat(q).numpy(),
+                               atol=1e-14)  # fmt: skip
+    c, s = math.cos(0.3), math.sin(0.3)  # a yaw of 0.3 rad is a rotation about z
+    yaw = np.array([math.cos(0.15), 0.0, 0.0, math.sin(0.15)])
+    np.testing.assert_allclose(frames.rotation_matrix(yaw), [[c, -s, 0], [s, c, 0], [0, 0, 1]],
+                               atol=1e-15)  # fmt: skip
 
 
 def test_gradcheck_float64():

@@ -5,8 +5,9 @@ controller wrapped in a ``Guard``. Before each step the guard checks the measure
 outside the ``Arena`` box, or a non-finite measurement (an unstable simulation), ends the run
 with that reason (``RunStopped``, raised from the controller call at the top of the
 simulator's loop, before anything reaches MuJoCo); so does a non-finite command or one of the
-wrong shape. ``fly`` never raises for a run that goes wrong: it returns a ``FlightLog`` whose
-``stopped`` names the reason. The log holds what the controller saw and did at every step
+wrong shape. ``fly`` never raises for a run that goes wrong in these ways: it returns a
+``FlightLog`` whose ``stopped`` names the reason (an exception the controller raises itself is
+a bug in it, and propagates). The log holds what the controller saw and did at every step
 (measured states, the reference, the commands, the compute time of each call);
 ``flight_metrics`` scores the recorded part (t >= 0) of it:
 
@@ -78,7 +79,7 @@ class Guard:
 
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         self.planned = len(reference.yaw) - self.warm
-        x = np.concatenate([measurement.p, measurement.v, measurement.q_wxyz, measurement.p_load])
+        x = measurement.state
         if not np.isfinite(x).all():
             raise RunStopped(f"non-finite measurement at step {k} (unstable simulation)")
         reason = self.arena.outside(measurement.p)
@@ -134,8 +135,8 @@ def fly(
     arena: Arena | None = None,
     steps: int | None = None,
 ) -> FlightLog:
-    """Fly ``maneuver`` with sim seed ``seed`` and a fresh ``controller``; never raises for a
-    run that goes wrong (see the module)."""
+    """Fly ``maneuver`` with sim seed ``seed`` and a fresh ``controller``; a run that leaves the
+    arena or goes non-finite ends with ``stopped`` set, without raising (see the module)."""
     cfg = config or SimConfig()
     warm = round(cfg.warmup / cfg.control_dt)
     guard = Guard(controller, arena or Arena(), warm)

@@ -27,7 +27,7 @@ from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from ..sim.maneuvers import MANEUVERS
 from .closed_loop import Arena, FlightLog, flight_metrics, fly, write_log
-from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .mpc import InputLimits, MPCConfig, knots_for, mpc_maker
 from .report import write_report
 from .results import ControlComparison
 from .study_config import DEFAULT_MANEUVERS
@@ -64,7 +64,7 @@ def compare(
     limits = InputLimits.from_sim(cfg)
     predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=backend)]
     predictors += [load_model(m, backend=backend) for m in models]
-    base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon)
+    base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon, knots=knots_for(horizon))
     out_dir = Path(out) if out is not None else None
     if out_dir is not None:
         (out_dir / "flights").mkdir(parents=True, exist_ok=True)
@@ -96,9 +96,7 @@ def _plans(
     for k in samples:
         for model in predictors:
             mpc_cfg = replace(base, samples=int(k))
-            plans.append(
-                (f"mpc-{model.name}", int(k), _mpc_factory(model, limits, mpc_cfg, params))
-            )
+            plans.append((f"mpc-{model.name}", int(k), mpc_maker(model, limits, mpc_cfg, params)))
     return plans
 
 
@@ -158,10 +156,6 @@ def _settings(
         "machine": machine(),
         "date": date.today().isoformat(),
     }
-
-
-def _mpc_factory(model, limits, mpc_cfg, params):
-    return lambda seed: SamplingMPC(model, limits, replace(mpc_cfg, seed=seed), params)
 
 
 def _save_log(folder: Path, log: FlightLog) -> None:

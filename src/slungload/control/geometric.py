@@ -59,7 +59,8 @@ class GeometricGains:
 class GeometricLoadController:
     """The controller of the module (``Controller`` contract); stateful, one per flight.
 
-    cfg: the nominal vehicle (masses, cable length, limits and the attitude gains of its PID).
+    cfg: the nominal vehicle (masses, cable length, limits); the attitude loop is the PID's,
+    with ``gains.k_att`` in place of its own gains.
     """
 
     def __init__(self, cfg: SimConfig, gains: GeometricGains | None = None) -> None:

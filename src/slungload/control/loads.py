@@ -38,14 +38,14 @@ from matplotlib.figure import Figure
 from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model, with_backend
 from ..deploy.predictor import torch_threads
-from ..fileio import write_json, write_text
+from ..fileio import read_json, write_json, write_text
 from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
 from ..reporting import markdown_table, save_figure
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
-from .mpc import InputLimits, MPCConfig
-from .study import Flown, collect_rows, fly_once, mpc_maker
+from .mpc import InputLimits, MPCConfig, mpc_maker
+from .study import Flown, collect_rows, fly_once
 from .study_config import UnseenLoadsConfig
 from .study_report import (
     KEYS,
@@ -106,13 +106,20 @@ def fly_loads(
     window = replace(mpc, constants="window")
     physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
+    for other in out.glob("loads-*.json"):  # the PID and physics rows are shared by the networks
+        if read_json(other)["nominal"] != asdict(nominal):
+            raise ValueError(
+                f"{other} holds flights built for another nominal vehicle than {network}'s "
+                "(its PID and physics flights would be reused for this one); use another --out"
+            )
     write_json(out / f"loads-{name}.json", {"network": str(network), "config": asdict(cfg),
                                             "nominal": asdict(nominal)})  # fmt: skip
     with torch_threads(threads):
         for load_mass, cable_length in cfg.loads:
             plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
             truth = vehicle_params(plant)
-            limits = InputLimits.from_sim(plant)
+            limits = InputLimits.from_sim(plant)  # scored against; and the MPCs given the truth
+            told_nothing = InputLimits.from_sim(nominal_sim)  # thrust floor from the nominal mass
             plant_label = plant_name(load_mass, cable_length)
             flown = [Flown(plant_label, "pid", lambda seed: PIDController(nominal_sim))]
             for model, in_flight, given in (
@@ -121,7 +128,7 @@ def fly_loads(
             ):  # fmt: skip
                 flown += [
                     Flown(plant_label, label(model, IN_FLIGHT),
-                          mpc_maker(in_flight, limits, window, nominal)),
+                          mpc_maker(in_flight, told_nothing, window, nominal)),
                     Flown(plant_label, label(model, TRUE), mpc_maker(given, limits, mpc, truth)),
                 ]  # fmt: skip
             for f in flown:

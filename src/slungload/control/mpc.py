@@ -15,6 +15,9 @@ The names of ``mppi`` that the simulator's callers use (``InputLimits``, ``MPCCo
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import replace
+
 import numpy as np
 import torch
 
@@ -34,6 +37,7 @@ from .mppi import (
     ReferenceAhead,
     trajectory_cost,
 )
+from .oracle import PlantCandidates
 
 __all__ = [
     "InputLimits",
@@ -41,8 +45,9 @@ __all__ = [
     "MPCStats",
     "SamplingMPC",
     "TorchCandidates",
+    "knots_for",
+    "mpc_maker",
     "reference_ahead",
-    "state_from_measurement",
     "trajectory_cost",
     "window_estimate",
 ]
@@ -65,11 +70,6 @@ class TorchCandidates:
             torch.from_numpy(x_hist), torch.from_numpy(u_past), torch.from_numpy(plans)
         )
         return states.detach().to("cpu", torch.float64).numpy()
-
-
-def state_from_measurement(m: Measurement) -> np.ndarray:
-    """(13,) state x = (p, v, q w-x-y-z, pL) of a ``Measurement``."""
-    return np.concatenate([m.p, m.v, m.q_wxyz, m.p_load])
 
 
 def reference_ahead(ref: Reference, k: int, n: int) -> ReferenceAhead:
@@ -95,12 +95,13 @@ def window_estimate(params: VehicleParams) -> ConstantsEstimate:
 class SamplingMPC:
     """MPPI controller meeting ``sim.controller.Controller``; one per flight.
 
-    model: a ``PredictionModel`` (torch) or a numpy ``mppi.CandidateModel``; limits:
-    the input box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and
-    cable length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of
-    the in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
+    model: a ``PredictionModel`` (torch, converted by ``TorchCandidates``) or a numpy
+    ``mppi.CandidateModel`` that says so with ``numpy = True`` (the oracle); limits: the input
+    box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and cable
+    length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of the
+    in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
     ``core`` is the ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks;
-    ``last_plan`` is the plan after the latest step.
+    ``plan`` is the nominal plan of the next step.
     """
 
     def __init__(
@@ -134,8 +135,7 @@ class SamplingMPC:
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         """One control step (the ``Controller`` contract): (thrust N, body rates (3,) rad/s)."""
         ref = reference_ahead(reference, k, self.cfg.horizon)
-        state = state_from_measurement(measurement)
-        command = self.core.step(state, ref, rotation=measurement.rotation)
+        command = self.core.step(measurement.state, ref, rotation=measurement.rotation)
         return command.thrust, command.rates
 
     @property
@@ -152,8 +152,23 @@ class SamplingMPC:
 
     @property
     def plan(self) -> np.ndarray:
+        """(N, 4): the nominal plan of the next step (the latest plan, shifted by one step)."""
         return self.core.plan
 
-    @property
-    def last_plan(self) -> np.ndarray:
-        return self.core.plan
+
+def knots_for(horizon: int) -> int:
+    """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
+    return min(MPCConfig().knots, horizon)
+
+
+def mpc_maker(
+    model: PredictionModel | None, limits: InputLimits, mpc: MPCConfig, params: VehicleParams
+) -> Callable[[int], SamplingMPC]:
+    """seed -> a fresh MPC over ``model`` (None: a fresh oracle, ``oracle.PlantCandidates``)
+    seeded by the flight, so every flight of a study samples its own noise."""
+
+    def make(seed: int) -> SamplingMPC:
+        chosen = PlantCandidates() if model is None else model
+        return SamplingMPC(chosen, limits, replace(mpc, seed=seed), params)
+
+    return make

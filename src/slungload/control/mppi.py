@@ -36,8 +36,9 @@ At every step the controller
 Safe by construction: samples whose prediction is NaN or infinite are dropped; when none is
 left, the model raises, or the weighted plan is non-finite or outside the limits, the step
 falls back to the last safe plan (shifted), and after ``max_fallback_steps`` consecutive
-fallbacks to a hover command (hover thrust, body rates that level the vehicle at its yaw).
-Every event is counted in ``MPCStats`` by reason.
+fallbacks to a hover command (hover thrust, body rates that level the vehicle at the
+reference's yaw). An in-flight estimate of the constants that is not finite (a NaN in the
+history) is not used: the last good constants stay. Every event is counted in ``MPCStats``.
 
 numpy only (no torch): a test imports this module in a fresh interpreter and checks.
 """
@@ -158,6 +159,7 @@ class MPCStats:
     fallbacks: Counter = field(default_factory=Counter)  # reason -> steps
     nonfinite_steps: int = 0  # steps where some (not all) samples predicted NaN/inf
     hover_steps: int = 0  # fallback steps that flew the hover command
+    estimate_rejected: int = 0  # steps whose in-flight constants were not finite and positive
 
     @property
     def fallback_steps(self) -> int:
@@ -354,7 +356,11 @@ class MPPIController:
         self.history.push_state(state)
         x_hist, u_past = self.history.window(self.plan[0])
         if self.estimate is not None:
-            self._use_constants(*self.estimate(x_hist, u_past))
+            cable_length, mass_load = (float(c) for c in self.estimate(x_hist, u_past))
+            if math.isfinite(cable_length) and math.isfinite(mass_load) and cable_length > 0:
+                self._use_constants(cable_length, max(mass_load, 0.0))
+            else:  # a NaN in the history: keep the last good constants, so hover stays finite
+                self.stats.estimate_rejected += 1
         plan, reason = self._optimise(reference, x_hist, u_past)
         if reason is None:
             self._fallback_run = 0
@@ -387,7 +393,10 @@ class MPPIController:
                 f"reference: need position ({n}, 3), velocity ({n}, 3) and yaw ({n},) for the "
                 f"N = {n} steps ahead; got {p.shape}, {v.shape}, {yaw.shape}"
             )
-        return ReferenceAhead(p[:n], v[:n], yaw[:n])
+        ahead = ReferenceAhead(p[:n], v[:n], yaw[:n])
+        if not all(np.isfinite(a).all() for a in ahead):
+            raise ValueError("reference: the N steps ahead hold NaN or infinite values")
+        return ahead
 
     def sample(self) -> np.ndarray:
         """K clamped input sequences (K, N, 4) around the nominal plan; row 0 is the plan."""

@@ -30,8 +30,7 @@ from ..models.prediction import PredictionModel
 from ..sim.config import SimConfig, vehicle_params
 from ..workers import run_jobs
 from .closed_loop import fly
-from .mpc import InputLimits, MPCConfig
-from .study import knots_for, mpc_maker
+from .mpc import InputLimits, MPCConfig, knots_for, mpc_maker
 from .study_config import RecordConfig
 
 

@@ -13,10 +13,10 @@ One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
 Fair by construction: each real MPC's sampling noise, temperature and cost changes are chosen
 at each horizon on the separate ``tuning_seeds`` (``tune_settings``, nominal plant), never on
 the evaluation seeds; the physics model flies the largest K of ``PHYSICS_SAMPLES`` whose median
-control step (sampling, prediction, cost) is within the learned model's at its K
-(``equal_compute_samples``), per horizon. The oracle flies the learned MPC's settings at its
-horizon (at its own K, ``oracle_samples``), so that the two differ only in their model; without
-a learned model it flies the defaults.
+control step (sampling, prediction, cost) is within the learned model's at its K, and never
+below that K (``equal_compute_samples``), per horizon. The oracle flies the learned MPC's
+settings at its horizon (at its own K, ``oracle_samples``), so that the two differ only in their
+model; without a learned model it flies the defaults.
 
 Every flight lands as ``out/flights/<plant>/<controller>/<maneuver>_s<seed>.json`` (its
 ``closed_loop.flight_metrics`` row) and ``.npz`` (its log) as soon as it ends; a second run of
@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -52,9 +52,9 @@ from ..sim.dataset import vehicle_params
 from ..workers import run_jobs
 from .closed_loop import FlightLog, flight_metrics, fly, read_log, write_log
 from .geometric import GEOMETRIC, GeometricLoadController
-from .mpc import InputLimits, MPCConfig, SamplingMPC
+from .mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
 from .mppi import ReferenceAhead
-from .oracle import ORACLE, PlantCandidates
+from .oracle import ORACLE
 from .study_config import (
     CONTROLLERS,
     COST_GRID,
@@ -234,21 +234,6 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
                                    mpc_maker(None, limits, mpc, params)))  # fmt: skip
     return plans
-
-
-def knots_for(horizon: int) -> int:
-    """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
-    return min(MPCConfig().knots, horizon)
-
-
-def mpc_maker(model: PredictionModel | None, limits, mpc: MPCConfig, params: VehicleParams):
-    """seed -> a fresh MPC over ``model`` (None: a fresh oracle) seeded by the flight."""
-
-    def make(seed: int) -> SamplingMPC:
-        chosen = PlantCandidates() if model is None else model
-        return SamplingMPC(chosen, limits, replace(mpc, seed=seed), params)
-
-    return make
 
 
 def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:

@@ -40,6 +40,9 @@ KEYS = (
     ("vehicle_rmse", "vehicle RMSE (m)", "{:.3f}"),
 )
 
+GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed",
+               "learned - oracle")  # fmt: skip
+
 
 def _horizon(label: str) -> int | None:
     found = re.search(r" N=(\d+)$", label)
@@ -276,11 +279,7 @@ def write_study_report(
             parts += [
                 f"{head}:",
                 "",
-                markdown_table(
-                    ["maneuver", "seeds", "physics", "learned", "oracle", "gap closed",
-                     "learned - oracle"],  # fmt: skip
-                    gap_closed(rows, *trio, key),
-                ),
+                markdown_table(list(GAP_COLUMNS), gap_closed(rows, *trio, key)),
                 "",
             ]
     if has("geometric"):

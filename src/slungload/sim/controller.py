@@ -21,6 +21,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ..frames import rotvec_from_matrix
+from ..layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from .config import Excitation, SimConfig
 from .maneuvers import Reference
 from .ou import ou_process
@@ -41,6 +42,13 @@ class Measurement:
     q_wxyz: np.ndarray  # (4,) unit quaternion w-x-y-z, body -> world
     rotation: np.ndarray  # (3, 3) rotation matrix of q_wxyz, body -> world (columns: body axes)
     p_load: np.ndarray  # (3,) m, load (cube centre) position
+
+    @property
+    def state(self) -> np.ndarray:
+        """(13,) float64: the measured x = (p, v, q w-x-y-z, pL) in the package's layout."""
+        x = np.empty(STATE_DIM)
+        x[POS], x[VEL], x[QUAT], x[LOAD_POS] = self.p, self.v, self.q_wxyz, self.p_load
+        return x
 
 
 @runtime_checkable
