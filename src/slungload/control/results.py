@@ -17,13 +17,21 @@ import numpy as np
 from ..models.prediction import PHYSICS
 from .closed_loop import FlightLog
 
-COLUMNS = (  # (key, header, format): the error columns of the tables, means over seeds
-    ("vehicle_rmse", "vehicle RMSE (m)", "{:.3f}"),
-    ("load_rmse", "load RMSE (m)", "{:.3f}"),
-    ("swing_rms", "swing RMS (deg)", "{:.1f}"),
-    ("swing_max", "swing max (deg)", "{:.1f}"),
-    ("at_limit", "at a limit (%)", "{:.1f}"),
-)
+METRICS = {  # a flight's figures (``closed_loop.flight_metrics``): key -> (header, format)
+    "vehicle_rmse": ("vehicle RMSE (m)", "{:.3f}"),
+    "load_rmse": ("load RMSE (m)", "{:.3f}"),
+    "swing_rms": ("swing RMS (deg)", "{:.1f}"),
+    "swing_max": ("swing max (deg)", "{:.1f}"),
+    "at_limit": ("at a limit (%)", "{:.1f}"),
+}
+
+
+def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
+    """(key, header, format) of each of ``keys`` (of ``METRICS``), in that order."""
+    return tuple((key, *METRICS[key]) for key in keys)
+
+
+COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
 
 

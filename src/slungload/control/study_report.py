@@ -29,16 +29,11 @@ from ..fileio import read_json, write_text
 from ..reporting import markdown_table, model_colors, save_figure
 from ..sim.config import SimConfig
 from .report import plot_paths
-from .results import finite_mean, fmt, paired_interval
+from .results import columns, finite_mean, fmt, paired_interval
 from .study import load_log
 from .study_config import NOMINAL, UNSAFE_SWING, StudyConfig
 
-KEYS = (
-    ("load_rmse", "load RMSE (m)", "{:.3f}"),
-    ("swing_rms", "swing RMS (deg)", "{:.1f}"),
-    ("swing_max", "swing max (deg)", "{:.1f}"),
-    ("vehicle_rmse", "vehicle RMSE (m)", "{:.3f}"),
-)
+KEYS = columns("load_rmse", "swing_rms", "swing_max", "vehicle_rmse")
 
 GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed",
                "learned - oracle")  # fmt: skip
