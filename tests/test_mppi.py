@@ -21,7 +21,7 @@ from slungload.control.mppi import (
     mppi_weights,
     trajectory_cost,
 )
-from slungload.frames import swing_angle
+from slungload.frames import rotation_matrix, swing_angle
 
 PARAMS = VehicleParams()
 HOVER_T = (PARAMS.mass_quad + PARAMS.mass_load) * PARAMS.gravity
@@ -184,6 +184,17 @@ def test_a_nan_estimate_of_the_constants_never_reaches_the_hover_command():
     assert all(math.isfinite(t) for t in thrusts)
     assert thrusts[1:] == pytest.approx([expected] * 3)
     assert mpc.cable_length == 0.9
+
+
+def test_the_hover_command_levels_a_tilted_vehicle_at_the_rate_of_its_angle():
+    mpc = MPPIController(HoldModel(), LIMITS, SMALL, PARAMS)
+    roll = math.radians(25.0)  # rolled right about body x, yaw 0: level it by rolling back
+    q = np.array([math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0])
+    plan = mpc.hover_command(rotation_matrix(q), 0.0)
+    np.testing.assert_allclose(plan[0, 1:], [-SMALL.hover_gain * roll, 0.0, 0.0], atol=1e-12)
+    assert plan[0, 0] == pytest.approx(HOVER_T) and (plan[1:] == mpc.hover).all()
+    yawed = mpc.hover_command(np.eye(3), 0.2)  # level, turned to a reference yaw of 0.2 rad
+    np.testing.assert_allclose(yawed[0, 1:], [0.0, 0.0, SMALL.hover_gain * 0.2], atol=1e-12)
 
 
 def test_a_reference_with_nan_is_refused():

@@ -452,8 +452,7 @@ class MPPIController:
             c, s = math.cos(yaw), math.sin(yaw)
             target = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
             err = rot.T @ target  # body frame: rotation from the vehicle to the target
-            axis = np.array([err[2, 1] - err[1, 2], err[0, 2] - err[2, 0], err[1, 0] - err[0, 1]])
-            rates = 0.5 * self.cfg.hover_gain * axis  # small-angle rotation vector times gain
+            rates = self.cfg.hover_gain * frames.rotvec_from_matrix(err)
         plan = np.tile(self.hover, (self.cfg.horizon, 1))
         plan[0] = self.limits.clamp(np.array([self.hover_thrust, *rates]))
         return plan
