@@ -269,3 +269,27 @@ def test_the_control_report_shows_results_only():
     assert "load average at the end unknown" in text and "| mpc-net K=32 |" in text
     assert "0.140 vs 0.200 m (30 % lower)" in text
     assert "target" not in text.lower() and "met**" not in text
+
+
+def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_its_term():
+    from slungload.control.closed_loop import COST_TERMS, FlightLog, realized_cost
+
+    s, warm = 12, 3
+    t = (np.arange(s) - warm) * 0.03
+    ref = Reference(np.tile([0.2, -0.1, 1.5], (s, 1)), np.zeros((s, 3)), np.zeros((s, 3)),
+                    np.zeros(s))  # fmt: skip
+    states = np.tile(hover_state((0.2, -0.1, 1.5)), (s, 1))
+    inputs = np.tile([HOVER_T, 0.0, 0.0, 0.0], (s, 1))
+    log = FlightLog("m", 0, "c", s - warm, t, states, ref.position, inputs, np.zeros(s))
+    cost = realized_cost(log, ref, MPCConfig(), PARAMS)
+    assert set(cost) == {*COST_TERMS, "total"} and all(v == 0.0 for v in cost.values())
+    # the load 0.1 m off in x over the recorded steps: the load and swing terms, nothing else
+    states[warm:, LOAD_POS.start] += 0.1
+    cost = realized_cost(log, ref, MPCConfig(), PARAMS)
+    cfg, n = MPCConfig(), s - warm
+    assert cost["load"] == pytest.approx(cfg.w_load * 0.01 * n)
+    assert cost["swing"] == pytest.approx(cfg.w_swing * 0.01 * n)
+    assert cost["total"] == pytest.approx(cost["load"] + cost["swing"])
+    assert cost["vehicle"] == cost["velocity"] == cost["inputs"] == 0.0
+    # the terminal weight is left out: a flight is scored step by step, not as one horizon
+    assert realized_cost(log, ref, replace(cfg, terminal=50.0), PARAMS) == cost

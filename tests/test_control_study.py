@@ -484,6 +484,31 @@ def test_the_tuning_score_puts_lost_flights_then_large_swings_before_the_error()
     assert tuning_score([row(completed=False)]) == (1, 0, math.inf)
 
 
+def test_the_report_scores_every_mpc_in_the_cost_the_oracle_minimises(tmp_path):
+    import shutil
+
+    config = replace(TINY, horizons=(3,), shifts=())
+    rows = run_study(None, tmp_path, config, controllers=("physics", "oracle"), progress=None)
+    # the physics flights stand in for a learned model's (same settings: the defaults here)
+    flights = tmp_path / "flights" / "nominal"
+    shutil.copytree(flights / "mpc-physics_N_3", flights / "mpc-learned_N_3")
+    for path in (flights / "mpc-learned_N_3").glob("*.json"):
+        path.write_text(path.read_text().replace("mpc-physics N=3", "mpc-learned N=3"))
+    settings = json.loads((tmp_path / "settings.json").read_text())
+    settings["mpc"]["learned"] = settings["mpc"]["physics"]
+    (tmp_path / "settings.json").write_text(json.dumps(settings))
+    rows = run_study(None, tmp_path, config, controllers=(), progress=None)
+    report = write_study_report(rows, config, tmp_path).read_text()
+    section = report.split("The MPC's own cost over each flight at N = 3")[1].split("##")[0]
+    table = {line.split(" | ")[0].strip("| "): line.split(" | ")[1:] for line in
+             section.splitlines() if line.startswith("| mpc-")}  # fmt: skip
+    assert set(table) == {"mpc-physics N=3", "mpc-learned N=3", "mpc-oracle N=3"}
+    assert table["mpc-learned N=3"] == table["mpc-physics N=3"]  # the same flights, scored alike
+    total, *terms = (float(v.strip(" |")) for v in table["mpc-oracle N=3"][1:])
+    assert total > 0 and total == pytest.approx(sum(terms), abs=0.1 * len(terms))
+    assert "learned - oracle in this cost:" in section
+
+
 def test_each_horizon_gets_its_own_settings(tmp_path):
     # The settings that suit a short horizon need not suit a long one: each N is tuned.
     lines: list[str] = []

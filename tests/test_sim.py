@@ -463,3 +463,24 @@ def test_refuses_to_overwrite_non_empty_folder(tmp_path):
     with pytest.raises(FileExistsError, match="not empty"):
         simulate_dataset(tmp_path, flights=1, progress=False)
     assert (tmp_path / "keep.txt").exists()
+
+
+def test_flight_reference_is_the_reference_the_controller_flies():
+    from slungload.sim.controller import PIDController
+    from slungload.sim.flight import flight_reference
+
+    cfg = SimConfig().with_load(load_mass=0.25, cable_length=0.9)  # the start point moves too
+    seen = []
+
+    class Recording(PIDController):
+        def __call__(self, measurement, reference, k):
+            seen.append(reference)
+            return super().__call__(measurement, reference, k)
+
+    simulate_flight("xy_step", seed=101, config=cfg, steps=20, controller=Recording(cfg))
+    ref = flight_reference("xy_step", seed=101, config=cfg, steps=20)
+    for name in ("position", "velocity", "acceleration", "yaw"):
+        np.testing.assert_array_equal(getattr(ref, name), getattr(seen[0], name))
+    # another seed draws another maneuver (the steps come later than the first 20)
+    longer, other = (flight_reference("xy_step", seed=s, config=cfg, steps=80) for s in (101, 102))
+    assert not np.array_equal(other.position, longer.position)

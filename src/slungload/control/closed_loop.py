@@ -16,18 +16,21 @@ a bug in it, and propagates). The log holds what the controller saw and did at e
 - swing angle RMS and max, deg: the angle between the cable pL - p and -e3;
 - time at a limit, %: steps whose command sits at a thrust or body-rate bound;
 - compute per control step, ms: median and p99 of the controller call (warm-up included).
+
+``realized_cost`` sums an MPC's own cost over a log, term by term (any controller's flight).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..config import VehicleParams
 from ..fileio import write_npz
 from ..frames import swing_angle
 from ..layout import LOAD_POS, POS, QUAT, RATES, THRUST, VEL
@@ -35,7 +38,8 @@ from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
 from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
-from .mpc import InputLimits
+from .mpc import InputLimits, MPCConfig
+from .mppi import ReferenceAhead, trajectory_cost
 
 
 @dataclass(frozen=True)
@@ -218,3 +222,38 @@ def flight_metrics(log: FlightLog, limits: InputLimits, cable_length: float) -> 
         "compute_p99": float(np.percentile(compute, 99)) if compute.size else math.nan,
         **{k: v for k, v in log.stats.items()},
     }
+
+
+COST_TERMS = {  # the groups of a flight's MPC cost: name -> the MPCConfig weights it sums
+    "vehicle": ("w_position",),
+    "velocity": ("w_velocity",),
+    "load": ("w_load",),
+    "swing": ("w_swing",),
+    "bounds": ("w_yaw", "w_tilt", "w_swing_bound", "w_floor"),
+    "inputs": ("w_thrust", "w_rates", "w_thrust_rate", "w_rates_rate"),
+}
+
+
+def realized_cost(
+    log: FlightLog, reference: Reference, mpc: MPCConfig, params: VehicleParams
+) -> dict[str, float]:
+    """The MPC's own cost (``mppi.trajectory_cost`` under ``mpc``, its terminal weight left
+    out) over the recorded part of a flown log, against the flight's whole reference
+    (``sim.flight.flight_reference``, row k at control step k): "total" and each group of
+    ``COST_TERMS``. What an MPC with a perfect model minimises, so how near a flight came to
+    it, whatever the controller; ``params``: the cable length and hover thrust of the cost."""
+    rec = np.flatnonzero(log.t >= -1e-9)
+    if rec.size == 0 or rec[0] == 0:
+        raise ValueError(f"{log.controller} {log.maneuver} s{log.seed}: no warm-up or no record")
+    ref = ReferenceAhead(reference.position[rec], reference.velocity[rec], reference.yaw[rec])
+    x, u = log.states[rec][None], log.inputs[rec][None]
+    hover = (params.mass_quad + params.mass_load) * params.gravity
+    weights = [w for ws in COST_TERMS.values() for w in ws]
+    out = {}
+    for name, ws in COST_TERMS.items():
+        only = replace(mpc, terminal=0.0, **{w: getattr(mpc, w) if w in ws else 0.0
+                                              for w in weights})  # fmt: skip
+        cost = trajectory_cost(x, u, ref, log.inputs[rec[0] - 1], only, params.cable_length, hover)
+        out[name] = float(cost[0])
+    out["total"] = sum(out.values())
+    return out

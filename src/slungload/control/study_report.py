@@ -27,7 +27,10 @@ from matplotlib.figure import Figure
 
 from ..fileio import read_json, write_text
 from ..reporting import markdown_table, model_colors, save_figure
-from ..sim.config import SimConfig
+from ..sim.config import SimConfig, tuples_from_json, vehicle_params
+from ..sim.flight import flight_reference
+from .closed_loop import COST_TERMS, realized_cost
+from .mpc import MPCConfig, knots_for
 from .report import plot_paths
 from .results import columns, finite_mean, fmt, paired_interval
 from .study import load_log
@@ -147,6 +150,36 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
             ]
         )
     return out
+
+
+def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> str:
+    """The MPC's own cost at N = ``n`` (``closed_loop.realized_cost`` under ``mpc``, the
+    settings the learned MPC and the oracle fly) summed over each flight of the physics, learned
+    and oracle MPCs that all three flew to the end: means per term, the learned MPC against the
+    oracle paired, and the share of the physics-to-oracle gap in this cost the learned one
+    closes. The oracle minimises this cost with a perfect model: it is the ceiling of the cost,
+    not of any one error."""
+    labels = [f"mpc-{m} N={n}" for m in ("physics", "learned", "oracle")]
+    sets = [by_flight(rows, NOMINAL, label) for label in labels]
+    keys = [k for k in sets[0] if all(k in s and s[k]["completed"] for s in sets)]
+    if not keys:
+        return "(no flight all three finished)"
+    params = vehicle_params(SimConfig())
+    refs = {k: flight_reference(k[0], seed=k[1], steps=steps) for k in keys}
+    costs = [{k: realized_cost(load_log(out, s[k]), refs[k], mpc, params) for k in keys}
+             for s in sets]  # fmt: skip
+    heads = ["total", *COST_TERMS]
+    table = [[label, str(len(keys)), *(f"{np.mean([c[k][h] for k in keys]):.1f}" for h in heads)]
+             for label, c in zip(labels, costs, strict=True)]  # fmt: skip
+    physics, learned, oracle = (np.mean([c[k]["total"] for k in keys]) for c in costs)
+    mean, lo, hi = paired_interval([costs[1][k]["total"] - costs[2][k]["total"] for k in keys])
+    gap = (physics - learned) / (physics - oracle) if physics - oracle > 1e-12 else math.nan
+    return "\n".join([
+        markdown_table(["controller", "flights", *heads], table),
+        "",
+        f"learned - oracle in this cost: {mean:+.1f} [{lo:+.1f}, {hi:+.1f}] per flight; the "
+        f"learned MPC closes {fmt(100 * gap, '{:.0f} %')} of the physics-to-oracle gap in it.",
+    ])  # fmt: skip
 
 
 def plot_horizons(rows, path: Path) -> Path:
@@ -275,6 +308,16 @@ def write_study_report(
                 f"{head}:",
                 "",
                 markdown_table(list(GAP_COLUMNS), gap_closed(rows, *trio, key)),
+                "",
+            ]
+        chosen = settings.get("mpc", {}).get("learned", {}).get(str(n))
+        if chosen is not None:
+            mpc = MPCConfig(**tuples_from_json(chosen), horizon=n, knots=knots_for(n))
+            parts += [
+                f"The MPC's own cost over each flight at N = {n} (the learned MPC's settings, "
+                "which the oracle flies; terms by weight group, no terminal weight):",
+                "",
+                cost_table(out, rows, n, mpc, config.steps),
                 "",
             ]
     if has("geometric"):

@@ -12,7 +12,7 @@ from ..frames import rotation_matrix
 from .aero import ou_wind
 from .config import SimConfig, vehicle_params
 from .controller import Controller, Measurement, PIDController, excitation_signal
-from .maneuvers import Maneuver, make_maneuver, sample_reference
+from .maneuvers import Maneuver, Reference, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
 from .sensors import Mocap
 
@@ -39,6 +39,53 @@ class Flight:
     @property
     def steps(self) -> int:
         return int(self.arrays["time"].shape[0])
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What a flight is before its first step: its seed's streams (maneuver, plant, wind,
+    sensors, excitation, load; the later ones do not change the earlier), the maneuver, the
+    recorded steps, the times (T,) s of every control step (warm-up negative), the vehicle and
+    load flown, the plant in its start state, and the reference at ``times``."""
+
+    streams: tuple[np.random.Generator, ...]
+    maneuver: Maneuver
+    steps: int
+    times: np.ndarray
+    flown: SimConfig
+    plant: Plant
+    reference: Reference
+
+
+def _setup(maneuver: str | Maneuver, seed, cfg: SimConfig, steps: int | None) -> _Setup:
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    streams = tuple(np.random.default_rng(s) for s in ss.spawn(6))
+    s_man, s_plant, _, _, _, s_load = streams
+    man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
+    n = int(steps if steps is not None else man.steps)
+    if n < 1:
+        raise ValueError(f"a flight needs at least one step, got {n}")
+    warm = round(cfg.warmup / cfg.control_dt)
+    times = (np.arange(warm + n) - warm) * cfg.control_dt  # recording starts at t = 0
+    flown = cfg.drawn(s_load)  # the vehicle and load of this flight (cfg when none vary)
+    plant = Plant(flown, PlantParams.draw(flown, s_plant))
+    ref = sample_reference(man, times, plant.p)  # from the start point, where it hovers
+    for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
+        a.flags.writeable = False  # every step sees the same reference: no controller edits it
+    return _Setup(streams, man, n, times, flown, plant, ref)
+
+
+def flight_reference(
+    maneuver: str | Maneuver,
+    *,
+    seed: int | np.random.SeedSequence = 0,
+    config: SimConfig | None = None,
+    steps: int | None = None,
+) -> Reference:
+    """The reference ``simulate_flight`` gives its controller for the same arguments, warm-up
+    rows included (position, velocity, acceleration (T, 3), yaw (T,)): what a flown log is
+    scored against beyond the positions it records."""
+    return _setup(maneuver, seed, config or SimConfig(), steps).reference
 
 
 def simulate_flight(
@@ -69,26 +116,13 @@ def simulate_flight(
     not of shape (3,), naming the step, before the command reaches the plant.
     """
     cfg = config or SimConfig()
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    # A fifth stream for the excitation, a sixth for the load: the first streams are the same
-    # with or without them.
-    streams = (np.random.default_rng(s) for s in ss.spawn(6))
-    s_man, s_plant, s_wind, s_sens, s_exc, s_load = streams
-    man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
-    n = int(steps if steps is not None else man.steps)
-    if n < 1:
-        raise ValueError(f"a flight needs at least one step, got {n}")
-
+    setup = _setup(maneuver, seed, cfg, steps)
+    man, n, times, flown, plant, ref = (setup.maneuver, setup.steps, setup.times, setup.flown,
+                                        setup.plant, setup.reference)  # fmt: skip
+    _, _, s_wind, s_sens, s_exc, _ = setup.streams
     h = cfg.control_dt
     warm = round(cfg.warmup / h)
     total = warm + n
-    times = (np.arange(total) - warm) * h  # recording starts at t = 0
-    flown = cfg.drawn(s_load)  # the vehicle and load of this flight (cfg when none vary)
-    plant = Plant(flown, PlantParams.draw(flown, s_plant))
-    hover = plant.p
-    ref = sample_reference(man, times, hover)
-    for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
-        a.flags.writeable = False  # every step sees the same reference: no controller edits it
     wind = ou_wind(cfg, total, s_wind)
     mocap = Mocap(cfg, s_sens)
     # The PID is built for the nominal vehicle: like a real one it does not know the load.
