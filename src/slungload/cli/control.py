@@ -85,7 +85,9 @@ def add_control(sub: Any) -> None:
         "MPC with the physics model, the --model (one) and the oracle (the simulator itself) "
         "at several horizons, on every maneuver x seed, and on shifted plants; MPC settings "
         "chosen per horizon on separate tuning seeds, the physics MPC at the learned one's "
-        "compute; a second run flies only what is missing (docs/control.md)",
+        "compute; study.md pairs every model flight by flight, measures the gap to the "
+        "oracle and scores each MPC in the MPC's own cost; a second run flies only what is "
+        "missing (docs/control.md)",
     )
     study.add_argument("--study", action="store_true", help="fly the study instead")
     study.add_argument(

@@ -13,7 +13,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "config": ("Effects", "Excitation", "LoadRanges", "SimConfig"),
     "controller": ("Controller", "Measurement", "PIDController"),
     "dataset": ("SimulatedDataset", "simulate_dataset", "vehicle_params"),
-    "flight": ("Flight", "simulate_flight"),
+    "flight": ("Flight", "flight_reference", "simulate_flight"),
     "maneuvers": ("MANEUVERS", "Maneuver", "Reference", "make_maneuver"),
 }
 # Resolved on first use, like the package's own API: the configs and the maneuver table are
