@@ -16,7 +16,7 @@ import torch
 
 from slungload import physics
 from slungload.config import VehicleParams
-from slungload.control.closed_loop import Arena, flight_metrics, fly
+from slungload.control.closed_loop import Arena, flight_metrics, fly, log_path, read_log
 from slungload.control.history import History
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.report import report_markdown, versus_lines
@@ -203,6 +203,13 @@ def test_control_command_writes_the_report(run_cli, tmp_path):
     assert "| mpc-physics K=4 |" in report
     for name in ("paths_3d.png", "swing.png", "table.png"):
         assert (out / name).stat().st_size > 0
+    # each flight's log lies where the control study keeps its own, and reads back whole
+    for row in rows:
+        path = log_path(out, "nominal", row["controller"], "roll_35", 100).with_suffix(".npz")
+        again = flight_metrics(
+            read_log(path, row), InputLimits.from_sim(SimConfig()), SimConfig().cable_length
+        )
+        assert again.items() <= row.items()  # the errors from the log are the row's
 
 
 def test_control_help_is_light_and_bad_maneuvers_are_a_user_error(run_cli, tmp_path):

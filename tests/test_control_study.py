@@ -18,7 +18,7 @@ from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
-from slungload.control.results import paired_interval, t975
+from slungload.control.results import label_model, paired_interval, t975
 from slungload.control.study import run_study, tune_settings, tuning_score
 from slungload.control.study_config import (
     COST_GRID,
@@ -28,7 +28,7 @@ from slungload.control.study_config import (
     UNSAFE_SWING,
     StudyConfig,
 )
-from slungload.control.study_report import gap_closed, write_study_report
+from slungload.control.study_report import gap_closed, paired_table, write_study_report
 from slungload.frames import rotation_matrix, swing_angle
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 from slungload.sim.aero import Aero
@@ -268,6 +268,30 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
     assert mean == "+0.110" and interval == "[+0.085, +0.135]"
 
 
+def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():
+    figures = dict(swing_rms=10.0, swing_max=20.0, vehicle_rmse=0.1)
+    rows = [
+        {**_row(c, "m", s, v), **figures}
+        for c, s, v in (
+            ("a", 1, 0.15),
+            ("a", 2, 0.25),
+            ("b", 1, 0.20),
+            ("b", 2, 0.30),
+            ("b", 3, 0.1),
+        )
+    ]
+    rows.append({**_row("a", "m", 3, 9.0, completed=False), **figures})  # lost: not paired
+    table = paired_table(rows, "nominal", [("a", "b")])
+    row = next(line for line in table.splitlines() if line.startswith("| a - b"))
+    # -0.05 on both flights (no spread: a zero-width interval), -20 % of b's 0.25 m mean
+    assert "| a - b | 2 | -0.050 [-0.050, -0.050] (-20 %) | +0.0 [+0.0, +0.0] (+0 %) |" in row
+
+
+def test_a_controller_label_names_its_model():
+    assert [label_model(x) for x in ("mpc-learned N=25", "mpc-net K=32", "pid", "geometric")] == [
+        "learned", "net", "pid", "geometric"]  # fmt: skip
+
+
 # --- the study ---------------------------------------------------------------------------
 
 TINY = StudyConfig(
@@ -383,6 +407,12 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
     torch.save({**checkpoint, "saved_again": True}, other / "best.ckpt")
     with pytest.raises(ValueError, match="tuned for the learned network"):
         run_study(other, tmp_path, config, controllers=("learned",), progress=None)
+    # a folder that does not say which network it was tuned for is no safer
+    untold = json.loads((tmp_path / "settings.json").read_text())
+    del untold["learned_network"]
+    (tmp_path / "settings.json").write_text(json.dumps(untold))
+    with pytest.raises(ValueError, match="names no learned network"):
+        run_study(tiny_run.out, tmp_path, config, controllers=("learned",), progress=None)
     # without the learned model the oracle would fly other settings under the same label
     with pytest.raises(ValueError, match="give the learned model"):
         run_study(None, tmp_path, config, controllers=("oracle",), progress=None)
@@ -487,13 +517,15 @@ def test_the_tuning_score_puts_lost_flights_then_large_swings_before_the_error()
 def test_the_report_scores_every_mpc_in_the_cost_the_oracle_minimises(tmp_path):
     import shutil
 
-    config = replace(TINY, horizons=(3,), shifts=())
+    config = replace(TINY, horizons=(3,))
     rows = run_study(None, tmp_path, config, controllers=("physics", "oracle"), progress=None)
-    # the physics flights stand in for a learned model's (same settings: the defaults here)
-    flights = tmp_path / "flights" / "nominal"
-    shutil.copytree(flights / "mpc-physics_N_3", flights / "mpc-learned_N_3")
-    for path in (flights / "mpc-learned_N_3").glob("*.json"):
-        path.write_text(path.read_text().replace("mpc-physics N=3", "mpc-learned N=3"))
+    # the physics flights stand in for a learned model's (same settings: the defaults here), on
+    # the nominal and the shifted plant
+    for plant in ("nominal", "wind_x2"):
+        flights = tmp_path / "flights" / plant
+        shutil.copytree(flights / "mpc-physics_N_3", flights / "mpc-learned_N_3")
+        for path in (flights / "mpc-learned_N_3").glob("*.json"):
+            path.write_text(path.read_text().replace("mpc-physics N=3", "mpc-learned N=3"))
     settings = json.loads((tmp_path / "settings.json").read_text())
     settings["mpc"]["learned"] = settings["mpc"]["physics"]
     (tmp_path / "settings.json").write_text(json.dumps(settings))
@@ -501,12 +533,22 @@ def test_the_report_scores_every_mpc_in_the_cost_the_oracle_minimises(tmp_path):
     report = write_study_report(rows, config, tmp_path).read_text()
     section = report.split("The MPC's own cost over each flight at N = 3")[1].split("##")[0]
     table = {line.split(" | ")[0].strip("| "): line.split(" | ")[1:] for line in
-             section.splitlines() if line.startswith("| mpc-")}  # fmt: skip
-    assert set(table) == {"mpc-physics N=3", "mpc-learned N=3", "mpc-oracle N=3"}
+             section.splitlines() if line.startswith("| ")}  # fmt: skip
+    assert set(table) - {"controller", "---"} >= {
+        "mpc-physics N=3", "mpc-learned N=3", "mpc-oracle N=3", "learned - oracle"}  # fmt: skip
     assert table["mpc-learned N=3"] == table["mpc-physics N=3"]  # the same flights, scored alike
     total, *terms = (float(v.strip(" |")) for v in table["mpc-oracle N=3"][1:])
     assert total > 0 and total == pytest.approx(sum(terms), abs=0.1 * len(terms))
-    assert "learned - oracle in this cost:" in section
+    # the paired difference, term by term (one flight: its mean, no interval)
+    learned = [float(v.strip(" |")) for v in table["mpc-learned N=3"][1:]]
+    oracle = [total, *terms]
+    for cell, a, b in zip(table["learned - oracle"][1:], learned, oracle, strict=True):
+        assert float(cell.split(" [")[0]) == pytest.approx(a - b, abs=0.11)
+        assert cell.endswith("[-, -] |") or cell.endswith("[-, -]")
+    assert "| mpc-oracle N=3 - mpc-physics N=3 | 1 |" in report
+    # on the shifted plant the learned MPC is paired with physics: the same flights, no difference
+    shifted = report.split("## Shifted plant: wind x2")[1]
+    assert "| mpc-learned N=3 - mpc-physics N=3 | 1 | +0.000 [-, -] (+0 %) |" in shifted
 
 
 def test_each_horizon_gets_its_own_settings(tmp_path):

@@ -180,6 +180,14 @@ def _stats_dict(stats: Any) -> dict[str, Any]:
 LOG_ARRAYS = ("t", "states", "p_ref", "inputs", "compute")  # what a saved flight log holds
 
 
+def log_path(out: str | Path, plant: str, label: str, maneuver: str, seed: int) -> Path:
+    """Where a flown flight lands under ``out``, without suffix (a ``.npz`` log, ``write_log``,
+    and beside it the study's ``.json`` row): ``flights/<plant>/<controller>/<maneuver>_s<seed>``,
+    with any character a file name may not hold as "_"."""
+    safe = lambda s: "".join(c if c.isalnum() or c in "-_." else "_" for c in s)  # noqa: E731
+    return Path(out) / "flights" / safe(plant) / safe(label) / f"{maneuver}_s{seed}"
+
+
 def write_log(path: str | Path, log: FlightLog) -> None:
     """A flight log's arrays as one ``.npz`` (``read_log`` reads it back)."""
     write_npz(path, {name: getattr(log, name) for name in LOG_ARRAYS})

@@ -3,8 +3,10 @@
 ``compare(models, maneuvers, seeds, samples, out)`` flies every controller on every maneuver
 and seed (every unmodelled effect on), one MPC per prediction model and K in ``samples``, and
 writes into ``out``: ``results.json`` (one row of ``closed_loop.flight_metrics`` per flight,
-the settings and the machine), ``flights/*.npz`` (each flight's log), and the report
-(``report.write_report``: ``report.md`` and the figures). The statistics are in ``results``.
+the settings and the machine), each flight's log where the control study keeps it
+(``closed_loop.log_path``: ``flights/nominal/<controller>/<maneuver>_s<seed>.npz``), and the
+report (``report.write_report``: ``report.md`` and the figures). The statistics are in
+``results``.
 """
 
 from __future__ import annotations
@@ -26,11 +28,11 @@ from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from ..sim.maneuvers import MANEUVERS
-from .closed_loop import Arena, FlightLog, flight_metrics, fly, write_log
+from .closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
 from .mpc import InputLimits, MPCConfig, knots_for, mpc_maker
 from .report import write_report
 from .results import ControlComparison
-from .study_config import DEFAULT_MANEUVERS
+from .study_config import DEFAULT_MANEUVERS, NOMINAL
 
 PID = "pid"
 
@@ -66,8 +68,6 @@ def compare(
     predictors += [load_model(m, backend=backend) for m in models]
     base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon, knots=knots_for(horizon))
     out_dir = Path(out) if out is not None else None
-    if out_dir is not None:
-        (out_dir / "flights").mkdir(parents=True, exist_ok=True)
     plans = _plans(cfg, predictors, samples, base, limits, params)
     with torch_threads(threads):
         rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
@@ -125,7 +125,8 @@ def _fly_all(
                 rows.append(row)
                 logs.append(log)
                 if out_dir is not None:
-                    _save_log(out_dir / "flights", log)
+                    write_log(log_path(out_dir, NOMINAL, name, maneuver, seed).with_suffix(".npz"),
+                              log)  # fmt: skip
                 if progress:
                     progress(_progress_line(row))
     return rows, logs
@@ -156,11 +157,6 @@ def _settings(
         "machine": machine(),
         "date": date.today().isoformat(),
     }
-
-
-def _save_log(folder: Path, log: FlightLog) -> None:
-    name = f"{log.maneuver}_s{log.seed}_{log.controller.replace(' ', '_').replace('=', '')}.npz"
-    write_log(folder / name, log)
 
 
 def _progress_line(row: dict[str, Any]) -> str:

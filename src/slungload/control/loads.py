@@ -19,7 +19,7 @@ unmodelled effect on) x maneuver x evaluation seed:
 - ``pid``: the simulator's PID built for the network's nominal vehicle.
 
 Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound,
-floor). Flights land as in the control study (``study.flight_path``; the plant named by its
+floor). Flights land as in the control study (``closed_loop.log_path``; the plant named by its
 load), so a second run flies only what is missing. ``write_loads_report`` writes ``loads.md``
 and ``loads.png``.
 """
@@ -45,18 +45,10 @@ from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from .mpc import InputLimits, MPCConfig, mpc_maker
+from .results import by_flight, fmt, mean_of
 from .study import Flown, collect_rows, fly_once
 from .study_config import UnseenLoadsConfig
-from .study_report import (
-    KEYS,
-    both_completed,
-    by_flight,
-    fmt,
-    mean_of,
-    means_table,
-    ordered_labels,
-    paired_table,
-)
+from .study_report import KEYS, completed_pairs, means_table, ordered_labels, paired_table
 
 ADAPTIVE, FIXED = "mpc-adaptive", "mpc-fixed"  # the networks' MPCs: f on the estimate, f fixed
 NETWORKS = (ADAPTIVE, FIXED)
@@ -144,7 +136,7 @@ def fly_loads(
 def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str) -> float:
     """Mean ``key`` of ``model`` in flight over its mean given the true constants, over the
     flights both flew to the end (1.0: as good as knowing the load)."""
-    both = both_completed(rows, plant, label(model, IN_FLIGHT), label(model, TRUE))
+    both = completed_pairs(rows, plant, label(model, IN_FLIGHT), label(model, TRUE))
     if not both:
         return math.nan
     return mean_of([a for a, _ in both], key) / mean_of([b for _, b in both], key)
@@ -167,8 +159,10 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         for model in models:
             cells += [fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
                       for key in ("load_rmse", "swing_rms")]  # fmt: skip
-            lost = [sum(not r["completed"] for r in by_flight(rows, plant, label(model, c))
-                        .values()) for c in (IN_FLIGHT, TRUE)]  # fmt: skip
+            lost = [
+                sum(not r["completed"] for r in by_flight(rows, plant=plant, controller=c).values())
+                for c in (label(model, IN_FLIGHT), label(model, TRUE))
+            ]
             cells.append(f"{lost[0]} / {lost[1]}")
         summary.append(cells)
     pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in models]
@@ -212,8 +206,11 @@ def plot_loads(rows: list[dict[str, Any]], plants: Sequence[str], path: Path) ->
     for i, (key, head, _) in enumerate(KEYS[:2]):
         ax = fig.add_subplot(1, 2, i + 1)
         for j, lb in enumerate(labels):
-            ys = [mean_of([r for r in by_flight(rows, p, lb).values() if r["completed"]], key)
-                  for p in plants]  # fmt: skip
+            ys = [
+                mean_of([r for r in by_flight(rows, plant=p, controller=lb).values()
+                         if r["completed"]], key)
+                for p in plants
+            ]  # fmt: skip
             ax.bar(np.arange(len(plants)) + (j - (len(labels) - 1) / 2) * width, ys, width,
                    color=colors[lb], label=lb)  # fmt: skip
         ax.set_xticks(range(len(plants)))

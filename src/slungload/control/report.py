@@ -8,7 +8,6 @@ its model's colour (``reporting.model_colors``; a second K dashed). It shows res
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,15 @@ from ..frames import swing_angle
 from ..reporting import markdown_table, model_colors, save_figure
 from ..sim.config import SimConfig
 from .closed_loop import FlightLog
-from .results import COLUMNS, ControlComparison, VersusPhysics, fmt, summary, versus_physics
+from .results import (
+    COLUMNS,
+    ControlComparison,
+    VersusPhysics,
+    fmt,
+    label_model,
+    summary,
+    versus_physics,
+)
 
 FIGURES = ("paths_3d.png", "swing.png", "table.png")
 LINESTYLES = ("-", "--", ":", "-.")  # one per K of a model, in the order flown
@@ -131,7 +138,7 @@ def report_markdown(result: ControlComparison) -> str:
 def controller_looks(controllers: list[str]) -> dict[str, dict[str, Any]]:
     """Line keywords per controller label ("pid", "mpc-<model> K=<k>"): its model's colour,
     and a line style per K of that model (solid for the first flown)."""
-    model = {c: re.sub(r"^mpc-| K=\d+$", "", c) for c in dict.fromkeys(controllers)}
+    model = {c: label_model(c) for c in dict.fromkeys(controllers)}
     colors = model_colors(model.values())
     looks, styles_used = {}, {}
     for controller, name in model.items():

@@ -1,12 +1,15 @@
 """What ``slungload control`` measured and its statistics: the typed ``ControlComparison`` (one
-row of ``closed_loop.flight_metrics`` per flight), the means over the seeds per group
-(``summary``), and each network's MPC against MPC + physics at the same K, paired by flight
-(``versus_physics``). Plain numbers, no files: ``comparison`` flies, ``report`` writes.
+row of ``closed_loop.flight_metrics`` per flight), the rows of one controller by flight
+(``by_flight``) and the flights two flew to the end (``both_completed``), the means over the
+seeds per group (``summary``), paired differences with a 95 % interval (``paired_interval``),
+and each network's MPC against MPC + physics at the same K (``versus_physics``). Plain
+numbers, no files: ``comparison`` and ``study`` fly, ``report`` and ``study_report`` write.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +37,29 @@ def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
 COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
 
+Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was flown
+Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights
+
+
+def label_model(label: str) -> str:
+    """The prediction model of a controller label: "mpc-learned N=25" and "mpc-net K=32" ->
+    "learned", "net"; a label without an MPC ("pid") is its own."""
+    return re.sub(r"^mpc-| [KN]=\d+$", "", label)
+
+
+def by_flight(rows: Sequence[Row], **match: Any) -> dict[Flight, Row]:
+    """The rows whose fields equal ``match`` (e.g. ``controller=``, ``plant=``), by flight."""
+    return {
+        (r["maneuver"], r["seed"]): r
+        for r in rows
+        if all(r.get(key) == value for key, value in match.items())
+    }
+
+
+def both_completed(a: dict[Flight, Row], b: dict[Flight, Row]) -> list[tuple[Row, Row]]:
+    """(a's row, b's row) of each flight both flew to the end (``by_flight`` dicts)."""
+    return [(a[k], b[k]) for k in a if k in b and a[k]["completed"] and b[k]["completed"]]
+
 
 @dataclass
 class ControlComparison:
@@ -52,6 +78,11 @@ def finite_mean(values: Sequence[float | None]) -> float:
     return float(np.mean(finite)) if finite else math.nan
 
 
+def mean_of(rows: Sequence[Row], key: str) -> float:
+    """The mean of ``key`` over the rows where it is finite."""
+    return finite_mean([r[key] for r in rows])
+
+
 def fmt(value: float | None, spec: str) -> str:
     """A table cell: ``spec`` applied to ``value``, "-" when it is missing or not finite."""
     return "-" if value is None or not math.isfinite(value) else spec.format(value)
@@ -66,11 +97,11 @@ def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, A
     for key, group in groups.items():
         done = [r for r in group if r["completed"]]
         entry = dict(zip(by, key, strict=True))
-        entry.update({k: finite_mean([r[k] for r in done]) for k, _, _ in COLUMNS})
+        entry.update({k: mean_of(done, k) for k, _, _ in COLUMNS})
         entry["flights"] = len(group)
         entry["failed"] = len(group) - len(done)
         entry["fallbacks"] = sum(r.get("fallback_steps", 0) for r in group)
-        entry["K"] = group[0]["K"]
+        entry["K"] = group[0].get("K")  # the study's labels name their N instead
         compute = [r["compute_median"] for r in group]
         entry["compute_median"] = float(np.median(compute))
         entry["compute_p99"] = float(np.max([r["compute_p99"] for r in group]))
@@ -108,18 +139,18 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
     mpc = [r for r in rows if r["K"] is not None]
     for k in sorted({r["K"] for r in mpc}):
         reference = f"mpc-{PHYSICS} K={k}"
-        at_k = [r for r in mpc if r["K"] == k]
-        physics = {(r["maneuver"], r["seed"]): r for r in at_k if r["controller"] == reference}
-        for net in sorted({r["controller"] for r in at_k} - {reference}):
-            mine = [r for r in at_k if r["controller"] == net]
-            pairs = [(r, physics.get((r["maneuver"], r["seed"]))) for r in mine if r["completed"]]
-            both = [(r, q) for r, q in pairs if q is not None and q["completed"]]
-            means = [{key: finite_mean([pair[i][key] for pair in both]) for key in PAIRED} if both
+        physics = by_flight(mpc, K=k, controller=reference)
+        for net in sorted({r["controller"] for r in mpc if r["K"] == k} - {reference}):
+            mine = by_flight(mpc, K=k, controller=net)
+            both = both_completed(mine, physics)
+            means = [{key: mean_of([pair[i] for pair in both], key) for key in PAIRED} if both
                      else {} for i in (0, 1)]  # fmt: skip
-            failed = [r for r in mine if not r["completed"]]
+            failed = [r for r in mine.values() if not r["completed"]]
+            physics_failed = sum(r["completed"] and f in physics and not physics[f]["completed"]
+                                 for f, r in mine.items())  # fmt: skip
             out.append(VersusPhysics(
                 net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
-                len(both), sum(q is not None and not q["completed"] for _, q in pairs), *means,
+                len(both), physics_failed, *means,
             ))  # fmt: skip
     return out
 

@@ -50,7 +50,7 @@ from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from ..workers import run_jobs
-from .closed_loop import FlightLog, flight_metrics, fly, read_log, write_log
+from .closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
 from .geometric import GEOMETRIC, GeometricLoadController
 from .mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
 from .mppi import ReferenceAhead
@@ -237,10 +237,11 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
 
 
 def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progress) -> None:
-    """Fly one flight of ``flown`` and land it under ``out`` (``flight_path``) unless there."""
+    """Fly one flight of ``flown`` and land it under ``out`` (``closed_loop.log_path``) unless
+    there."""
     if _landed(out, flown, maneuver, seed):
         return
-    path = flight_path(out, flown.plant, flown.label, maneuver, seed)
+    path = log_path(out, flown.plant, flown.label, maneuver, seed)
     start = time.perf_counter()
     log = fly(maneuver, seed, flown.make(seed), label=flown.label, config=plant_cfg, steps=steps)
     row = flight_metrics(log, limits, plant_cfg.cable_length)
@@ -258,13 +259,7 @@ def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progre
 
 def _landed(out: Path, flown: Flown, maneuver: str, seed: int) -> bool:
     """Whether that flight's row is already under ``out`` (written last: the flight is done)."""
-    return flight_path(out, flown.plant, flown.label, maneuver, seed).with_suffix(".json").exists()
-
-
-def flight_path(out: Path, plant: str, label: str, maneuver: str, seed: int) -> Path:
-    """Where one flight lands (without suffix: .json row, .npz log)."""
-    safe = lambda s: "".join(c if c.isalnum() or c in "-_." else "_" for c in s)  # noqa: E731
-    return Path(out) / "flights" / safe(plant) / safe(label) / f"{maneuver}_s{seed}"
+    return log_path(out, flown.plant, flown.label, maneuver, seed).with_suffix(".json").exists()
 
 
 def collect_rows(out: str | Path) -> list[dict[str, Any]]:
@@ -274,7 +269,7 @@ def collect_rows(out: str | Path) -> list[dict[str, Any]]:
 
 def load_log(out: str | Path, row: dict[str, Any]) -> FlightLog:
     """The saved log of a row."""
-    path = flight_path(Path(out), row["plant"], row["controller"], row["maneuver"], row["seed"])
+    path = log_path(Path(out), row["plant"], row["controller"], row["maneuver"], row["seed"])
     return read_log(path.with_suffix(".npz"), row)
 
 
@@ -306,7 +301,12 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
             raise ValueError(f"{path} holds one MPC setting for every horizon (written before "
                              "they were tuned per horizon); use a new --out")  # fmt: skip
         tuned_for = settings.get("learned_network")
-        if network and tuned_for and tuned_for["sha256"] != network["sha256"]:
+        if network and not tuned_for:
+            raise ValueError(
+                f"{path} names no learned network (its settings could have been tuned for any); "
+                "use a new --out"
+            )
+        if network and tuned_for["sha256"] != network["sha256"]:
             raise ValueError(
                 f"{path} was tuned for the learned network {tuned_for['checkpoint']}, and "
                 f"{network['checkpoint']} is another one (its checkpoint differs): its flights "

@@ -4,10 +4,13 @@
 - error against horizon (``horizons.png``): load RMSE and swing RMS of each MPC model per N;
 - paired differences (``paired.png`` and tables): the learned MPC against the physics MPC at
   each N, against itself at the first N, against the geometric controller at each N and the
-  PID at the first; means over the flights both flew to the end with a 95 % t-interval;
+  PID at the first, against the oracle, and the oracle against physics; means over the flights
+  both flew to the end with a 95 % t-interval and the mean as a share of the second's;
 - the share of the physics-to-oracle gap the learned model closes, per maneuver at each horizon
-  the oracle flew, and the learned MPC against the oracle, paired;
-- the shifted plants: lost flights and errors per controller;
+  the oracle flew, and the learned MPC against the oracle, paired; in the MPC's own cost, term
+  by term, paired as well;
+- the shifted plants: lost flights and errors per controller, and the learned MPC against the
+  physics MPC at each N flown there, paired;
 - the paths of the first seed of each maneuver (``paths_3d.png``, ``report.plot_paths``).
 
 Results only; the acceptance rule lives in docs/BENCHMARKS.md.
@@ -32,7 +35,17 @@ from ..sim.flight import flight_reference
 from .closed_loop import COST_TERMS, realized_cost
 from .mpc import MPCConfig, knots_for
 from .report import plot_paths
-from .results import columns, finite_mean, fmt, paired_interval
+from .results import (
+    Row,
+    both_completed,
+    by_flight,
+    columns,
+    fmt,
+    label_model,
+    mean_of,
+    paired_interval,
+    summary,
+)
 from .study import load_log
 from .study_config import NOMINAL, UNSAFE_SWING, StudyConfig
 
@@ -47,74 +60,63 @@ def _horizon(label: str) -> int | None:
     return int(found.group(1)) if found else None
 
 
-def _model(label: str) -> str:
-    return re.sub(r"^mpc-| N=\d+$", "", label)
-
-
 def ordered_labels(labels) -> list[str]:
     """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
     order = ("pid", "geometric", "physics", "learned", "oracle")
 
     def rank(label: str) -> tuple[int, str, int]:
-        model = _model(label)
+        model = label_model(label)
         return (order.index(model) if model in order else len(order), model,
                 _horizon(label) or 0)  # fmt: skip
 
     return sorted(labels, key=rank)
 
 
-def by_flight(rows, plant: str, label: str) -> dict[tuple[str, int], dict[str, Any]]:
-    """Rows of ``label`` on ``plant`` by flight (maneuver, seed)."""
-    return {
-        (r["maneuver"], r["seed"]): r
-        for r in rows
-        if r["plant"] == plant and r["controller"] == label
-    }
-
-
-def means_table(rows: list[dict[str, Any]], plant: str) -> str:
+def means_table(rows: list[Row], plant: str) -> str:
     """Per controller on ``plant``: means over its completed flights, lost / flown, compute."""
-    labels = ordered_labels({r["controller"] for r in rows if r["plant"] == plant})
-    table = []
-    for label in labels:
-        group = list(by_flight(rows, plant, label).values())
-        done = [r for r in group if r["completed"]]
-        table.append(
-            [
-                label,
-                *(fmt(mean_of(done, k), spec) for k, _, spec in KEYS),
-                f"{len(group) - len(done)} / {len(group)}",
-                fmt(float(np.median([r["compute_median"] for r in group])), "{:.1f}"),
-            ]
-        )
+    entries = {e["controller"]: e for e in summary([r for r in rows if r["plant"] == plant],
+                                                   ("controller",))}  # fmt: skip
+    table = [
+        [
+            label,
+            *(fmt(e[k], spec) for k, _, spec in KEYS),
+            f"{e['failed']} / {e['flights']}",
+            fmt(e["compute_median"], "{:.1f}"),
+        ]
+        for label in ordered_labels(entries)
+        for e in [entries[label]]
+    ]
     return markdown_table(["controller", *(h for _, h, _ in KEYS), "lost", "compute (ms)"], table)
-
-
-def mean_of(rows: Sequence[dict[str, Any]], key: str) -> float:
-    """The mean of ``key`` over the rows where it is finite."""
-    return finite_mean([r[key] for r in rows])
-
-
-def both_completed(rows, plant: str, a: str, b: str) -> list[tuple[dict, dict]]:
-    """(row of a, row of b) per flight (maneuver, seed) on ``plant`` both flew to the end."""
-    ra, rb = by_flight(rows, plant, a), by_flight(rows, plant, b)
-    return [(ra[k], rb[k]) for k in ra if k in rb and ra[k]["completed"] and rb[k]["completed"]]
 
 
 def paired(rows, plant: str, a: str, b: str, key: str) -> tuple[int, tuple[float, float, float]]:
     """a - b of ``key`` over the flights both flew to the end: (pairs, (mean, low, high))."""
-    both = both_completed(rows, plant, a, b)
+    both = completed_pairs(rows, plant, a, b)
     return len(both), paired_interval([x[key] - y[key] for x, y in both])
 
 
+def completed_pairs(rows, plant: str, a: str, b: str) -> list[tuple[Row, Row]]:
+    """(a's row, b's row) of each flight on ``plant`` both flew to the end."""
+    return both_completed(
+        by_flight(rows, plant=plant, controller=a), by_flight(rows, plant=plant, controller=b)
+    )
+
+
 def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
+    """a - b per pair and figure: mean [95 % interval] over the flights both flew to the end,
+    and the mean as a share of b's mean over the same flights."""
     out = []
     for a, b in pairs:
+        both = completed_pairs(rows, plant, a, b)
         cells = []
-        for key, _, spec in KEYS:
-            n, (mean, lo, hi) = paired(rows, plant, a, b, key)
-            cells.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]")
-        out.append([f"{a} - {b}", n, *cells])
+        for key, _, unsigned in KEYS:
+            spec = unsigned.replace("{:", "{:+")  # a difference carries its sign
+            mean, lo, hi = paired_interval([x[key] - y[key] for x, y in both])
+            base = mean_of([y for _, y in both], key)
+            ok = base != 0 and math.isfinite(mean) and math.isfinite(base)
+            share = f" ({100 * mean / base:+.0f} %)" if ok else ""
+            cells.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]{share}")
+        out.append([f"{a} - {b}", len(both), *cells])
     return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
 
 
@@ -123,7 +125,7 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
     (physics - oracle) ("-" where the oracle is no better than physics: no gap to close), and
     learned - oracle paired over those seeds with its 95 % t-interval, which says whether a
     ratio below 100 % is more than the seeds' spread."""
-    sets = [by_flight(rows, NOMINAL, label) for label in (physics, learned, oracle)]
+    sets = [by_flight(rows, plant=NOMINAL, controller=c) for c in (physics, learned, oracle)]
     out = []
     for maneuver in dict.fromkeys(m for m, _ in sets[0]):
         keys = [
@@ -160,7 +162,7 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     closes. The oracle minimises this cost with a perfect model: it is the ceiling of the cost,
     not of any one error."""
     labels = [f"mpc-{m} N={n}" for m in ("physics", "learned", "oracle")]
-    sets = [by_flight(rows, NOMINAL, label) for label in labels]
+    sets = [by_flight(rows, plant=NOMINAL, controller=label) for label in labels]
     keys = [k for k in sets[0] if all(k in s and s[k]["completed"] for s in sets)]
     if not keys:
         return "(no flight all three finished)"
@@ -171,32 +173,42 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     heads = ["total", *COST_TERMS]
     table = [[label, str(len(keys)), *(f"{np.mean([c[k][h] for k in keys]):.1f}" for h in heads)]
              for label, c in zip(labels, costs, strict=True)]  # fmt: skip
+    spec = "{:+.1f}"
+    difference = ["learned - oracle", str(len(keys))]
+    for h in heads:
+        mean, lo, hi = paired_interval([costs[1][k][h] - costs[2][k][h] for k in keys])
+        difference.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]")
     physics, learned, oracle = (np.mean([c[k]["total"] for k in keys]) for c in costs)
-    mean, lo, hi = paired_interval([costs[1][k]["total"] - costs[2][k]["total"] for k in keys])
     gap = (physics - learned) / (physics - oracle) if physics - oracle > 1e-12 else math.nan
     return "\n".join([
-        markdown_table(["controller", "flights", *heads], table),
+        markdown_table(["controller", "flights", *heads], [*table, difference]),
         "",
-        f"learned - oracle in this cost: {mean:+.1f} [{lo:+.1f}, {hi:+.1f}] per flight; the "
-        f"learned MPC closes {fmt(100 * gap, '{:.0f} %')} of the physics-to-oracle gap in it.",
+        f"learned - oracle: paired per flight, mean [95 % interval]; the learned MPC closes "
+        f"{fmt(100 * gap, '{:.0f} %')} of the physics-to-oracle gap in this cost.",
     ])  # fmt: skip
 
 
 def plot_horizons(rows, path: Path) -> Path:
     """Load RMSE and swing RMS (means over completed nominal flights) against N per model."""
     mpc = [r for r in rows if r["plant"] == NOMINAL and _horizon(r["controller"])]
-    models = list(dict.fromkeys(_model(r["controller"]) for r in mpc))
+    models = list(dict.fromkeys(label_model(r["controller"]) for r in mpc))
     colors = model_colors(models)
     fig = Figure(figsize=(9.0, 3.4))
     for i, (key, head, _) in enumerate(KEYS[:2]):
         ax = fig.add_subplot(1, 2, i + 1)
         for model in models:
-            labels = sorted(
-                {r["controller"] for r in mpc if _model(r["controller"]) == model}, key=_horizon
-            )
+            labels = sorted({r["controller"] for r in mpc if label_model(r["controller"]) == model},
+                            key=_horizon)  # fmt: skip
             ns = [_horizon(label) * SimConfig.control_dt for label in labels]
             ys = [
-                mean_of([r for r in by_flight(rows, NOMINAL, lb).values() if r["completed"]], key)
+                mean_of(
+                    [
+                        r
+                        for r in by_flight(rows, plant=NOMINAL, controller=lb).values()
+                        if r["completed"]
+                    ],
+                    key,
+                )
                 for lb in labels
             ]
             ax.plot(ns, ys, "o-", color=colors[model], label=model)
@@ -257,11 +269,13 @@ def write_study_report(
         for n in ns
         if has(c) and has(f"mpc-learned N={n}")
     ]
-    # what is left between the learned model and the perfect one (same MPC settings)
+    # what is left between the learned model and the perfect one (same MPC settings), and what
+    # the perfect one gains over physics
     ceiling = [
-        (f"mpc-learned N={n}", f"mpc-oracle N={n}")
+        (f"mpc-{m} N={n}", f"mpc-{b} N={n}")
         for n in horizons
-        if has(f"mpc-learned N={n}") and has(f"mpc-oracle N={n}")
+        for m, b in (("learned", "oracle"), ("oracle", "physics"))
+        if has(f"mpc-{m} N={n}") and has(f"mpc-{b} N={n}")
     ]
     pairs = versus + longer + classic + ceiling
     parts = [
@@ -325,6 +339,11 @@ def write_study_report(
     for plant in dict.fromkeys(r["plant"] for r in rows):
         if plant != NOMINAL:
             parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
+            flown = {r["controller"] for r in rows if r["plant"] == plant}
+            shifted = [(f"mpc-learned N={n}", f"mpc-physics N={n}") for n in horizons
+                       if {f"mpc-learned N={n}", f"mpc-physics N={n}"} <= flown]  # fmt: skip
+            if shifted:
+                parts += [paired_table(rows, plant, shifted), ""]
     write_text(out / "study.md", "\n".join(parts))
     plot_horizons(rows, out / "horizons.png")
     if pairs:
@@ -352,10 +371,10 @@ def _learned_line(settings: dict[str, Any], learned: str | None) -> str:
 def _past_limit(rows, labels: Sequence[str], limit: float = UNSAFE_SWING) -> str:
     """Per MPC: flights whose swing passed ``limit`` deg where the geometric controller's did
     not (the same maneuver and seed; a lost flight counts with the swing it reached)."""
-    geo = by_flight(rows, NOMINAL, "geometric")
+    geo = by_flight(rows, plant=NOMINAL, controller="geometric")
     lines = []
     for label in ordered_labels(lb for lb in labels if lb.startswith("mpc-")):
-        mine = by_flight(rows, NOMINAL, label)
+        mine = by_flight(rows, plant=NOMINAL, controller=label)
         worse = [f"{m} s{seed}" for (m, seed), r in mine.items() if (m, seed) in geo
                  and r["swing_max"] > limit >= geo[(m, seed)]["swing_max"]]  # fmt: skip
         lines.append(f"- {label}: {len(worse)} of {len(mine)}" + (f" ({', '.join(worse)})"
