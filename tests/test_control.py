@@ -206,6 +206,8 @@ def test_control_command_writes_the_report(run_cli, tmp_path):
     # each flight's log lies where the control study keeps its own, and reads back whole
     for row in rows:
         path = log_path(out, "nominal", row["controller"], "roll_35", 100).with_suffix(".npz")
+        folder = {"pid": "pid", "mpc-physics K=4": "mpc-physics_K_4"}[row["controller"]]
+        assert path == out / "flights" / "nominal" / folder / "roll_35_s100.npz"
         again = flight_metrics(
             read_log(path, row), InputLimits.from_sim(SimConfig()), SimConfig().cable_length
         )

@@ -270,21 +270,34 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
 
 def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():
     figures = dict(swing_rms=10.0, swing_max=20.0, vehicle_rmse=0.1)
-    rows = [
-        {**_row(c, "m", s, v), **figures}
-        for c, s, v in (
-            ("a", 1, 0.15),
-            ("a", 2, 0.25),
-            ("b", 1, 0.20),
-            ("b", 2, 0.30),
-            ("b", 3, 0.1),
-        )
-    ]
+    flights = (("a", 1, 0.15), ("a", 2, 0.25), ("a", 4, 0.05),  # seed 4: b never flew it
+               ("b", 3, 0.1), ("b", 2, 0.30), ("b", 1, 0.20))  # fmt: skip
+    rows = [{**_row(c, "m", s, v), **figures} for c, s, v in flights]
     rows.append({**_row("a", "m", 3, 9.0, completed=False), **figures})  # lost: not paired
     table = paired_table(rows, "nominal", [("a", "b")])
     row = next(line for line in table.splitlines() if line.startswith("| a - b"))
-    # -0.05 on both flights (no spread: a zero-width interval), -20 % of b's 0.25 m mean
+    # -0.05 on both flights, paired by seed (no spread: a zero-width interval), -20 % of b's
+    # 0.25 m mean over them
     assert "| a - b | 2 | -0.050 [-0.050, -0.050] (-20 %) | +0.0 [+0.0, +0.0] (+0 %) |" in row
+    # a difference of a figure that is zero for b has no share
+    zero = [{**r, "vehicle_rmse": 0.0} for r in rows]
+    row = paired_table(zero, "nominal", [("a", "b")]).splitlines()[-1]
+    assert row.endswith("| +0.000 [+0.000, +0.000] |")
+
+
+def test_the_ratio_to_the_truth_is_over_the_flights_both_flew():
+    from slungload.control.loads import IN_FLIGHT, TRUE, label, ratio_to_truth
+
+    def row(constants, seed, load, completed=True):
+        return {**_row(label("mpc-fixed", constants), "m", seed, load, completed),
+                "plant": "p"}  # fmt: skip
+
+    rows = [row(IN_FLIGHT, 1, 0.3), row(TRUE, 1, 0.2), row(IN_FLIGHT, 2, 0.9, completed=False),
+            row(TRUE, 2, 0.1), row(IN_FLIGHT, 3, 0.5)]  # fmt: skip
+    assert ratio_to_truth(rows, "p", "mpc-fixed", "load_rmse") == pytest.approx(1.5)
+    assert math.isnan(ratio_to_truth(rows, "p", "mpc-adaptive", "load_rmse"))  # never flown
+    perfect = [row(IN_FLIGHT, 1, 0.0), row(TRUE, 1, 0.0)]
+    assert math.isnan(ratio_to_truth(perfect, "p", "mpc-fixed", "load_rmse"))  # 0 / 0
 
 
 def test_a_controller_label_names_its_model():
@@ -354,6 +367,20 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
         run_study(None, out, replace(TINY, oracle_samples=5), progress=None)
     with pytest.raises(ValueError, match="steps differ"):  # whatever flies
         run_study(None, out, replace(TINY, steps=7), controllers=("pid",), progress=None)
+
+
+def test_a_study_and_a_comparison_never_share_a_folder(tmp_path):
+    from slungload.control.comparison import compare
+
+    run_study(None, tmp_path / "study", TINY, controllers=("physics",), plants=("nominal",),
+              progress=None)  # fmt: skip
+    with pytest.raises(ValueError, match="holds a control study"):
+        compare(out=tmp_path / "study", maneuvers=("roll_35",), seeds=(100,), steps=4,
+                progress=None)  # fmt: skip
+    (tmp_path / "ctl").mkdir()
+    (tmp_path / "ctl" / "results.json").write_text("{}")
+    with pytest.raises(ValueError, match="flights of a `control` comparison"):
+        run_study(None, tmp_path / "ctl", TINY, controllers=("pid",), progress=None)
 
 
 def test_the_fields_a_study_folder_follows_from_are_study_config_fields():

@@ -68,6 +68,9 @@ def compare(
     predictors += [load_model(m, backend=backend) for m in models]
     base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon, knots=knots_for(horizon))
     out_dir = Path(out) if out is not None else None
+    if out_dir is not None and (out_dir / "settings.json").exists():
+        raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
+                         "where these would land; use another --out")  # fmt: skip
     plans = _plans(cfg, predictors, samples, base, limits, params)
     with torch_threads(threads):
         rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)

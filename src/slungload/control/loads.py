@@ -45,10 +45,17 @@ from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
 from .mpc import InputLimits, MPCConfig, mpc_maker
-from .results import by_flight, fmt, mean_of
+from .results import fmt, mean_of, ratio
 from .study import Flown, collect_rows, fly_once
 from .study_config import UnseenLoadsConfig
-from .study_report import KEYS, completed_pairs, means_table, ordered_labels, paired_table
+from .study_report import (
+    KEYS,
+    completed_pairs,
+    controller_means,
+    means_table,
+    ordered_labels,
+    paired_table,
+)
 
 ADAPTIVE, FIXED = "mpc-adaptive", "mpc-fixed"  # the networks' MPCs: f on the estimate, f fixed
 NETWORKS = (ADAPTIVE, FIXED)
@@ -139,7 +146,7 @@ def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str)
     both = completed_pairs(rows, plant, label(model, IN_FLIGHT), label(model, TRUE))
     if not both:
         return math.nan
-    return mean_of([a for a, _ in both], key) / mean_of([b for _, b in both], key)
+    return ratio(mean_of([a for a, _ in both], key), mean_of([b for _, b in both], key))
 
 
 def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, out: Path) -> Path:
@@ -159,10 +166,9 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         for model in models:
             cells += [fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
                       for key in ("load_rmse", "swing_rms")]  # fmt: skip
-            lost = [
-                sum(not r["completed"] for r in by_flight(rows, plant=plant, controller=c).values())
-                for c in (label(model, IN_FLIGHT), label(model, TRUE))
-            ]
+            means = controller_means(rows, plant)
+            lost = [means[c]["failed"] if c in means else 0
+                    for c in (label(model, IN_FLIGHT), label(model, TRUE))]  # fmt: skip
             cells.append(f"{lost[0]} / {lost[1]}")
         summary.append(cells)
     pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in models]
@@ -190,7 +196,8 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     ]
     for plant in plants:
         lines += ["", f"## {plant}", "", means_table(rows, plant), "",
-                  "Paired differences (mean [95 % interval]):", "",
+                  "Paired differences (mean [95 % interval], and the mean as a share of the "
+                  "second's):", "",
                   paired_table(rows, plant, pairs)]  # fmt: skip
     plot_loads(rows, plants, out / "loads.png")
     write_text(out / "loads.md", "\n".join(lines) + "\n")
@@ -201,16 +208,13 @@ def plot_loads(rows: list[dict[str, Any]], plants: Sequence[str], path: Path) ->
     """Mean load RMSE and swing RMS (completed flights) per load, one bar per controller."""
     labels = ordered_labels({r["controller"] for r in rows if r["plant"] in plants})
     colors = dict(zip(labels, (f"C{i}" for i in range(len(labels))), strict=True))
+    means = {p: controller_means(rows, p) for p in plants}
     fig = Figure(figsize=(9.0, 3.6))
     width = 0.8 / max(len(labels), 1)
     for i, (key, head, _) in enumerate(KEYS[:2]):
         ax = fig.add_subplot(1, 2, i + 1)
         for j, lb in enumerate(labels):
-            ys = [
-                mean_of([r for r in by_flight(rows, plant=p, controller=lb).values()
-                         if r["completed"]], key)
-                for p in plants
-            ]  # fmt: skip
+            ys = [means[p][lb][key] if lb in means[p] else np.nan for p in plants]
             ax.bar(np.arange(len(plants)) + (j - (len(labels) - 1) / 2) * width, ys, width,
                    color=colors[lb], label=lb)  # fmt: skip
         ax.set_xticks(range(len(plants)))

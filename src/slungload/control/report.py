@@ -29,7 +29,6 @@ from .results import (
     versus_physics,
 )
 
-FIGURES = ("paths_3d.png", "swing.png", "table.png")
 LINESTYLES = ("-", "--", ":", "-.")  # one per K of a model, in the order flown
 
 

@@ -41,10 +41,28 @@ Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was
 Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights
 
 
+def mpc_label(model: str, horizon: int) -> str:
+    """The control study's label of an MPC over ``model`` at N = ``horizon``: "mpc-learned N=25"."""
+    return f"mpc-{model} N={horizon}"
+
+
 def label_model(label: str) -> str:
     """The prediction model of a controller label: "mpc-learned N=25" and "mpc-net K=32" ->
     "learned", "net"; a label without an MPC ("pid") is its own."""
     return re.sub(r"^mpc-| [KN]=\d+$", "", label)
+
+
+def label_horizon(label: str) -> int | None:
+    """The N of a control study's MPC label ("mpc-learned N=25" -> 25); None for the others."""
+    found = re.search(r" N=(\d+)$", label)
+    return int(found.group(1)) if found else None
+
+
+def ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator, NaN unless both are finite and the denominator is not zero."""
+    if denominator == 0 or not (math.isfinite(numerator) and math.isfinite(denominator)):
+        return math.nan
+    return numerator / denominator
 
 
 def by_flight(rows: Sequence[Row], **match: Any) -> dict[Flight, Row]:
@@ -72,15 +90,10 @@ class ControlComparison:
     logs: list[FlightLog] = field(default_factory=list, repr=False)
 
 
-def finite_mean(values: Sequence[float | None]) -> float:
-    """The mean of the finite values (NaN when none is)."""
-    finite = [v for v in values if v is not None and math.isfinite(v)]
-    return float(np.mean(finite)) if finite else math.nan
-
-
 def mean_of(rows: Sequence[Row], key: str) -> float:
-    """The mean of ``key`` over the rows where it is finite."""
-    return finite_mean([r[key] for r in rows])
+    """The mean of ``key`` over the rows where it is finite (NaN when it is nowhere)."""
+    finite = [v for r in rows if (v := r[key]) is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else math.nan
 
 
 def fmt(value: float | None, spec: str) -> str:
@@ -129,7 +142,7 @@ class VersusPhysics:
 
     def lower(self, key: str) -> float:
         """How much lower the network's mean of ``key`` is, as a fraction of physics's."""
-        return 1.0 - self.network[key] / self.physics[key]
+        return 1.0 - ratio(self.network[key], self.physics[key])
 
 
 def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
@@ -138,7 +151,7 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
     out = []
     mpc = [r for r in rows if r["K"] is not None]
     for k in sorted({r["K"] for r in mpc}):
-        reference = f"mpc-{PHYSICS} K={k}"
+        reference = f"mpc-{PHYSICS} K={k}"  # ``control``'s labels name K, the study's N
         physics = by_flight(mpc, K=k, controller=reference)
         for net in sorted({r["controller"] for r in mpc if r["K"] == k} - {reference}):
             mine = by_flight(mpc, K=k, controller=net)

@@ -55,6 +55,7 @@ from .geometric import GEOMETRIC, GeometricLoadController
 from .mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
 from .mppi import ReferenceAhead
 from .oracle import ORACLE
+from .results import mpc_label
 from .study_config import (
     CONTROLLERS,
     COST_GRID,
@@ -107,6 +108,9 @@ def run_study(
     if set(plants) - set(every):
         raise ValueError(f"unknown plants {sorted(set(plants) - set(every))}; known: {list(every)}")
     out = Path(out)
+    if (out / "results.json").exists():
+        raise ValueError(f"{out} holds the flights of a `control` comparison (results.json), "
+                         "which lie where the study's would land; use another --out")  # fmt: skip
     nominal = SimConfig()
     params = vehicle_params(nominal)
     limits = InputLimits.from_sim(nominal)
@@ -224,14 +228,14 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 tuned = tuples_from_json(settings["mpc"][kind][str(n)])
                 mpc = MPCConfig(**tuned, horizon=n, knots=knots_for(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
-                plans.append(Flown(plant, f"mpc-{kind} N={n}",
+                plans.append(Flown(plant, mpc_label(kind, n),
                                    mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
             for n in cfg.oracle_horizons:
                 chosen = (tuples_from_json(settings["mpc"]["learned"][str(n)])
                           if "learned" in models else {})  # fmt: skip
                 mpc = MPCConfig(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
-                plans.append(Flown(plant, f"mpc-{ORACLE} N={n}",
+                plans.append(Flown(plant, mpc_label(ORACLE, n),
                                    mpc_maker(None, limits, mpc, params)))  # fmt: skip
     return plans
 

@@ -19,11 +19,10 @@ Results only; the acceptance rule lives in docs/BENCHMARKS.md.
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -41,9 +40,12 @@ from .results import (
     by_flight,
     columns,
     fmt,
+    label_horizon,
     label_model,
     mean_of,
+    mpc_label,
     paired_interval,
+    ratio,
     summary,
 )
 from .study import load_log
@@ -55,11 +57,6 @@ GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed"
                "learned - oracle")  # fmt: skip
 
 
-def _horizon(label: str) -> int | None:
-    found = re.search(r" N=(\d+)$", label)
-    return int(found.group(1)) if found else None
-
-
 def ordered_labels(labels) -> list[str]:
     """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
     order = ("pid", "geometric", "physics", "learned", "oracle")
@@ -67,15 +64,21 @@ def ordered_labels(labels) -> list[str]:
     def rank(label: str) -> tuple[int, str, int]:
         model = label_model(label)
         return (order.index(model) if model in order else len(order), model,
-                _horizon(label) or 0)  # fmt: skip
+                label_horizon(label) or 0)  # fmt: skip
 
     return sorted(labels, key=rank)
 
 
+def controller_means(rows: Sequence[Row], plant: str) -> dict[str, dict[str, Any]]:
+    """``results.summary`` of each controller on ``plant``: means over its completed flights,
+    flights, failed (lost), compute; by label."""
+    on_plant = [r for r in rows if r["plant"] == plant]
+    return {e["controller"]: e for e in summary(on_plant, ("controller",))}
+
+
 def means_table(rows: list[Row], plant: str) -> str:
     """Per controller on ``plant``: means over its completed flights, lost / flown, compute."""
-    entries = {e["controller"]: e for e in summary([r for r in rows if r["plant"] == plant],
-                                                   ("controller",))}  # fmt: skip
+    entries = controller_means(rows, plant)
     table = [
         [
             label,
@@ -89,10 +92,27 @@ def means_table(rows: list[Row], plant: str) -> str:
     return markdown_table(["controller", *(h for _, h, _ in KEYS), "lost", "compute (ms)"], table)
 
 
-def paired(rows, plant: str, a: str, b: str, key: str) -> tuple[int, tuple[float, float, float]]:
-    """a - b of ``key`` over the flights both flew to the end: (pairs, (mean, low, high))."""
-    both = completed_pairs(rows, plant, a, b)
-    return len(both), paired_interval([x[key] - y[key] for x, y in both])
+class Paired(NamedTuple):
+    """a - b of one figure over the flights both flew to the end (``paired``)."""
+
+    pairs: int  # flights with a finite difference
+    mean: float
+    low: float  # 95 % t-interval
+    high: float
+    base: float  # b's mean over those flights
+
+    @property
+    def share(self) -> float:
+        """The mean difference as a fraction of b's mean (NaN where that is not defined)."""
+        return ratio(self.mean, self.base)
+
+
+def paired(rows, plant: str, a: str, b: str, key: str) -> Paired:
+    """a - b of ``key`` over the flights on ``plant`` both flew to the end."""
+    both = [(x, y) for x, y in completed_pairs(rows, plant, a, b)
+            if math.isfinite(x[key] - y[key])]  # fmt: skip
+    mean, low, high = paired_interval([x[key] - y[key] for x, y in both])
+    return Paired(len(both), mean, low, high, mean_of([y for _, y in both], key))
 
 
 def completed_pairs(rows, plant: str, a: str, b: str) -> list[tuple[Row, Row]]:
@@ -103,20 +123,17 @@ def completed_pairs(rows, plant: str, a: str, b: str) -> list[tuple[Row, Row]]:
 
 
 def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
-    """a - b per pair and figure: mean [95 % interval] over the flights both flew to the end,
-    and the mean as a share of b's mean over the same flights."""
+    """a - b per pair and figure (``paired``): mean [95 % interval] and, in brackets, the mean
+    as a share of b's mean over the same flights; "pairs": the flights both flew to the end."""
     out = []
     for a, b in pairs:
-        both = completed_pairs(rows, plant, a, b)
         cells = []
         for key, _, unsigned in KEYS:
             spec = unsigned.replace("{:", "{:+")  # a difference carries its sign
-            mean, lo, hi = paired_interval([x[key] - y[key] for x, y in both])
-            base = mean_of([y for _, y in both], key)
-            ok = base != 0 and math.isfinite(mean) and math.isfinite(base)
-            share = f" ({100 * mean / base:+.0f} %)" if ok else ""
-            cells.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]{share}")
-        out.append([f"{a} - {b}", len(both), *cells])
+            d = paired(rows, plant, a, b, key)
+            share = "" if math.isnan(d.share) else f" ({100 * d.share:+.0f} %)"
+            cells.append(f"{fmt(d.mean, spec)} [{fmt(d.low, spec)}, {fmt(d.high, spec)}]{share}")
+        out.append([f"{a} - {b}", len(completed_pairs(rows, plant, a, b)), *cells])
     return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
 
 
@@ -136,7 +153,7 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
         if not keys:
             out.append([maneuver, "0", "-", "-", "-", "-", "-"])
             continue
-        p, learn, o = (float(np.mean([s[k][key] for k in keys])) for s in sets)
+        p, learn, o = (mean_of([s[k] for k in keys], key) for s in sets)
         gap = (p - learn) / (p - o) if p - o > 1e-12 else math.nan
         mean, lo, hi = paired_interval([sets[1][k][key] - sets[2][k][key] for k in keys])
         spec = "{:+.3f}"
@@ -161,7 +178,7 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     oracle paired, and the share of the physics-to-oracle gap in this cost the learned one
     closes. The oracle minimises this cost with a perfect model: it is the ceiling of the cost,
     not of any one error."""
-    labels = [f"mpc-{m} N={n}" for m in ("physics", "learned", "oracle")]
+    labels = [mpc_label(m, n) for m in ("physics", "learned", "oracle")]
     sets = [by_flight(rows, plant=NOMINAL, controller=label) for label in labels]
     keys = [k for k in sets[0] if all(k in s and s[k]["completed"] for s in sets)]
     if not keys:
@@ -190,7 +207,8 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
 
 def plot_horizons(rows, path: Path) -> Path:
     """Load RMSE and swing RMS (means over completed nominal flights) against N per model."""
-    mpc = [r for r in rows if r["plant"] == NOMINAL and _horizon(r["controller"])]
+    mpc = [r for r in rows if r["plant"] == NOMINAL and label_horizon(r["controller"])]
+    means = controller_means(rows, NOMINAL)
     models = list(dict.fromkeys(label_model(r["controller"]) for r in mpc))
     colors = model_colors(models)
     fig = Figure(figsize=(9.0, 3.4))
@@ -198,19 +216,9 @@ def plot_horizons(rows, path: Path) -> Path:
         ax = fig.add_subplot(1, 2, i + 1)
         for model in models:
             labels = sorted({r["controller"] for r in mpc if label_model(r["controller"]) == model},
-                            key=_horizon)  # fmt: skip
-            ns = [_horizon(label) * SimConfig.control_dt for label in labels]
-            ys = [
-                mean_of(
-                    [
-                        r
-                        for r in by_flight(rows, plant=NOMINAL, controller=lb).values()
-                        if r["completed"]
-                    ],
-                    key,
-                )
-                for lb in labels
-            ]
+                            key=label_horizon)  # fmt: skip
+            ns = [label_horizon(label) * SimConfig.control_dt for label in labels]
+            ys = [means[label][key] for label in labels]
             ax.plot(ns, ys, "o-", color=colors[model], label=model)
         ax.set_xlabel("MPC horizon (s)")
         ax.set_ylabel(head)
@@ -226,10 +234,10 @@ def plot_paired(rows, pairs: Sequence[tuple[str, str]], path: Path) -> Path:
     for i, (key, head, _) in enumerate(KEYS[:2]):
         ax = fig.add_subplot(1, 2, i + 1)
         for j, (a, b) in enumerate(pairs):
-            _, (mean, lo, hi) = paired(rows, NOMINAL, a, b, key)
-            if math.isfinite(mean):
-                err = [[mean - lo], [hi - mean]] if math.isfinite(lo) else None
-                ax.errorbar(mean, j, xerr=err, fmt="o", color="C0", capsize=3)
+            d = paired(rows, NOMINAL, a, b, key)
+            if math.isfinite(d.mean):
+                err = [[d.mean - d.low], [d.high - d.mean]] if math.isfinite(d.low) else None
+                ax.errorbar(d.mean, j, xerr=err, fmt="o", color="C0", capsize=3)
         ax.axvline(0.0, color="grey", lw=0.8)
         ax.set_yticks(range(len(pairs)))
         ax.set_yticklabels([f"{a} - {b}" for a, b in pairs] if i == 0 else [], fontsize=7)
@@ -248,36 +256,23 @@ def write_study_report(
     out = Path(out)
     settings = read_json(out / "settings.json") if (out / "settings.json").exists() else {}
     labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == NOMINAL))
-    horizons = sorted({_horizon(lb) for lb in labels if _horizon(lb)})
+    horizons = sorted({label_horizon(lb) for lb in labels if label_horizon(lb)})
     has = set(labels).__contains__
     first = horizons[0] if horizons else None
-    versus = [
-        (f"mpc-learned N={n}", f"mpc-physics N={n}")
-        for n in horizons
-        if has(f"mpc-learned N={n}") and has(f"mpc-physics N={n}")
-    ]
-    longer = [
-        (f"mpc-{m} N={n}", f"mpc-{m} N={first}")
-        for m in ("learned", "physics")
-        for n in horizons[1:]
-        if has(f"mpc-{m} N={n}") and has(f"mpc-{m} N={first}")
-    ]
-    # the payload-aware controller against the learned MPC at every horizon, the PID at the first
-    classic = [
-        (f"mpc-learned N={n}", c)
-        for c, ns in (("geometric", horizons), ("pid", horizons[:1]))
-        for n in ns
-        if has(c) and has(f"mpc-learned N={n}")
-    ]
-    # what is left between the learned model and the perfect one (same MPC settings), and what
-    # the perfect one gains over physics
-    ceiling = [
-        (f"mpc-{m} N={n}", f"mpc-{b} N={n}")
-        for n in horizons
-        for m, b in (("learned", "oracle"), ("oracle", "physics"))
-        if has(f"mpc-{m} N={n}") and has(f"mpc-{b} N={n}")
-    ]
-    pairs = versus + longer + classic + ceiling
+    pairs = _flown(
+        labels,
+        [(mpc_label("learned", n), mpc_label("physics", n)) for n in horizons]
+        + [(mpc_label(m, n), mpc_label(m, first)) for m in ("learned", "physics")
+           for n in horizons[1:]]
+        # the payload-aware controller against the learned MPC at every horizon, the PID at
+        # the first
+        + [(mpc_label("learned", n), c)
+           for c, ns in (("geometric", horizons), ("pid", horizons[:1])) for n in ns]
+        # what is left between the learned model and the perfect one (same MPC settings), and
+        # what the perfect one gains over physics
+        + [(mpc_label(m, n), mpc_label(b, n)) for n in horizons
+           for m, b in (("learned", "oracle"), ("oracle", "physics"))],
+    )  # fmt: skip
     parts = [
         "# Closed-loop control study",
         "",
@@ -290,7 +285,8 @@ def write_study_report(
         "Means over the flights each controller flew to the end; `lost`: flights that left the "
         "arena or went non-finite, of the flights it flew (a controller flown on fewer seeds, "
         "such as the oracle on a subset, is averaged over its own). Differences: paired by "
-        "maneuver and seed over the flights both flew to the end, mean [95 % t-interval].",
+        "maneuver and seed over the flights both flew to the end, mean [95 % t-interval] (the "
+        "mean as a share of the second controller's mean over the same flights).",
         "",
         "## Nominal plant",
         "",
@@ -306,7 +302,7 @@ def write_study_report(
         "",
     ]
     for n in horizons:
-        trio = [f"mpc-{m} N={n}" for m in ("physics", "learned", "oracle")]
+        trio = [mpc_label(m, n) for m in ("physics", "learned", "oracle")]
         if not all(map(has, trio)):
             continue
         parts += [
@@ -340,8 +336,9 @@ def write_study_report(
         if plant != NOMINAL:
             parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
             flown = {r["controller"] for r in rows if r["plant"] == plant}
-            shifted = [(f"mpc-learned N={n}", f"mpc-physics N={n}") for n in horizons
-                       if {f"mpc-learned N={n}", f"mpc-physics N={n}"} <= flown]  # fmt: skip
+            ns = sorted({label_horizon(c) for c in flown} - {None})
+            shifted = _flown(flown, [(mpc_label("learned", n), mpc_label("physics", n))
+                                     for n in ns])  # fmt: skip
             if shifted:
                 parts += [paired_table(rows, plant, shifted), ""]
     write_text(out / "study.md", "\n".join(parts))
@@ -354,10 +351,16 @@ def write_study_report(
         for r in rows
         if r["plant"] == NOMINAL
         and r["seed"] == seed
-        and _horizon(r["controller"]) in (None, first)
+        and label_horizon(r["controller"]) in (None, first)
     ]
     plot_paths([load_log(out, r) for r in shown], out / "paths_3d.png")
     return out / "study.md"
+
+
+def _flown(labels, pairs: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
+    """The pairs both of whose controllers are among ``labels``."""
+    flown = set(labels)
+    return [(a, b) for a, b in pairs if a in flown and b in flown]
 
 
 def _learned_line(settings: dict[str, Any], learned: str | None) -> str:
