@@ -278,6 +278,12 @@ def test_the_control_report_shows_results_only():
     assert "load average at the end unknown" in text and "| mpc-net K=32 |" in text
     assert "0.140 vs 0.200 m (30 % lower)" in text
     assert "target" not in text.lower() and "met**" not in text
+    assert "Smoke run" not in text
+    settings["presets"] = {"runs/net": "quick", "runs/other": "default"}
+    text = report_markdown(ControlComparison(rows, settings))
+    banner = text.split("\n\n")[1]  # under the title
+    assert "Smoke run: these numbers are not results" in banner
+    assert "`runs/net`" in banner and "runs/other" not in banner
 
 
 def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_its_term():
@@ -302,3 +308,29 @@ def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_it
     assert cost["vehicle"] == cost["velocity"] == cost["inputs"] == 0.0
     # the terminal weight is left out: a flight is scored step by step, not as one horizon
     assert realized_cost(log, ref, replace(cfg, terminal=50.0), PARAMS) == cost
+
+
+def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):
+    from slungload.control.mpc import model_notes
+    from slungload.models.checkpoints import CKPT_KEY
+
+    checkpoint = torch.load(tiny_run.out / "best.ckpt", weights_only=False)
+    for excitation, named in (({"thrust_std": 0.0, "rate_std": [0.0, 0.0, 0.0]}, True),
+                              ({"thrust_std": 0.0, "rate_std": [0.5, 0.5, 0.0]}, False),
+                              (None, False)):  # fmt: skip
+        data = tmp_path / f"data_{named}_{excitation is None}"
+        data.mkdir()
+        sim = {} if excitation is None else {"sim": {"excitation": excitation}}
+        (data / "vehicle.json").write_text(json.dumps(sim))  # None: real flights, no "sim"
+        run = tmp_path / f"run_{data.name}"
+        run.mkdir()
+        meta = {**checkpoint[CKPT_KEY], "data": str(data)}
+        torch.save({**checkpoint, CKPT_KEY: meta}, run / "best.ckpt")
+        notes = model_notes(run, 3)
+        assert len(notes) == named and (not named or str(data) in notes[0])
+    assert model_notes("physics", 500) == []
+    assert model_notes(tiny_run.out, 3) == []  # its dataset holds no simulator settings
+    trained = tiny_run.dataset.window.horizon
+    (note,) = model_notes(tiny_run.out, trained + 1)  # beyond what it learned to predict
+    assert f"predictions past step {trained} are extrapolation" in note
+    assert model_notes(tiny_run.out, trained) == []

@@ -341,6 +341,8 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
     again = run_study(None, out, TINY, progress=lines.append)  # nothing left to fly
     assert lines == [] and again == rows  # the same rows (wall times too): none flown again
     report = write_study_report(again, TINY, out).read_text()
+    assert "Smoke run" not in report  # no network flew
+    assert "MPC settings: the defaults, not tuned" in report  # TINY does not tune
     for part in (
         "## Nominal plant",
         "| mpc-oracle N=3 |",
@@ -427,6 +429,9 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
     assert "| learned | 4 | 4 | defaults |" in report  # the settings per horizon (TINY: untuned)
     tuned_for = json.loads((tmp_path / "settings.json").read_text())["learned_network"]
     assert f"`{tuned_for['checkpoint']}` (SHA-256 {tuned_for['sha256'][:12]})" in report
+    # the fixture's network trained with the smoke-test preset: said at the top
+    assert tuned_for["preset"] == "quick"
+    assert "Smoke run: these numbers are not results" in report.split("## ")[0]
     # another network (here: the same weights saved again) would mix two networks' flights
     other = tmp_path / "other_run"
     other.mkdir()

@@ -134,13 +134,19 @@ def test_mae_csv_matches_report(written, report):
             )
 
 
-def test_timing_csv_matches_report(written, report):
+def test_timing_csv_matches_report(written, report, tmp_path):
     rows = read_csv(written / "timing.csv")
     assert len(rows) == len(report.timings) == 3 * len(report.horizons)  # 3 networks
     for row, t in zip(rows, report.timings, strict=True):
         assert float(row["mean_ms"]) == t.timing.mean_ms > 0
         assert math.isfinite(float(row["std_ms"])) and int(row["threads"]) >= 1
         assert row["backend"] == "torch eager"  # stand-in networks: no compiled path
+    # untimed (no --timing): no timing.csv, and none listed among the files
+    from slungload.evaluation.report import write_csvs
+
+    untimed = dataclasses.replace(report, timings=[])
+    names = {p.name for p in write_csvs(untimed, tmp_path)}
+    assert "timing.csv" not in names and not (tmp_path / "timing.csv").exists()
 
 
 def test_markdown_has_both_tables_ratios_and_figures(written, report):

@@ -50,6 +50,18 @@ def markdown_table(header: Sequence[object], rows: Iterable[Sequence[object]]) -
     return "\n".join([line(header), "|" + "---|" * len(header), *(line(r) for r in rows)])
 
 
+def smoke_banner(which: str, preset: str) -> list[str]:
+    """The lines at the top of a report whose networks (``which``: "Every run", "The runs
+    `a`, `b`", "The learned network `x`") trained with the smoke-test ``preset``."""
+    return [
+        "> **Smoke run: these numbers are not results.** "
+        f"{which} trained with the `{preset}` preset: a few epochs on a few windows, to check "
+        "that every stage runs. Their errors, ratios and figures say nothing about the method "
+        "or the paper; train with `--preset default` (or `--preset paper`) for that.",
+        "",
+    ]
+
+
 def save_figure(fig: Figure, path: str | Path) -> Path:
     """Write ``fig`` as a PNG at ``DPI`` atomically (nothing at ``path`` on failure)."""
     path = Path(path)

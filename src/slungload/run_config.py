@@ -113,6 +113,7 @@ PRESETS: dict[str, Preset] = {
     ),
 }
 DEFAULT_PRESET = "default"
+SMOKE_PRESET = "quick"  # a run trained with it is a smoke test: every report says so at the top
 
 
 def get_preset(preset: str | Preset) -> Preset:

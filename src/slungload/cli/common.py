@@ -52,7 +52,23 @@ def comma_names(text: str) -> list[str]:
 
 def comma_ints(text: str) -> list[int]:
     """'6,12' -> [6, 12]: an option's comma-separated counts (empty items dropped)."""
-    return [int(k) for k in text.split(",") if k]
+    try:
+        return [int(k) for k in text.split(",") if k]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected whole numbers separated by commas (e.g. 6,12), got {text!r}"
+        ) from None
+
+
+def positive_int(text: str) -> int:
+    """'48' -> 48: an option's count, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return value
 
 
 def value_or_range(text: str) -> float | tuple[float, float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -224,6 +225,21 @@ def cmd_control(args: argparse.Namespace) -> int:
     modes = [name for name in ("study", "loads", "record") if getattr(args, name)]
     if len(modes) > 1:
         raise ValueError(f"control: --{' and --'.join(modes)} are separate runs; give one")
+    from ..control.mpc import MPCConfig, model_notes
+    from ..data.flight import DataWarning
+
+    if args.study:
+        longest = max(args.horizons)
+    else:  # the mode's default N unless given
+        mode = RecordConfig if args.record else UnseenLoadsConfig if args.loads else MPCConfig
+        longest = args.horizon or mode.horizon
+    for model in args.model or ():
+        try:
+            notes = model_notes(model, longest)
+        except (OSError, ValueError):
+            continue  # a model that cannot be read: the mode below says so, in its words
+        for note in notes:
+            warnings.warn(note, DataWarning, stacklevel=1)
     if args.record:
         return _cmd_record(args)
     if args.study:

@@ -11,6 +11,7 @@ from .common import (
     add_window_options,
     comma_names,
     new_command,
+    positive_int,
     resolve_params,
     value_or_range,
     vehicle_overrides,
@@ -27,7 +28,9 @@ def add_simulate(sub: Any) -> None:
         "format: one .npz per flight, train/val/test split lists, vehicle.json.",
     )
     p.add_argument("--out", required=True, type=Path, help="dataset folder to create")
-    p.add_argument("--flights", type=int, default=48, help="number of flights (default 48)")
+    p.add_argument(
+        "--flights", type=positive_int, default=48, help="number of flights (default 48)"
+    )
     p.add_argument(
         "--maneuvers",
         type=comma_names,

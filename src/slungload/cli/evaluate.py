@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..run_config import PRESETS
 from .common import (
     add_cluster_option,
     choices,
@@ -14,6 +15,7 @@ from .common import (
     comma_names,
     load_range,
     new_command,
+    positive_int,
     seed_range,
 )
 
@@ -108,7 +110,9 @@ def add_reproduce(sub: Any) -> None:
         "--preset",
         default="default",
         choices=choices("presets"),
-        help="default (CPU, ~10 min a seed when idle), quick (smoke test) or paper",
+        help="training schedule: "
+        + "; ".join(f"{name} ({preset.description})" for name, preset in PRESETS.items())
+        + " (default: default)",
     )
     p.add_argument(
         "--seeds",
@@ -119,7 +123,7 @@ def add_reproduce(sub: Any) -> None:
     )
     p.add_argument(
         "--flights",
-        type=int,
+        type=positive_int,
         default=48,
         help="flights to simulate when no --data is given (default 48, the paper's)",
     )

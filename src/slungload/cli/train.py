@@ -58,7 +58,9 @@ def add_train(sub: Any) -> None:
         "--preset",
         default=RUN.preset,
         choices=choices("presets"),
-        help=f"training schedule (default {RUN.preset!r}: {PRESETS[RUN.preset].description})",
+        help="training schedule: "
+        + "; ".join(f"{name} ({preset.description})" for name, preset in PRESETS.items())
+        + f" (default {RUN.preset})",
     )
     p.add_argument(
         "--device",

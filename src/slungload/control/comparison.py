@@ -11,6 +11,7 @@ report (``report.write_report``: ``report.md`` and the figures). The statistics 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -22,6 +23,7 @@ from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
 from ..deploy.predictor import torch_threads
 from ..fileio import write_json
+from ..models.checkpoints import load_checkpoint
 from ..models.prediction import PHYSICS, PredictionModel
 from ..reporting import machine
 from ..sim.config import SimConfig
@@ -149,10 +151,16 @@ def _settings(
     load), for ``results.json`` and the report."""
     return {
         "models": [str(m) for m in models],
+        "presets": {str(m): load_checkpoint(m).meta.get("preset") for m in models},
         "maneuvers": list(maneuvers),
         "seeds": list(seeds),
         "samples": [int(k) for k in samples],
-        "mpc": {k: v for k, v in vars(base).items() if k != "samples"},
+        # null where MPCConfig holds +-inf (that term off), so the file stays standard JSON
+        "mpc": {
+            k: None if isinstance(v, float) and math.isinf(v) else v
+            for k, v in vars(base).items()
+            if k != "samples"
+        },  # fmt: skip
         "limits": vars(limits),
         "arena": vars(Arena()),
         "steps": steps,

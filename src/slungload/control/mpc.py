@@ -17,13 +17,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..config import ESTIMATE_MIN_STEPS, VehicleParams
+from ..config import ESTIMATE_MIN_STEPS, VEHICLE_FILE, VehicleParams
 from ..deploy.compiled.physics import history_constants
-from ..models.prediction import PredictionModel
+from ..fileio import read_json
+from ..models.checkpoints import load_checkpoint
+from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
@@ -172,3 +175,41 @@ def mpc_maker(
         return SamplingMPC(chosen, limits, replace(mpc, seed=seed), params)
 
     return make
+
+
+def model_notes(model: str | Path, horizon: int) -> list[str]:
+    """What a user should know before an MPC over ``model`` (a run folder, or "physics") plans
+    ``horizon`` steps ahead, where its run says so:
+
+    - it was trained on simulated flights whose commands carried no excitation (the dataset's
+      vehicle.json: every ``sim.excitation`` standard deviation zero): such a network learned
+      to predict from the state history, where the PID's commands are a function of it, and
+      every plan looks alike to it (docs/control.md, "Which model to fly"); nothing is said
+      of real flights, nor where the dataset is no longer where the run names it;
+    - the horizon is longer than the one it was trained to predict over: the steps beyond are
+      extrapolation."""
+    if str(model) == PHYSICS:
+        return []
+    meta = load_checkpoint(model).meta
+    notes = []
+    data = meta.get("data")
+    path = Path(data or "") / VEHICLE_FILE
+    excitation = None
+    if data and path.is_file():
+        excitation = (read_json(path).get("sim") or {}).get("excitation")
+    if excitation:  # a simulated dataset (real flights carry their pilot's own variation)
+        stds = np.r_[excitation.get("thrust_std", 0.0), excitation.get("rate_std", 0.0)]
+        if not np.any(stds != 0):
+            notes.append(
+                f"{model} was trained on {data}, simulated without input excitation: it predicts "
+                "from the state history and barely from the commands, so the MPC cannot tell its "
+                "plans apart; train the model to fly on `simulate --excite` flights "
+                "(docs/control.md)"
+            )
+    trained = (meta.get("window") or {}).get("horizon")
+    if trained and horizon > trained:
+        notes.append(
+            f"the MPC plans {horizon} steps ahead and {model} was trained to predict {trained}: "
+            f"its predictions past step {trained} are extrapolation"
+        )
+    return notes

@@ -16,7 +16,8 @@ from matplotlib.figure import Figure
 
 from ..fileio import write_text
 from ..frames import swing_angle
-from ..reporting import markdown_table, model_colors, save_figure
+from ..reporting import markdown_table, model_colors, save_figure, smoke_banner
+from ..run_config import SMOKE_PRESET
 from ..sim.config import SimConfig
 from .closed_loop import FlightLog
 from .results import (
@@ -90,9 +91,15 @@ def report_markdown(result: ControlComparison) -> str:
     load = machine["load_average"]
     stopped = [f"- {r['maneuver']} seed {r['seed']} {r['controller']}: {r['stopped']}"
                for r in rows if not r["completed"]]  # fmt: skip
+    smoke = [m for m, preset in s.get("presets", {}).items() if preset == SMOKE_PRESET]
     parts = [
         "# Closed-loop control: PID vs sampling MPC",
         "",
+        *(
+            smoke_banner("The networks " + ", ".join(f"`{m}`" for m in smoke), SMOKE_PRESET)
+            if smoke
+            else []
+        ),  # fmt: skip
         f"{s['date']}; maneuvers {', '.join(s['maneuvers'])}; sim seeds "
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
         f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "

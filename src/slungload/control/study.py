@@ -44,7 +44,7 @@ from ..deploy.predictor import torch_threads
 from ..deploy.timing import time_calls
 from ..fileio import read_json, write_json
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
-from ..models.checkpoints import checkpoint_path
+from ..models.checkpoints import checkpoint_path, load_checkpoint
 from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
@@ -257,7 +257,7 @@ def fly_once(out, flown: Flown, maneuver, seed, plant_cfg, limits, steps, progre
         status = "ok" if row["completed"] else f"STOPPED: {row['stopped']}"
         progress(
             f"{flown.plant} {maneuver} s{seed} {flown.label}: load {row['load_rmse']:.3f} m, "
-            f"swing {row['swing_rms']:.1f} deg, {row['wall_s']:.0f} s ({status})"
+            f"swing {row['swing_rms']:.1f} deg, {row['wall_s']:.1f} s ({status})"
         )
 
 
@@ -340,9 +340,11 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
 
 
 def learned_network(learned: str | Path) -> dict[str, str]:
-    """Which network a study's learned MPC flies: its checkpoint's path and SHA-256."""
+    """Which network a study's learned MPC flies: its checkpoint's path and SHA-256, and the
+    preset it trained with."""
     path = checkpoint_path(learned)
-    return {"checkpoint": str(path), "sha256": sha256(path)}
+    preset = load_checkpoint(path).meta.get("preset")
+    return {"checkpoint": str(path), "sha256": sha256(path), "preset": preset}
 
 
 def _jsonable(value: Any) -> Any:

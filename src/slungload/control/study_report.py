@@ -28,7 +28,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..fileio import read_json, write_text
-from ..reporting import markdown_table, model_colors, save_figure
+from ..reporting import markdown_table, model_colors, save_figure, smoke_banner
+from ..run_config import SMOKE_PRESET
 from ..sim.config import SimConfig, tuples_from_json, vehicle_params
 from ..sim.flight import flight_reference
 from .closed_loop import COST_TERMS, realized_cost
@@ -200,8 +201,10 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     return "\n".join([
         markdown_table(["controller", "flights", *heads], [*table, difference]),
         "",
-        f"learned - oracle: paired per flight, mean [95 % interval]; the learned MPC closes "
-        f"{fmt(100 * gap, '{:.0f} %')} of the physics-to-oracle gap in this cost.",
+        "learned - oracle: paired per flight, mean [95 % interval]; "
+        + (f"the learned MPC closes {100 * gap:.0f} % of the physics-to-oracle gap in this cost."
+           if math.isfinite(gap) else "the oracle is no better than physics in this cost: no "
+           "gap to close."),
     ])  # fmt: skip
 
 
@@ -273,9 +276,15 @@ def write_study_report(
         + [(mpc_label(m, n), mpc_label(b, n)) for n in horizons
            for m, b in (("learned", "oracle"), ("oracle", "physics"))],
     )  # fmt: skip
+    network = settings.get("learned_network") or {}
     parts = [
         "# Closed-loop control study",
         "",
+        *(
+            smoke_banner(f"The learned network `{network['checkpoint']}`", SMOKE_PRESET)
+            if network.get("preset") == SMOKE_PRESET
+            else []
+        ),  # fmt: skip
         _settings_line(config, settings, sorted({r["seed"] for r in rows})),
         "",
         _learned_line(settings, learned),
@@ -391,10 +400,12 @@ def _settings_line(config: StudyConfig, settings: dict[str, Any], seeds: list[in
     cfg = asdict(config)
     learned = "learned" in settings.get("mpc", {})
     oracle = f"; the oracle flies the learned one's at K={cfg['oracle_samples']}" if learned else ""
+    chosen = (f"MPC settings chosen per horizon on seeds "
+              f"{', '.join(map(str, cfg['tuning_seeds']))} (below{oracle})" if cfg["tune"]
+              else f"MPC settings: the defaults, not tuned (below{oracle})")  # fmt: skip
     return (
         f"Maneuvers {', '.join(cfg['maneuvers'])}; evaluation seeds "
-        f"{', '.join(map(str, seeds))}; MPC settings chosen per horizon on seeds "
-        f"{', '.join(map(str, cfg['tuning_seeds']))} (below{oracle}); "
+        f"{', '.join(map(str, seeds))}; {chosen}; "
         f"{cfg['steps'] or 'all'} recorded steps per flight; "
         f"backend {cfg['backend']}; every unmodelled effect on."
     )

@@ -328,7 +328,7 @@ def plot_paths_3d(
     paths = {
         label: np.concatenate([future[:1], pred]) for label, pred in example.predictions.items()
     }
-    fig = Figure(figsize=(16, 6), layout="constrained")
+    fig = Figure(figsize=(16, 5.2), layout="constrained")
     axes = [fig.add_subplot(1, 3, i + 1, projection="3d") for i in range(3)]
     clipped: set[str] = set()
     _whole_flight_panel(axes[0], example.flight_states, future, paths, styles, clipped)
@@ -444,7 +444,7 @@ def _frame(ax, points: np.ndarray, margin: float = 0.02) -> tuple[np.ndarray, np
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(hi - lo, zoom=0.95)
+    ax.set_box_aspect(hi - lo, zoom=0.8)  # room for the z label beside the next panel
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.set_major_locator(MaxNLocator(4))
     ax.set_xlabel("x (m)")

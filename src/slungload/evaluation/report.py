@@ -8,7 +8,7 @@ Layout of the output folder::
     rmse.csv             RMSE per run (seed) and horizon
     rmse_table.csv       RMSE mean and std across seeds per label and horizon
     mae_<label>_N<n>.csv MAE mean / q1 / median / q3 per horizon step and group
-    timing.csv           batch-1 inference time per model and horizon
+    timing.csv           batch-1 inference time per model and horizon (when timed)
     figures/*.png        MAE comparisons, one predicted window, 3D paths
 """
 
@@ -23,7 +23,8 @@ from pathlib import Path
 
 from ..config import to_dict
 from ..fileio import write_json, write_text
-from ..reporting import markdown_table
+from ..reporting import markdown_table, smoke_banner
+from ..run_config import SMOKE_PRESET
 from ..state import GROUPS
 from . import plots
 from .metrics import COMBINED, METRIC_KEYS
@@ -39,7 +40,6 @@ from .results import (
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
-SMOKE_PRESET = "quick"  # runs trained with it are smoke tests: report.md says so at the top
 BUSY_LOAD = 1.5  # 1-min load average above which timings are flagged (the timer itself is ~1)
 COLUMN_TITLES = {
     "position": "Position (m)",
@@ -115,7 +115,8 @@ def write_figures(report: Report, folder: Path) -> list[tuple[str, Path]]:
 
 
 def write_csvs(report: Report, out: Path) -> list[Path]:
-    """rmse.csv, rmse_table.csv, mae_<label>_N<n>.csv, timing.csv; returns their paths."""
+    """rmse.csv, rmse_table.csv, mae_<label>_N<n>.csv, timing.csv (when timed); returns their
+    paths."""
     paths = []
     rows = [
         [r.label, _blank(r.seed), r.metrics.horizon, r.metrics.windows]
@@ -164,7 +165,8 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
         ]  # fmt: skip
         for t in report.timings
     ]
-    paths.append(_write_csv(out / "timing.csv", header, rows))
+    if rows:  # timed only with --timing
+        paths.append(_write_csv(out / "timing.csv", header, rows))
     return paths
 
 
@@ -221,10 +223,10 @@ def render_markdown(
         + ", ".join(
             f"N = {r.metrics.horizon}: {r.metrics.windows}" for r in _first_per_horizon(report)
         ),
-        f"- vehicle constants: mQ = {p.mass_quad} kg, mL = {p.mass_load} kg, "
-        f"l = {p.cable_length} m, d = {p.load_damping}, h = {p.dt} s, g = {p.gravity} m/s^2"
-        + (f" (from {env['params_source']})" if env.get("params_source") else "")
-        + ": the physics row's"
+        "- the physics row's vehicle constants"
+        + (f" ({env['params_source']})" if env.get("params_source") else "")
+        + f": mQ = {p.mass_quad} kg, mL = {p.mass_load} kg, l = {p.cable_length} m, "
+        f"d = {p.load_damping}, h = {p.dt} s, g = {p.gravity} m/s^2"
         + (
             f"; the row {PHYSICS_TRUTH!r} rolls each flight with its own recorded load mass "
             "and cable length"
@@ -232,7 +234,13 @@ def render_markdown(
             else ""
         ),
         f"- training horizon N = {report.training_horizon} steps "
-        f"({report.training_horizon * p.dt:.2f} s)",
+        f"({report.training_horizon * p.dt:.2f} s)"
+        + (
+            f": the networks' errors past step {report.training_horizon} (at N = "
+            f"{', '.join(str(n) for n in beyond)}) are extrapolation"
+            if (beyond := sorted(n for n in report.horizons if n > report.training_horizon))
+            else ""
+        ),
         "",
         "The paper's numbers come from the authors' real flights; ours from the dataset above. "
         "Compare the ratios and trends; absolute values depend on the data.",
@@ -312,13 +320,7 @@ def _smoke_banner(report: Report) -> list[str]:
         which = "Every run"
     else:
         which = "The runs " + ", ".join(f"`{m.get('run', m.get('label'))}`" for m in runs)
-    return [
-        "> **Smoke run: these numbers are not results.** "
-        f"{which} trained with the `{SMOKE_PRESET}` preset: a few epochs on a few windows, to "
-        "check that every stage runs. Their errors, ratios and figures say nothing about the "
-        "method or the paper; train with `--preset default` (or `--preset paper`) for that.",
-        "",
-    ]
+    return smoke_banner(which, SMOKE_PRESET)
 
 
 def time_capped(report: Report) -> list[dict]:
