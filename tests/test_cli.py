@@ -56,6 +56,24 @@ def test_bad_excitation_is_a_user_error(capsys, tmp_path, text):
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.parametrize("command", ["simulate", "reproduce"])
+@pytest.mark.parametrize("count", ["0", "-3", "many"])
+def test_a_flight_count_below_one_is_a_user_error(capsys, tmp_path, command, count):
+    with pytest.raises(SystemExit) as info:
+        main([command, "--out", str(tmp_path / "d"), "--flights", count])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "argument --flights" in err and repr(count) in err
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_list_of_counts_that_is_not_one_is_a_user_error(capsys, tmp_path):
+    with pytest.raises(SystemExit) as info:
+        main(["control", "--samples", "abc", "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert info.value.code == 2 and "argument --samples: expected whole numbers" in err
+    assert "comma_ints" not in err and not (tmp_path / "d").exists()
+
+
 def test_bad_seed_range_is_a_user_error(run_cli, tmp_path):
     code, _, err = run_cli("reproduce", "--out", str(tmp_path), "--seeds", "a..b")
     assert code == 2 and "--seeds" in err

@@ -203,6 +203,11 @@ def test_control_command_writes_the_report(run_cli, tmp_path):
     assert "| mpc-physics K=4 |" in report
     for name in ("paths_3d.png", "swing.png", "table.png"):
         assert (out / name).stat().st_size > 0
+
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"results.json holds {constant}: not standard JSON")
+
+    json.loads((out / "results.json").read_text(), parse_constant=refuse)
     # each flight's log lies where the control study keeps its own, and reads back whole
     for row in rows:
         path = log_path(out, "nominal", row["controller"], "roll_35", 100).with_suffix(".npz")
@@ -328,9 +333,29 @@ def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):
         torch.save({**checkpoint, CKPT_KEY: meta}, run / "best.ckpt")
         notes = model_notes(run, 3)
         assert len(notes) == named and (not named or str(data) in notes[0])
+    # a dataset of the MPC's own flights (control --record), an old one without excitation
+    # settings, and a file that is no dict
+    for found, named in (({"sim": {"excitation": None}, "recorded": {"model": "x"}}, False),
+                         ({"sim": {}}, True), ([1, 2], False)):  # fmt: skip
+        (data / "vehicle.json").write_text(json.dumps(found))
+        assert len(model_notes(run, 3)) == named
     assert model_notes("physics", 500) == []
     assert model_notes(tiny_run.out, 3) == []  # its dataset holds no simulator settings
     trained = tiny_run.dataset.window.horizon
     (note,) = model_notes(tiny_run.out, trained + 1)  # beyond what it learned to predict
     assert f"predictions past step {trained} are extrapolation" in note
     assert model_notes(tiny_run.out, trained) == []
+
+
+def test_the_command_line_says_what_to_know_before_a_network_flies(run_cli, tiny_run, tmp_path):
+    from slungload.control.comparison import compare
+    from slungload.control.mpc import ModelNote
+
+    fast = ("--maneuvers", "roll_35", "--seeds", "100", "--samples", "4", "--steps", "3",
+            "--quiet")  # fmt: skip
+    with pytest.warns(ModelNote, match="past step 4 are extrapolation"):  # N = 15 > 4
+        code, _, err = run_cli("control", "--model", tiny_run.out, *fast, "--out", tmp_path / "a")
+    assert code == 0, err
+    # "physics" given as a model flies beside itself, and its report is written
+    done = compare(["physics"], ("roll_35",), (100,), (4,), tmp_path / "b", steps=3, progress=None)
+    assert done.settings["presets"] == {} and (tmp_path / "b" / "report.md").exists()

@@ -392,7 +392,11 @@ def test_the_fields_a_study_folder_follows_from_are_study_config_fields():
 
 
 def test_control_study_refuses_zero_steps_and_empty_lists(run_cli, tmp_path):
-    for bad, says in ((("--steps", "0"), "steps"), (("--maneuvers", ","), "--maneuvers")):
+    for bad, says in (
+        (("--steps", "0"), "steps"),
+        (("--maneuvers", ","), "--maneuvers"),
+        (("--horizons", ","), "--horizons"),
+    ):
         code, _, err = run_cli("control", "--study", *bad, "--out", str(tmp_path / "x"))
         assert code == 2 and says in err and "Traceback" not in err
     assert not (tmp_path / "x").exists()

@@ -225,11 +225,10 @@ def cmd_control(args: argparse.Namespace) -> int:
     modes = [name for name in ("study", "loads", "record") if getattr(args, name)]
     if len(modes) > 1:
         raise ValueError(f"control: --{' and --'.join(modes)} are separate runs; give one")
-    from ..control.mpc import MPCConfig, model_notes
-    from ..data.flight import DataWarning
+    from ..control.mpc import ModelNote, MPCConfig, model_notes
 
     if args.study:
-        longest = max(args.horizons)
+        longest = max(args.horizons, default=0)  # none: the study refuses it below
     else:  # the mode's default N unless given
         mode = RecordConfig if args.record else UnseenLoadsConfig if args.loads else MPCConfig
         longest = args.horizon or mode.horizon
@@ -239,7 +238,7 @@ def cmd_control(args: argparse.Namespace) -> int:
         except (OSError, ValueError):
             continue  # a model that cannot be read: the mode below says so, in its words
         for note in notes:
-            warnings.warn(note, DataWarning, stacklevel=1)
+            warnings.warn(note, ModelNote, stacklevel=1)
     if args.record:
         return _cmd_record(args)
     if args.study:
@@ -283,10 +282,9 @@ def _cmd_study(args: argparse.Namespace) -> int:
     if len(args.model) > 1:
         n = len(args.model)
         raise ValueError(f"control --study flies one --model (the learned one), got {n}")
-    changes = {"horizons": tuple(args.horizons), "tune": not args.no_tune,
-               "shift_horizons": tuple(args.shift_horizons or ()),
-               "oracle_samples": args.oracle_samples,
-               "oracle_horizons": tuple(args.oracle_horizons)}  # fmt: skip
+    changes = {"tune": not args.no_tune, "shift_horizons": tuple(args.shift_horizons or ()),
+               "oracle_samples": args.oracle_samples}  # fmt: skip
+    changes |= _given(horizons=tuple(args.horizons), oracle_horizons=tuple(args.oracle_horizons))
     changes |= _given(samples=args.samples and args.samples[0], backend=args.backend,
                       maneuvers=args.maneuvers and tuple(args.maneuvers),
                       seeds=None if args.seeds is None else seed_range(args.seeds),

@@ -73,11 +73,13 @@ def compare(
     if out_dir is not None and (out_dir / "settings.json").exists():
         raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
                          "where these would land; use another --out")  # fmt: skip
+    # each network's training preset, for the report's smoke-run banner
+    presets = {str(m): load_checkpoint(m).meta.get("preset") for m in models if str(m) != PHYSICS}
     plans = _plans(cfg, predictors, samples, base, limits, params)
     with torch_threads(threads):
         rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
     settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
-    settings["backend"] = backend
+    settings.update(backend=backend, presets=presets)
     result = ControlComparison(rows, settings, out_dir, logs)
     if out_dir is not None:
         write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
@@ -151,7 +153,6 @@ def _settings(
     load), for ``results.json`` and the report."""
     return {
         "models": [str(m) for m in models],
-        "presets": {str(m): load_checkpoint(m).meta.get("preset") for m in models},
         "maneuvers": list(maneuvers),
         "seeds": list(seeds),
         "samples": [int(k) for k in samples],

@@ -163,10 +163,10 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     summary = []
     for plant in plants:
         cells = [plant]
+        means = controller_means(rows, plant)
         for model in models:
             cells += [fmt(ratio_to_truth(rows, plant, model, key), "{:.2f}")
                       for key in ("load_rmse", "swing_rms")]  # fmt: skip
-            means = controller_means(rows, plant)
             lost = [means[c]["failed"] if c in means else 0
                     for c in (label(model, IN_FLIGHT), label(model, TRUE))]  # fmt: skip
             cells.append(f"{lost[0]} / {lost[1]}")

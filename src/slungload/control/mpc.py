@@ -177,15 +177,20 @@ def mpc_maker(
     return make
 
 
+class ModelNote(UserWarning):
+    """Something a user should know before flying a model (``model_notes``)."""
+
+
 def model_notes(model: str | Path, horizon: int) -> list[str]:
     """What a user should know before an MPC over ``model`` (a run folder, or "physics") plans
     ``horizon`` steps ahead, where its run says so:
 
     - it was trained on simulated flights whose commands carried no excitation (the dataset's
-      vehicle.json: every ``sim.excitation`` standard deviation zero): such a network learned
-      to predict from the state history, where the PID's commands are a function of it, and
-      every plan looks alike to it (docs/control.md, "Which model to fly"); nothing is said
-      of real flights, nor where the dataset is no longer where the run names it;
+      vehicle.json holds the simulator's settings, ``sim``, with every ``excitation`` standard
+      deviation zero or none given, and no ``recorded`` MPC flights): such a network learned to
+      predict from the state history, where the PID's commands are a function of it, and every
+      plan looks alike to it (docs/control.md, "Which model to fly"); nothing is said of real
+      flights, nor where the dataset is no longer where the run names it;
     - the horizon is longer than the one it was trained to predict over: the steps beyond are
       extrapolation."""
     if str(model) == PHYSICS:
@@ -193,19 +198,13 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
     meta = load_checkpoint(model).meta
     notes = []
     data = meta.get("data")
-    path = Path(data or "") / VEHICLE_FILE
-    excitation = None
-    if data and path.is_file():
-        excitation = (read_json(path).get("sim") or {}).get("excitation")
-    if excitation:  # a simulated dataset (real flights carry their pilot's own variation)
-        stds = np.r_[excitation.get("thrust_std", 0.0), excitation.get("rate_std", 0.0)]
-        if not np.any(stds != 0):
-            notes.append(
-                f"{model} was trained on {data}, simulated without input excitation: it predicts "
-                "from the state history and barely from the commands, so the MPC cannot tell its "
-                "plans apart; train the model to fly on `simulate --excite` flights "
-                "(docs/control.md)"
-            )
+    if data and _simulated_without_excitation(Path(data) / VEHICLE_FILE):
+        notes.append(
+            f"{model} was trained on {data}, simulated without input excitation: it predicts "
+            "from the state history and barely from the commands, so the MPC cannot tell its "
+            "plans apart; train the model to fly on `simulate --excite` flights "
+            "(docs/control.md)"
+        )
     trained = (meta.get("window") or {}).get("horizon")
     if trained and horizon > trained:
         notes.append(
@@ -213,3 +212,22 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
             f"its predictions past step {trained} are extrapolation"
         )
     return notes
+
+
+def _simulated_without_excitation(path: Path) -> bool:
+    """Whether the dataset's vehicle.json at ``path`` says: simulated, commands never
+    perturbed, no MPC flights recorded into it. False where it says otherwise or cannot say."""
+    try:
+        found = read_json(path) if path.is_file() else None
+    except (OSError, ValueError):
+        return False
+    if not isinstance(found, dict) or not isinstance(found.get("sim"), dict):
+        return False  # real flights carry their pilot's own variation
+    if found.get("recorded"):
+        return False  # the MPC's own flights: their commands vary with its sampling
+    excitation = found["sim"].get("excitation") or {}  # none: before excitation existed
+    try:
+        stds = np.r_[excitation.get("thrust_std", 0.0), excitation.get("rate_std", 0.0)]
+        return not np.any(stds.astype(float) != 0)
+    except (AttributeError, TypeError, ValueError):
+        return False

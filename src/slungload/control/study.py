@@ -339,7 +339,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
     return settings
 
 
-def learned_network(learned: str | Path) -> dict[str, str]:
+def learned_network(learned: str | Path) -> dict[str, str | None]:
     """Which network a study's learned MPC flies: its checkpoint's path and SHA-256, and the
     preset it trained with."""
     path = checkpoint_path(learned)

@@ -125,16 +125,20 @@ def completed_pairs(rows, plant: str, a: str, b: str) -> list[tuple[Row, Row]]:
 
 def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
     """a - b per pair and figure (``paired``): mean [95 % interval] and, in brackets, the mean
-    as a share of b's mean over the same flights; "pairs": the flights both flew to the end."""
+    as a share of b's mean over the same flights; "pairs": the flights both flew to the end (a
+    figure not finite on some of them is over fewer: its cell says how many)."""
     out = []
     for a, b in pairs:
+        both = len(completed_pairs(rows, plant, a, b))
         cells = []
         for key, _, unsigned in KEYS:
             spec = unsigned.replace("{:", "{:+")  # a difference carries its sign
             d = paired(rows, plant, a, b, key)
             share = "" if math.isnan(d.share) else f" ({100 * d.share:+.0f} %)"
-            cells.append(f"{fmt(d.mean, spec)} [{fmt(d.low, spec)}, {fmt(d.high, spec)}]{share}")
-        out.append([f"{a} - {b}", len(completed_pairs(rows, plant, a, b)), *cells])
+            fewer = f", {d.pairs} pairs" if d.pairs < both else ""
+            cells.append(f"{fmt(d.mean, spec)} [{fmt(d.low, spec)}, {fmt(d.high, spec)}]"
+                         f"{share}{fewer}")  # fmt: skip
+        out.append([f"{a} - {b}", both, *cells])
     return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
 
 

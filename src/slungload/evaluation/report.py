@@ -167,6 +167,8 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
     ]
     if rows:  # timed only with --timing
         paths.append(_write_csv(out / "timing.csv", header, rows))
+    else:  # an earlier run's into the same folder would no longer match report.md
+        (out / "timing.csv").unlink(missing_ok=True)
     return paths
 
 
