@@ -45,6 +45,14 @@ def choices(kind: str) -> list[str]:
     return sorted(names)
 
 
+def preset_help(default: str) -> str:
+    """``--preset``'s help: every training preset and what it does (``run_config.PRESETS``)."""
+    from ..run_config import PRESETS
+
+    every = "; ".join(f"{name} ({preset.description})" for name, preset in PRESETS.items())
+    return f"training schedule: {every} (default {default})"
+
+
 def comma_names(text: str) -> list[str]:
     """'a,b,' -> ['a', 'b']: an option's comma-separated names (empty items dropped)."""
     return [name for name in text.split(",") if name]

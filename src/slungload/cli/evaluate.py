@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..run_config import PRESETS
 from .common import (
     add_cluster_option,
     choices,
@@ -16,6 +15,7 @@ from .common import (
     load_range,
     new_command,
     positive_int,
+    preset_help,
     seed_range,
 )
 
@@ -110,9 +110,7 @@ def add_reproduce(sub: Any) -> None:
         "--preset",
         default="default",
         choices=choices("presets"),
-        help="training schedule: "
-        + "; ".join(f"{name} ({preset.description})" for name, preset in PRESETS.items())
-        + " (default: default)",
+        help=preset_help("default"),
     )
     p.add_argument(
         "--seeds",

@@ -7,8 +7,15 @@ from pathlib import Path
 from typing import Any
 
 from ..config import ARCHITECTURES, ESTIMATE_MIN_STEPS, LOSS_VARIANTS, MODEL_SIZES
-from ..run_config import PRESETS, RunConfig
-from .common import add_vehicle_options, add_window_options, choices, new_command, resolve_params
+from ..run_config import RunConfig
+from .common import (
+    add_vehicle_options,
+    add_window_options,
+    choices,
+    new_command,
+    preset_help,
+    resolve_params,
+)
 
 RUN = RunConfig()  # the defaults of every option that describes the run
 
@@ -58,9 +65,7 @@ def add_train(sub: Any) -> None:
         "--preset",
         default=RUN.preset,
         choices=choices("presets"),
-        help="training schedule: "
-        + "; ".join(f"{name} ({preset.description})" for name, preset in PRESETS.items())
-        + f" (default {RUN.preset})",
+        help=preset_help(RUN.preset),
     )
     p.add_argument(
         "--device",

@@ -101,6 +101,11 @@ def fmt(value: float | None, spec: str) -> str:
     return "-" if value is None or not math.isfinite(value) else spec.format(value)
 
 
+def fmt_interval(mean: float, low: float, high: float, spec: str) -> str:
+    """A paired difference's cell: "mean [low, high]", each with ``spec`` ("-" if missing)."""
+    return f"{fmt(mean, spec)} [{fmt(low, spec)}, {fmt(high, spec)}]"
+
+
 def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, Any]]:
     """Means over the seeds (completed flights only for the errors) grouped by ``by``."""
     groups: dict[tuple, list[dict[str, Any]]] = {}

@@ -41,6 +41,7 @@ from .results import (
     by_flight,
     columns,
     fmt,
+    fmt_interval,
     label_horizon,
     label_model,
     mean_of,
@@ -136,8 +137,7 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
             d = paired(rows, plant, a, b, key)
             share = "" if math.isnan(d.share) else f" ({100 * d.share:+.0f} %)"
             fewer = f", {d.pairs} pairs" if d.pairs < both else ""
-            cells.append(f"{fmt(d.mean, spec)} [{fmt(d.low, spec)}, {fmt(d.high, spec)}]"
-                         f"{share}{fewer}")  # fmt: skip
+            cells.append(fmt_interval(d.mean, d.low, d.high, spec) + share + fewer)
         out.append([f"{a} - {b}", both, *cells])
     return markdown_table(["difference", "pairs", *(h for _, h, _ in KEYS)], out)
 
@@ -170,7 +170,7 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
                 f"{learn:.3f}",
                 f"{o:.3f}",
                 fmt(100 * gap, "{:.0f} %"),
-                f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]",
+                fmt_interval(mean, lo, hi, spec),
             ]
         )
     return out
@@ -199,7 +199,7 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     difference = ["learned - oracle", str(len(keys))]
     for h in heads:
         mean, lo, hi = paired_interval([costs[1][k][h] - costs[2][k][h] for k in keys])
-        difference.append(f"{fmt(mean, spec)} [{fmt(lo, spec)}, {fmt(hi, spec)}]")
+        difference.append(fmt_interval(mean, lo, hi, spec))
     physics, learned, oracle = (np.mean([c[k]["total"] for k in keys]) for c in costs)
     gap = (physics - learned) / (physics - oracle) if physics - oracle > 1e-12 else math.nan
     return "\n".join([
