@@ -214,6 +214,100 @@ def test_backends_wrap_the_models_and_refuse_the_unknown(tiny_run):
     )
 
 
+# --- the GPU backend (its parity runs where torch sees a GPU) ---------------------------------
+
+GPU = pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no GPU here")
+GPU_MODES = [
+    ("lstm-attention", {}),
+    (PHYSICS_STEP, {}),
+    (PHYSICS_STEP, {"load_estimate": "smoothed", "constants": "window", "constants_input": True}),
+    (PHYSICS_STEP, {"num_layers": 3, "embed_sizes": (12, 10, 9), "head_sizes": (11, 7, 6)}),
+]
+
+
+def test_cuda_backend_without_a_gpu_is_refused_by_name(monkeypatch, run_cli, tmp_path):
+    from slungload.deploy.mpc_benchmark import benchmark_mpc
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(ValueError, match="cuda backend runs on a GPU.*sees none"):
+        with_backend(PhysicsModel(PARAMS), "cuda")
+    with pytest.raises(ValueError, match="cuda backend: torch .* sees no GPU"):
+        benchmark_mpc(samples=(3,), horizons=(4,), backends=("compiled", "cuda"))
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)  # refused before the device
+    with pytest.raises(ValueError, match="constants='window' reads its constants on the host"):
+        with_backend(PhysicsModel(PARAMS, constants="window"), "cuda")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    code, _, err = run_cli(
+        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "4", "--horizon",
+        "5", "--steps", "8", "--out", tmp_path / "ctl", "--quiet", "--backend", "cuda",
+    )  # fmt: skip
+    assert code == 2 and "cuda backend runs on a GPU" in err and "Traceback" not in err
+    assert not (tmp_path / "ctl" / "results.json").exists()
+
+
+@GPU
+@pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
+def test_cuda_physics_is_the_physics_model(params):
+    gen = torch.Generator().manual_seed(6)
+    x_hist, u_past = random_history(4, gen)
+    eager = PhysicsModel(params)
+    gpu = with_backend(eager, "cuda")
+    for _ in range(2):  # the second call replays the first one's graph on new inputs
+        x_hist[-1, VEL] = torch.randn(3, generator=gen, dtype=torch.float64)
+        plans = random_plans(K, 40, gen, scale=2.0)
+        got = gpu.predict_candidates(x_hist, u_past, plans)
+        assert got.device.type == "cpu" and got.dtype == torch.float64
+        torch.testing.assert_close(got, eager.predict_candidates(x_hist, u_past, plans),
+                                   rtol=0, atol=1e-9)  # fmt: skip
+
+
+@GPU
+@pytest.mark.parametrize(("architecture", "change"), GPU_MODES)
+def test_cuda_network_matches_the_eager_network_and_leaves_it_on_the_cpu(architecture, change):
+    net = random_network(replace(TINY, architecture=architecture, **change), PARAMS)
+    eager = NetworkModel(net, 50)
+    gpu = with_backend(eager, "cuda")
+    gen = torch.Generator().manual_seed(7)
+    for k, n in [(K, 15), (K, 15), (5, 7)]:  # a replay on new inputs, then a second graph
+        x_hist, u_past = random_history(50, gen)
+        plans = random_plans(k, n, gen, scale=1.0)
+        got = gpu.predict_candidates(x_hist, u_past, plans)
+        want = eager.predict_candidates(x_hist, u_past, plans)
+        assert got.shape == (k, n, 13) and got.device.type == "cpu"
+        assert got.dtype == torch.float64
+        assert (got - want).abs().max().item() <= PARITY_TOLERANCE
+    assert next(net.parameters()).device.type == "cpu"  # the eager model stays where it was
+    assert next(gpu.model.net.parameters()).device.type == "cuda"
+
+
+@GPU
+def test_control_flies_on_the_cuda_backend(run_cli, tmp_path):
+    out = tmp_path / "ctl"
+    code, _, err = run_cli(
+        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "64",
+        "--horizon", "5", "--steps", "40", "--out", out, "--quiet", "--backend", "cuda",
+    )  # fmt: skip
+    assert code == 0, err
+    results = json.loads((out / "results.json").read_text())
+    assert results["settings"]["backend"] == "cuda"
+    assert all(r["completed"] for r in results["rows"])
+
+
+@GPU
+def test_mpc_benchmark_times_the_gpu_beside_the_cpu():
+    from slungload.deploy.mpc_benchmark import benchmark_mpc
+
+    config = replace(TINY, architecture=PHYSICS_STEP)
+    result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config,
+                           backends=("cuda", "compiled"))  # fmt: skip
+    assert result.reference == "compiled"  # the first of TIMED's order
+    rows = {(r.model, r.backend): r for r in result.rows}
+    assert set(rows) == {(m, b) for m in ("physics", "physics-step network")
+                         for b in ("compiled", "cuda")}  # fmt: skip
+    assert rows[("physics", "cuda")].max_abs_diff <= 1e-9
+    assert rows[("physics-step network", "cuda")].max_abs_diff <= PARITY_TOLERANCE
+
+
 def test_control_flies_on_the_compiled_backend(run_cli, tmp_path):
     out = tmp_path / "ctl"
     code, _, err = run_cli(
@@ -235,7 +329,12 @@ def test_mpc_benchmark_times_every_backend_on_the_same_calls():
     config = replace(TINY, architecture=PHYSICS_STEP)
     result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config)
     rows = {(r.model, r.backend): r for r in result.rows}
-    assert set(rows) == {
+    gpu = (
+        {("physics", "cuda"), ("physics-step network", "cuda")}
+        if torch.cuda.is_available()
+        else set()
+    )
+    assert set(rows) == gpu | {
         ("physics", "eager"), ("physics", "compiled"), ("physics-step network", "eager"),
         ("physics-step network", "compiled"), ("physics-step network", "onnxruntime"),
     }  # fmt: skip
@@ -247,6 +346,26 @@ def test_mpc_benchmark_times_every_backend_on_the_same_calls():
     table = result.markdown()
     assert "| physics-step network | compiled | 4 | 3 | 5 |" in table
     assert "load average (1 min)" in table and "custom-size" in table
+    assert ("No cuda row" in table) == (not torch.cuda.is_available())
+
+
+def test_mpc_benchmark_times_the_backends_asked_for_against_the_first():
+    from slungload.deploy.mpc_benchmark import benchmark_mpc
+
+    config = replace(TINY, architecture=PHYSICS_STEP)
+    result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config,
+                           backends=("onnxruntime", "compiled"))  # fmt: skip
+    assert result.reference == "compiled"
+    rows = {(r.model, r.backend): r for r in result.rows}
+    assert set(rows) == {("physics", "compiled"), ("physics-step network", "compiled"),
+                         ("physics-step network", "onnxruntime")}  # fmt: skip
+    assert rows[("physics-step network", "compiled")].speedup == 1.0
+    assert rows[("physics-step network", "onnxruntime")].max_abs_diff <= PARITY_TOLERANCE
+    table = result.markdown()
+    assert "speed-up against compiled" in table
+    assert "| physics-step network | compiled | 4 | 3 | 5 |" in table and "| - |" in table
+    with pytest.raises(ValueError, match="known: .*'cuda', 'onnxruntime'"):
+        benchmark_mpc(samples=(3,), horizons=(4,), backends=("compiled", "fast"))
 
 
 def test_benchmark_mpc_command(run_cli, tmp_path):

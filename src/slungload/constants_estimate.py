@@ -184,7 +184,7 @@ def _smoothed_balance(
     thrust = split_input(inputs)[0][..., 1:-1]  # (..., M-2)
     b = quat_to_rotmat(q[..., 1:-1, :])[..., :, 2]  # body z, (..., M-2, 3)
     up = torch.zeros(3, dtype=states.dtype, device=states.device)
-    up[2] = params.gravity
+    up[2:].fill_(params.gravity)  # a fill on the device: no copy (a CUDA graph allows none)
     acc = (p[..., 2:, :] - 2 * p[..., 1:-1, :] + p[..., :-2, :]) / (h * h) + up
     acc_load = (p_load[..., 2:, :] - 2 * p_load[..., 1:-1, :] + p_load[..., :-2, :]) / (h * h) + up
     vel = (p[..., 2:, :] - p[..., :-2, :]) / (2 * h)

@@ -10,6 +10,8 @@ smoothed estimate). Pure batched torch beside ``physics``; the compiled copy in
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -62,6 +64,13 @@ def load_fit_coefficients(steps: int, dt: float) -> np.ndarray:
     return np.linalg.pinv(basis)[1]  # the row giving the linear coefficient = slope at t = 0
 
 
+@functools.lru_cache(maxsize=64)
+def _fit_coefficients(steps: int, dt: float, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """``load_fit_coefficients`` as a tensor on ``device``, made once: a copy to a GPU at every
+    call would also stop the call from being captured as a CUDA graph (``deploy.gpu``)."""
+    return torch.as_tensor(load_fit_coefficients(steps, dt), dtype=dtype).to(device)
+
+
 def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
     """Smoothed causal estimate of the load state at the last of K steps, (..., K, 13) ->
     (..., 6): vL and the rate of r = pL - p are the slopes of least-squares quadratics through
@@ -72,9 +81,7 @@ def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:
         if not bool((dt == dt.flatten()[0]).all()):
             raise ValueError("fit_load_state: the windows' time steps differ")
         dt = float(dt.flatten()[0])
-    c = torch.as_tensor(load_fit_coefficients(states.shape[-2], dt), dtype=states.dtype).to(
-        states.device
-    )
+    c = _fit_coefficients(states.shape[-2], float(dt), states.dtype, states.device)
     p, _, _, p_load = split_state(states)
     rel = p_load - p
     v_load = torch.einsum("k,...kd->...d", c, p_load)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from .common import choices, comma_ints, new_command
+from .common import choices, comma_ints, comma_names, new_command
 
 
 def add_export(sub: Any) -> None:
@@ -91,7 +91,7 @@ def add_benchmark(sub: Any) -> None:
     mpc = p.add_argument_group(
         "MPC rollouts",
         "--mpc times the sampling controller's call instead: predict_candidates of K plans of N "
-        "steps from one history, per backend (eager, compiled, onnxruntime), for the physics "
+        "steps from one history, per backend (eager, compiled, cuda, onnxruntime), for the physics "
         "model and the network (without RUN_DIR: a random physics-step network), one thread, "
         "median and p99 ms",
     )
@@ -103,6 +103,11 @@ def add_benchmark(sub: Any) -> None:
     mpc.add_argument(
         "--horizons", type=comma_ints, default=[15, 50], metavar="N,N",
         help="horizons N (default 15,50)",
+    )  # fmt: skip
+    mpc.add_argument(
+        "--backends", type=comma_names, metavar="NAME,NAME",
+        help="what to time: " + ", ".join(choices("backends")) + " or onnxruntime (the "
+        "exported graph) (default every one that runs here: cuda where torch sees a GPU)",
     )  # fmt: skip
     mpc.add_argument(
         "--size", choices=choices("sizes"),
@@ -138,7 +143,7 @@ def _benchmark_mpc(args: argparse.Namespace) -> int:
     config = ModelConfig.sized(args.size or "paper", architecture=args.model or "physics-step")
     result = benchmark_mpc(
         args.run, samples=args.samples, horizons=args.horizons, quick=args.quick,
-        model_config=config,
+        model_config=config, backends=args.backends,
     )  # fmt: skip
     return _show(result.markdown(), args.out)
 

@@ -6,14 +6,17 @@
 What one control step of the MPC costs in prediction: one history (M = 50 rows) and K plans of
 N steps, ``PredictionModel.predict_candidates`` (float64 tensors in and out, as the MPC calls
 it), for the physics model and a network, on every backend of ``deploy.compiled.BACKENDS``
-(eager torch, compiled kernels) and on ONNX Runtime over the exported candidates graph
-(``deploy.candidates``, numpy in and out, as the onboard MPC calls it). One thread (torch's and
-ONNX Runtime's). The backends of one (model, K, N) are timed interleaved, one call each in
-turn, so a change in the machine's load hits them alike; each gets ``calls`` calls or what fits
-in ``seconds`` (at least ``MIN_CALLS``), after two warm-up calls. Median and p99 of the wall
+(eager torch, compiled kernels, eager torch on the GPU where torch sees one) and on ONNX
+Runtime over the exported candidates graph (``deploy.candidates``, numpy in and out, as the
+onboard MPC calls it); ``backends`` picks some. One thread (torch's and ONNX Runtime's); the
+GPU's calls are whole: host arrays in, the device's work, host arrays out. The backends of one
+(model, K, N) are timed interleaved, one call each in turn, so a change in the machine's load
+hits them alike; each gets ``calls`` calls or what fits in ``seconds`` (at least
+``MIN_CALLS``), after two warm-up calls. Median and p99 of the wall
 clock per call, the calling thread's median CPU time (what other processes inflate least), the
-speed-up against eager in the same run and the largest difference from eager's prediction; the
-load average is stamped at the start and the end.
+speed-up against eager in the same run and the largest difference from eager's prediction
+(against the first backend timed where eager is not); the load average is stamped at the start
+and the end.
 """
 
 from __future__ import annotations
@@ -33,10 +36,11 @@ from ..config import ModelConfig, WindowConfig
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..reporting import load_average, machine_line, markdown_table, versions
 from .benchmarks import PACKAGES, benchmark_predictor, physics_windows
-from .compiled.batched import BACKENDS, with_backend
+from .compiled.batched import BACKENDS, CUDA, with_backend
 from .predictor import Predictor, torch_threads
 
 ONNX = "onnxruntime"  # the exported candidates graph (``deploy.onboard.OnnxCandidateModel``)
+TIMED = (*BACKENDS, ONNX)  # what ``benchmark_mpc`` can time, by name
 MIN_CALLS = 5
 HISTORY = 50  # M of the benchmark's history without a run (a run's own M otherwise)
 
@@ -53,8 +57,8 @@ class RolloutTiming:
     median_ms: float
     p99_ms: float  # the largest of fewer than 100 calls is at least the p99
     cpu_median_ms: float  # the calling thread's CPU time: what a busy machine inflates least
-    speedup: float  # eager's median / this median, same run
-    max_abs_diff: float  # largest |this - eager| over the K x N x 13 predictions
+    speedup: float  # the reference's median / this median, same run
+    max_abs_diff: float  # largest |this - the reference| over the K x N x 13 predictions
 
 
 @dataclass(frozen=True)
@@ -70,6 +74,7 @@ class MPCBenchmark:
     load_average: tuple[float | None, float | None]  # 1-min, at the start and the end
     quick: bool
     notes: list[str] = field(default_factory=list)
+    reference: str = "eager"  # the backend the speed-up and the difference are against
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -81,7 +86,7 @@ class MPCBenchmark:
         rows = [
             [r.model, r.backend, r.horizon, r.samples, r.calls, f"{r.median_ms:.1f}",
              f"{r.p99_ms:.1f}", f"{r.cpu_median_ms:.1f}", f"{r.speedup:.2f}x",
-             "-" if r.backend == "eager" else f"{r.max_abs_diff:.1e}"]
+             "-" if r.backend == self.reference else f"{r.max_abs_diff:.1e}"]
             for r in self.rows
         ]  # fmt: skip
         lines = [
@@ -91,7 +96,7 @@ class MPCBenchmark:
             "",
             f"MPC-shaped rollouts: `predict_candidates` with M = {self.history}, one thread, "
             f"load average (1 min) {start} at the start, {end} at the end; backends of a row "
-            "group timed interleaved; speed-up against eager in the same run:",
+            f"group timed interleaved; speed-up against {self.reference} in the same run:",
             "",
             markdown_table(header, rows),
         ]
@@ -107,7 +112,7 @@ def benchmark_mpc(
     quick: bool = False,
     calls: int | None = None,
     seconds: float | None = None,
-    onnx: bool = True,
+    backends: Sequence[str] | None = None,
     physics: bool = True,
     model_config: ModelConfig | None = None,
     seed: int = 0,
@@ -117,9 +122,12 @@ def benchmark_mpc(
     run: a run folder or checkpoint (default: a random network of ``model_config``, default the
     paper-size physics-step network, normalisation fitted on physics windows). calls: at most
     this many timed calls per backend and (K, N) (default 100, quick 10); seconds: the time
-    each may take (default 10, quick 1). onnx: also time the exported candidates graph on ONNX
-    Runtime; physics: also time the physics model.
+    each may take (default 10, quick 1). backends: which of ``TIMED`` (default every one that
+    runs here: ``cuda`` where torch sees a GPU, with a note where not); physics: also time the
+    physics model.
     """
+    notes: list[str] = []
+    backends = _chosen(backends, notes)
     calls = calls or (10 if quick else 100)
     seconds = seconds or (1.0 if quick else 10.0)
     load_start = load_average()
@@ -131,19 +139,20 @@ def benchmark_mpc(
     net = NetworkModel(predictor.model, m, name=f"{predictor.model.architecture} network")
     models: list[PredictionModel] = ([PhysicsModel(predictor.params)] if physics else []) + [net]
     rows: list[RolloutTiming] = []
-    notes: list[str] = []
     with tempfile.TemporaryDirectory(prefix="slungload-mpc-") as tmp, torch_threads(1):
         for n in horizons:
-            onnx_model = _onnx_model(predictor, n, Path(tmp), notes) if onnx else None
+            onnx_model = _onnx_model(predictor, n, Path(tmp), notes) if ONNX in backends else None
             for model in models:
                 for k in samples:
-                    fns = _backends(model, onnx_model if model is net else None)
-                    args = _inputs(m, k, n, seed)
-                    rows += _time_group(model.name, fns, args, k, n, calls, seconds)
+                    fns = _backends(model, backends, onnx_model if model is net else None)
+                    if fns:  # none for the physics model when only onnxruntime is timed
+                        args = _inputs(m, k, n, seed)
+                        rows += _time_group(model.name, fns, args, k, n, calls, seconds)
     notes += [
-        "eager and compiled: PredictionModel.predict_candidates on float64 tensors (the "
-        "torch MPC's call); onnxruntime: OnnxCandidateModel.predict_candidates on float64 "
-        "arrays (the onboard MPC's call), an export of the same network per N.",
+        "eager, compiled and cuda: PredictionModel.predict_candidates on float64 CPU tensors "
+        "(the torch MPC's call; cuda moves them to the GPU and the states back); onnxruntime: "
+        "OnnxCandidateModel.predict_candidates on float64 arrays (the onboard MPC's call), an "
+        "export of the same network per N.",
         "The physics model runs in float64 on every backend; the network in float32.",
     ]
     return MPCBenchmark(
@@ -156,13 +165,31 @@ def benchmark_mpc(
         (load_start, load_average()),
         quick,
         notes,
+        backends[0],
     )
 
 
 Call = Callable[[tuple[Any, ...]], np.ndarray]
 
 
-def _backends(model: PredictionModel, onnx_model: Any | None) -> dict[str, Call]:
+def _chosen(backends: Sequence[str] | None, notes: list[str]) -> tuple[str, ...]:
+    """The backends to time, eager first where chosen (the reference); by default every one
+    that runs here."""
+    if backends is None:
+        backends = TIMED if torch.cuda.is_available() else tuple(b for b in TIMED if b != CUDA)
+        if CUDA not in backends:
+            notes.append(f"No {CUDA} row: torch {torch.__version__} sees no GPU here.")
+    unknown = [b for b in backends if b not in TIMED]
+    if unknown or not backends:
+        raise ValueError(f"backends to time: {list(backends)}; known: {list(TIMED)}")
+    if CUDA in backends and not torch.cuda.is_available():
+        raise ValueError(f"the {CUDA} backend: torch {torch.__version__} sees no GPU here")
+    return tuple(sorted(dict.fromkeys(backends), key=TIMED.index))
+
+
+def _backends(
+    model: PredictionModel, backends: Sequence[str], onnx_model: Any | None
+) -> dict[str, Call]:
     """Backend name -> a call on (x_hist, u_past, plans) float64 arrays returning numpy."""
 
     def torch_call(m: PredictionModel) -> Call:
@@ -172,7 +199,7 @@ def _backends(model: PredictionModel, onnx_model: Any | None) -> dict[str, Call]
 
         return call
 
-    fns = {name: torch_call(with_backend(model, name)) for name in BACKENDS}
+    fns = {name: torch_call(with_backend(model, name)) for name in backends if name != ONNX}
     if onnx_model is not None:
         fns[ONNX] = lambda args: onnx_model.predict_candidates(*args)
     return fns
@@ -224,7 +251,8 @@ def _time_group(
                 fn(args)
                 times[name].append(time.perf_counter() - start)
                 cpu[name].append(time.thread_time() - start_cpu)
-    eager_ms = float(np.median(times["eager"])) * 1e3
+    reference = next(iter(fns))  # eager where timed: ``_chosen`` puts it first
+    reference_ms = float(np.median(times[reference])) * 1e3
     rows = []
     for name in fns:
         ms = np.array(times[name]) * 1e3
@@ -238,8 +266,8 @@ def _time_group(
                 float(np.median(ms)),
                 float(np.percentile(ms, 99)),
                 float(np.median(cpu[name])) * 1e3,
-                eager_ms / float(np.median(ms)),
-                float(np.abs(outputs[name] - outputs["eager"]).max()),
+                reference_ms / float(np.median(ms)),
+                float(np.abs(outputs[name] - outputs[reference]).max()),
             )  # fmt: skip
         )
     return rows

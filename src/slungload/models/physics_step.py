@@ -134,8 +134,9 @@ class PhysicsStepNet(SlungLoadNet):
             return None
         like = carry.x
         ratios = constant_ratios(carry.params, self.reference)
+        b = like.shape[0]  # a float is filled on the device: no copy (CUDA graphs allow none)
         return torch.stack(
-            [torch.as_tensor(r, dtype=like.dtype, device=like.device).expand(like.shape[0])
+            [r.to(like).expand(b) if isinstance(r, Tensor) else like.new_full((b,), r)
              for r in ratios], dim=-1,
         )  # fmt: skip
 

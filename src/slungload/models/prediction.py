@@ -78,7 +78,8 @@ class PhysicsModel:
     or "flight" (each window's flight's recorded constants, ``Windows.constants``: the truth
     of simulated varied loads; windows only). prior_weight: the in-flight estimate's mass
     prior ("window"; ``constants_estimate.estimate_constants``), (m/s^2)^2 per equation.
-    batch_size: windows per rollout in ``predict_windows``.
+    batch_size: windows per rollout in ``predict_windows``. device: where
+    ``predict_candidates`` rolls out (its inputs moved there, the states back to the plans').
     """
 
     params: VehicleParams
@@ -87,6 +88,7 @@ class PhysicsModel:
     batch_size: int = 8192
     constants: str = "dataset"
     prior_weight: float = ADAPT_PRIOR_WEIGHT
+    device: str | torch.device = "cpu"
 
     def __post_init__(self) -> None:
         if self.constants not in CONSTANTS_SOURCES:
@@ -127,7 +129,9 @@ class PhysicsModel:
                 "physics with the flights' constants predicts windows only; a controller "
                 "knows no flight (give it PhysicsModel(true_params) instead)"
             )
-        x_hist = x_hist.to(plans.dtype)
+        home = plans.device
+        x_hist, u_past = x_hist.to(self.device, plans.dtype), u_past.to(self.device)
+        plans = plans.to(self.device)
         params: physics.Vehicle = self.params
         if self.constants == "window":  # the history's inputs; u_k is not used by the estimate
             u = torch.cat([u_past.to(plans.dtype), plans[0, :1]])
@@ -140,7 +144,7 @@ class PhysicsModel:
         states, _ = physics.rollout(
             x_hist[-1].expand(k, STATE_DIM), aux.expand(k, AUX_DIM), plans, params
         )
-        return states
+        return states.to(home)
 
 
 @dataclass

@@ -23,8 +23,10 @@ H, GELUs, gates, quaternions) and allocations cost as much as the matrix product
 
 Both equal the eager model to float32 rounding for the network (tests: both architectures,
 every model mode) and to round-off for the physics (float64); ``predict_windows`` is the eager
-model's. ``load_model(spec, params, backend=...)`` picks one of ``BACKENDS``; a model a
-backend cannot run is a ``ValueError`` naming why, never a silent fallback.
+model's. The ``cuda`` backend is the eager model on the GPU, replayed from CUDA graphs
+(``deploy.gpu``; CPU tensors in and out, as the MPC calls it). ``load_model(spec, params,
+backend=...)`` picks one of ``BACKENDS``; a model a backend cannot run, or a GPU that torch
+does not see, is a ``ValueError`` naming why, never a silent fallback.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from ...models.prediction import (
     load_prediction_model,
 )
 from ...physics import VehicleConstants
+from ..gpu import CUDA, on_gpu
 from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
 from .physics import (
@@ -375,11 +378,14 @@ def _next_columns(xu, y, aux, mode, add_mean, vehicle, u_next, origin, out, step
 def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
     """``model`` on ``backend`` (one of ``BACKENDS``): itself for "eager"; for "compiled" a
     ``CompiledPhysicsModel`` of a ``PhysicsModel`` or a ``CompiledNetworkModel`` of a
-    ``NetworkModel`` on the CPU. Anything else is a ``ValueError`` naming why."""
+    ``NetworkModel`` on the CPU; for "cuda" a ``deploy.gpu.GraphedModel`` of a copy on the GPU.
+    Anything else is a ``ValueError`` naming why, a GPU that torch does not see too."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
     if backend == "eager":
         return model
+    if backend == CUDA:
+        return on_gpu(model)
     if isinstance(model, PhysicsModel):
         return CompiledPhysicsModel(
             model.params, model.name, model.history, model.constants, model.prior_weight
