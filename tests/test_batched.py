@@ -245,6 +245,36 @@ def test_cuda_backend_without_a_gpu_is_refused_by_name(monkeypatch, run_cli, tmp
     assert not (tmp_path / "ctl" / "results.json").exists()
 
 
+def test_graphed_model_keeps_a_few_shapes_and_drops_the_least_recently_used(monkeypatch):
+    from slungload.deploy import gpu
+
+    captured = []
+
+    def fake_capture(self, x_hist, u_past, plans):  # no GPU here: a graph that replays eager
+        captured.append(plans.shape[0])
+        inputs = [t.clone() for t in (x_hist, u_past, plans)]
+        states = torch.zeros(*plans.shape[:2], 13, dtype=plans.dtype)
+
+        class Replay:
+            def replay(self):
+                states.copy_(PhysicsModel(PARAMS).predict_candidates(*inputs))
+
+        return gpu._Graph(*inputs, Replay(), states)
+
+    monkeypatch.setattr(gpu.GraphedModel, "_capture", fake_capture)
+    model = gpu.GraphedModel(PhysicsModel(PARAMS))
+    gen = torch.Generator().manual_seed(8)
+    x_hist, u_past = random_history(4, gen)
+    for k in [*range(1, gpu.MAX_GRAPHS + 1), 1, gpu.MAX_GRAPHS + 1, 2]:
+        plans = random_plans(k, 3, gen)
+        got = model.predict_candidates(x_hist, u_past, plans)
+        want = PhysicsModel(PARAMS).predict_candidates(x_hist, u_past, plans)
+        torch.testing.assert_close(got, want, rtol=0, atol=0)  # the new inputs, replayed
+    # K = 1 replayed from its graph; K = MAX + 1 then pushed out K = 2, the least recently used
+    assert captured == [*range(1, gpu.MAX_GRAPHS + 1), gpu.MAX_GRAPHS + 1, 2]
+    assert len(model._graphs) == gpu.MAX_GRAPHS
+
+
 @GPU
 @pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
 def test_cuda_physics_is_the_physics_model(params):

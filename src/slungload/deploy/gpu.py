@@ -8,7 +8,8 @@ decoder ~60 per horizon step, the physics ~50), so on a GPU a call costs what la
 costs, whatever K. ``GraphedModel`` captures one call per input shape (M, K, N, dtype) as a CUDA
 graph after warm-up calls, then answers each call by copying the inputs into that graph's
 buffers, replaying it and copying the states back: what the MPC calls once per control step
-with the same shapes. The eager model on the device (``model``) answers ``predict_windows``.
+with the same shapes (``MAX_GRAPHS`` shapes are kept, the least recently used dropped). The eager
+model on the device (``model``) answers ``predict_windows``.
 
 What a graph cannot hold is refused when the backend is chosen, never left to fail or fall
 back in flight: the physics model with constants estimated in flight (it reads its estimate
@@ -29,6 +30,7 @@ from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel, che
 
 CUDA = "cuda"
 WARMUP_CALLS = 3  # eager calls on a side stream before a capture (cuBLAS and allocator set-up)
+MAX_GRAPHS = 8  # shapes kept per model (the MPC calls one); the least recently used goes first
 
 
 @dataclass
@@ -58,13 +60,16 @@ class GraphedModel:
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
         key = (x_hist.shape[0], *plans.shape[:2], x_hist.dtype, u_past.dtype, plans.dtype)
-        graph = self._graphs.get(key)
+        graph = self._graphs.pop(key, None)  # put back last: the most recently used
         if graph is None:
-            graph = self._graphs[key] = self._capture(x_hist, u_past, plans)
+            if len(self._graphs) >= MAX_GRAPHS:  # each holds its own device memory
+                del self._graphs[next(iter(self._graphs))]
+            graph = self._capture(x_hist, u_past, plans)
         else:
             graph.x_hist.copy_(x_hist)
             graph.u_past.copy_(u_past)
             graph.plans.copy_(plans)
+        self._graphs[key] = graph
         graph.graph.replay()
         return graph.states.to(plans.device, copy=True)  # waits for the replay
 
