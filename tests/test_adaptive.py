@@ -356,6 +356,19 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "loads.png").exists()
     flown = f"swing bound {np.degrees(cfg.max_swing):.0f} deg, floor {cfg.min_height} m"
     assert flown in report  # the settings flown
+    # the network's training preset is kept beside its flights; a smoke run's is bannered
+    from slungload.fileio import read_json, write_json
+    from slungload.models.checkpoints import load_checkpoint
+    from slungload.run_config import SMOKE_PRESET
+
+    kept = tmp_path / "loads-mpc-adaptive.json"
+    assert read_json(kept)["preset"] == load_checkpoint(adaptive_run).meta.get("preset")
+    assert (read_json(kept)["preset"] == SMOKE_PRESET) == ("Smoke run" in report)
+    write_json(kept, read_json(kept) | {"preset": SMOKE_PRESET})
+    bannered = write_loads_report(rows, cfg, tmp_path).read_text()
+    assert "Smoke run: these numbers are not results" in bannered.split("| load |")[0]
+    write_json(kept, read_json(kept) | {"preset": "default"})
+    assert "Smoke run" not in write_loads_report(rows, cfg, tmp_path).read_text()
     stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
     assert fly_loads(adaptive_run, tmp_path, cfg, progress=None) == rows  # nothing flown again
     assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}

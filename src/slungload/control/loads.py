@@ -39,8 +39,10 @@ from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model, with_backend
 from ..deploy.predictor import torch_threads
 from ..fileio import read_json, write_json, write_text
+from ..models.checkpoints import load_checkpoint
 from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
-from ..reporting import markdown_table, save_figure
+from ..reporting import markdown_table, save_figure, smoke_banner
+from ..run_config import SMOKE_PRESET
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
 from ..sim.dataset import vehicle_params
@@ -111,8 +113,10 @@ def fly_loads(
                 f"{other} holds flights built for another nominal vehicle than {network}'s "
                 "(its PID and physics flights would be reused for this one); use another --out"
             )
+    preset = load_checkpoint(network).meta.get("preset")  # for the report's smoke banner
     write_json(out / f"loads-{name}.json", {"network": str(network), "config": asdict(cfg),
-                                            "nominal": asdict(nominal)})  # fmt: skip
+                                            "nominal": asdict(nominal),
+                                            "preset": preset})  # fmt: skip
     with torch_threads(threads):
         for load_mass, cable_length in cfg.loads:
             plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
@@ -175,9 +179,16 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     pairs += [(label(m, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)) for m in networks]
     if len(networks) == 2:  # what adapting f buys, both MPCs in flight
         pairs.append((label(ADAPTIVE, IN_FLIGHT), label(FIXED, IN_FLIGHT)))
+    smoke = [read_json(f)["network"] for f in sorted(out.glob("loads-*.json"))
+             if read_json(f).get("preset") == SMOKE_PRESET]  # fmt: skip
     lines = [
         "# The MPC on loads its model never saw",
         "",
+        *(
+            smoke_banner("The networks " + ", ".join(f"`{m}`" for m in smoke), SMOKE_PRESET)
+            if smoke
+            else []
+        ),  # fmt: skip
         f"K = {config.samples}, N = {config.horizon} "
         f"({config.horizon * SimConfig.control_dt:.2f} s), temperature {config.temperature}, "
         f"swing bound {math.degrees(config.max_swing):.0f} deg, floor {config.min_height} m; "
