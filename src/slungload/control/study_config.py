@@ -37,6 +37,11 @@ SWING_BOUND = 0.7  # rad (40 deg): the swing angle beyond it costs (``MPCConfig.
 # and the report lists the MPC flights past it where the geometric controller stayed below
 UNSAFE_SWING = 60.0
 FLOOR = 1.0  # m, 0.5 m below the hover height: lower costs (``MPCConfig.min_height``)
+# What every closed-loop benchmark flies unless told otherwise (the study, --loads, --record)
+SAMPLES = 256  # K of a real-time MPC
+STEPS = 300  # recorded steps per flight (9 s; None in a config: the maneuver's whole length)
+BACKEND = "compiled"  # what the real models predict on (``config.PREDICTION_BACKENDS``)
+LEARNED_TEMPERATURE = 0.1  # the control study's choice for the learned model's MPC
 COST_GRID: tuple[dict[str, float], ...] = (
     {"max_swing": SWING_BOUND},
     {"position_huber": 0.5},
@@ -66,15 +71,15 @@ class StudyConfig:
     # flight or large swing shows up in the tuning too
     tuning_seeds: tuple[int, ...] = (200, 201, 202, 203, 204)
     horizons: tuple[int, ...] = (15, 25, 50)  # N, steps of 0.03 s
-    samples: int = 256  # K of the learned model's MPC
+    samples: int = SAMPLES  # K of the learned model's MPC
     oracle_samples: int = 32  # K of the oracle's MPC (it is not real time)
     oracle_horizons: tuple[int, ...] = (15,)
     shifts: tuple[str, ...] = tuple(SHIFTS)
     # N of the real MPCs on the shifted plants, among ``horizons`` (empty: the first of them)
     shift_horizons: tuple[int, ...] = ()
-    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
+    steps: int | None = STEPS
     tune: bool = True  # choose each MPC's noise and temperature on the tuning seeds
-    backend: str = "compiled"  # what the real models predict on
+    backend: str = BACKEND
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -106,18 +111,18 @@ class UnseenLoadsConfig:
     loads: tuple[tuple[float, float], ...] = ((0.13, 0.65), (0.22, 0.85), (0.32, 1.0))
     maneuvers: tuple[str, ...] = STUDY_MANEUVERS
     seeds: tuple[int, ...] = (100, 101, 102)
-    samples: int = 256  # K
+    samples: int = SAMPLES  # K
     # N, steps of 0.03 s: at 15 (0.45 s) the adaptive MPC lost 4 of 45 flights on position
     # steps, at 25 (0.75 s) 2, where the control study's learned MPC also loses none
     horizon: int = 25
-    temperature: float = 0.1  # the control study's choice for the learned model
+    temperature: float = LEARNED_TEMPERATURE
     # the swing bound, likewise: at N = 25 it keeps those 2 in the arena
     max_swing: float = SWING_BOUND
     # the floor under the vehicle: it keeps in the arena the one flight the adaptive MPC still
     # lost in flight with the bound alone (xy_step, seed 100, 0.13 kg)
     min_height: float = FLOOR
-    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
-    backend: str = "compiled"  # what the models predict on
+    steps: int | None = STEPS
+    backend: str = BACKEND
 
     def __post_init__(self) -> None:
         _check_steps("UnseenLoadsConfig", self.steps)
@@ -150,12 +155,12 @@ class RecordConfig:
         *((maneuver, 5) for maneuver in STUDY_MANEUVERS if maneuver != "xy_step"),
     )
     first_seed: int = 1000  # none of the benchmarks' seeds (``BENCHMARK_SEEDS``)
-    samples: int = 256  # K
+    samples: int = SAMPLES  # K
     horizon: int = 15  # N, steps of 0.03 s
-    temperature: float = 0.1
+    temperature: float = LEARNED_TEMPERATURE
     max_swing: float = SWING_BOUND  # rad
-    steps: int | None = 300  # recorded steps per flight (None: the maneuver's whole length)
-    backend: str = "compiled"  # what the model predicts on
+    steps: int | None = STEPS
+    backend: str = BACKEND
 
     def __post_init__(self) -> None:
         _check_steps("RecordConfig", self.steps)
