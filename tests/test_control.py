@@ -148,6 +148,22 @@ def test_a_model_that_raises_falls_back():
     assert mpc.stats.fallbacks == {"prediction error (RuntimeError)": 1}
 
 
+def test_a_model_is_prepared_for_the_mpcs_calls_before_the_flight():
+    class Prepared(PhysicsModel):  # as deploy.gpu.GraphedModel: it captures at these shapes
+        asked: list = []
+
+        def prepare(self, history, samples, horizon):
+            self.asked.append((history, samples, horizon))
+            if samples > 8:
+                raise ValueError("cannot capture this one")
+
+    model = Prepared(PARAMS)
+    SamplingMPC(model, LIMITS, replace(FAST, samples=8, horizon=6), PARAMS)
+    assert model.asked == [(2, 8, 6)]  # M = the model's history (at least 2), K, N
+    with pytest.raises(ValueError, match="cannot capture"):  # before flying, not a fallback
+        SamplingMPC(model, LIMITS, replace(FAST, samples=9), PARAMS)
+
+
 def test_input_limits():
     assert LIMITS.contains(np.array([HOVER_T, 4.0, -4.0, 0.0]))
     assert not LIMITS.contains(np.array([HOVER_T, 4.1, 0.0, 0.0]))

@@ -107,7 +107,8 @@ ARCHITECTURES: dict[str, str] = {
 PREDICTION_BACKENDS: dict[str, str] = {
     "eager": "torch operators (models.prediction)",
     "compiled": "compiled kernels: the physics in one float64 loop, a network in float32",
-    "cuda": "torch operators on the GPU: the physics in float64, a network in float32",
+    "cuda": "torch operators on the GPU, replayed from CUDA graphs: the physics in float64, a "
+    "network in float32",
 }
 
 

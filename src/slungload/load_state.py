@@ -64,11 +64,14 @@ def load_fit_coefficients(steps: int, dt: float) -> np.ndarray:
     return np.linalg.pinv(basis)[1]  # the row giving the linear coefficient = slope at t = 0
 
 
-@functools.lru_cache(maxsize=64)
+@functools.cache  # never freed: a captured CUDA graph may read one
 def _fit_coefficients(steps: int, dt: float, dtype: torch.dtype, device: torch.device) -> Tensor:
     """``load_fit_coefficients`` as a tensor on ``device``, made once: a copy to a GPU at every
-    call would also stop the call from being captured as a CUDA graph (``deploy.gpu``)."""
-    return torch.as_tensor(load_fit_coefficients(steps, dt), dtype=dtype).to(device)
+    call would also stop the call from being captured as a CUDA graph (``deploy.gpu``). A
+    plain tensor even when first asked for under ``torch.inference_mode`` (an inference tensor
+    could not be saved for a later backward pass)."""
+    with torch.inference_mode(False):
+        return torch.as_tensor(load_fit_coefficients(steps, dt), dtype=dtype).to(device)
 
 
 def fit_load_state(states: Tensor, params: VehicleParams) -> Tensor:

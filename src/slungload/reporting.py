@@ -62,6 +62,13 @@ def smoke_banner(which: str, preset: str) -> list[str]:
     ]
 
 
+def networks_banner(networks: Sequence[str], preset: str) -> list[str]:
+    """``smoke_banner`` for the networks named (no lines for none)."""
+    if not networks:
+        return []
+    return smoke_banner("The networks " + ", ".join(f"`{n}`" for n in networks), preset)
+
+
 def save_figure(fig: Figure, path: str | Path) -> Path:
     """Write ``fig`` as a PNG at ``DPI`` atomically (nothing at ``path`` on failure)."""
     path = Path(path)

@@ -7,6 +7,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from ..config import PREDICTION_BACKENDS
 from ..control.study_config import (
     CONTROLLERS,
     DEFAULT_MANEUVERS,
@@ -75,10 +76,11 @@ def add_control(sub: Any) -> None:
     p.add_argument(
         "--backend",
         choices=choices("backends"),
-        help="what the prediction models run on: eager torch, or compiled kernels (the physics "
-        "model in one compiled float64 loop, a network in float32 on compiled kernels and "
-        "torch's BLAS; equal to eager to float32 rounding; docs/deployment.md) (default "
-        f"eager; the study {StudyConfig.backend})",
+        help="what the prediction models run on: "
+        + "; ".join(f"{k}: {v}" for k, v in PREDICTION_BACKENDS.items())
+        + " (equal to eager to float32 rounding; cuda needs a CUDA build of torch and is "
+        "refused by --loads, whose in-flight physics model reads its estimate on the host; "
+        f"docs/deployment.md) (default eager; the study {StudyConfig.backend})",
     )
     study = p.add_argument_group(
         "the study (--study)",

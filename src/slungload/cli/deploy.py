@@ -122,8 +122,9 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
 
     if args.mpc:
         return _benchmark_mpc(args)
-    if args.size is not None:
-        raise ValueError("--size is for --mpc")
+    for name in ("size", "backends"):
+        if getattr(args, name) is not None:
+            raise ValueError(f"--{name} is for --mpc")
     config = None if args.model is None else ModelConfig(architecture=args.model)
     if config is not None and args.run is not None:
         raise ValueError("--model builds a random network; a RUN_DIR brings its own")

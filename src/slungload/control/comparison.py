@@ -58,7 +58,7 @@ def compare(
     samples: K values; each prediction model runs once per K. horizon: the MPC's N (default
     ``MPCConfig.horizon``). steps: cut every flight to this many recorded steps (smoke runs).
     threads: torch threads while flying (restored after). backend: what the prediction models
-    run on (``deploy.compiled.BACKENDS``: "eager" torch, or "compiled" kernels).
+    run on (``deploy.compiled.BACKENDS``: "eager" torch, "compiled" kernels, or "cuda").
     """
     unknown = [m for m in maneuvers if m not in MANEUVERS]
     if unknown:

@@ -41,7 +41,7 @@ from ..deploy.predictor import torch_threads
 from ..fileio import read_json, write_json, write_text
 from ..models.checkpoints import load_checkpoint
 from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
-from ..reporting import markdown_table, save_figure, smoke_banner
+from ..reporting import markdown_table, networks_banner, save_figure
 from ..run_config import SMOKE_PRESET
 from ..sim.config import SimConfig
 from ..sim.controller import PIDController
@@ -179,16 +179,12 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     pairs += [(label(m, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)) for m in networks]
     if len(networks) == 2:  # what adapting f buys, both MPCs in flight
         pairs.append((label(ADAPTIVE, IN_FLIGHT), label(FIXED, IN_FLIGHT)))
-    smoke = [read_json(f)["network"] for f in sorted(out.glob("loads-*.json"))
-             if read_json(f).get("preset") == SMOKE_PRESET]  # fmt: skip
+    flown_with = [read_json(f) for f in sorted(out.glob("loads-*.json"))]
+    smoke = [f["network"] for f in flown_with if f.get("preset") == SMOKE_PRESET]
     lines = [
         "# The MPC on loads its model never saw",
         "",
-        *(
-            smoke_banner("The networks " + ", ".join(f"`{m}`" for m in smoke), SMOKE_PRESET)
-            if smoke
-            else []
-        ),  # fmt: skip
+        *networks_banner(smoke, SMOKE_PRESET),
         f"K = {config.samples}, N = {config.horizon} "
         f"({config.horizon * SimConfig.control_dt:.2f} s), temperature {config.temperature}, "
         f"swing bound {math.degrees(config.max_swing):.0f} deg, floor {config.min_height} m; "

@@ -104,7 +104,9 @@ class SamplingMPC:
     length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of the
     in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
     ``core`` is the ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks;
-    ``plan`` is the nominal plan of the next step.
+    ``plan`` is the nominal plan of the next step. A model with ``prepare(M, K, N)``
+    (``deploy.gpu.GraphedModel``) is prepared for this MPC's calls here, so that what it
+    cannot run is an error before the flight rather than a fallback in it.
     """
 
     def __init__(
@@ -128,6 +130,10 @@ class SamplingMPC:
                 )
             estimate = window_estimate(params or VehicleParams())
         self.core = MPPIController(numpy_model, limits, config, params, estimate)
+        prepare = getattr(model, "prepare", None)  # a GPU model captures its graph now
+        if prepare is not None:
+            cfg = self.core.cfg
+            prepare(self.core.history.m, cfg.samples, cfg.horizon)
 
     def attach(self, plant) -> None:
         """Pass the flight's plant on to a model that predicts with it (``oracle``)."""

@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 
 from ..fileio import write_text
 from ..frames import swing_angle
-from ..reporting import markdown_table, model_colors, save_figure, smoke_banner
+from ..reporting import markdown_table, model_colors, networks_banner, save_figure
 from ..run_config import SMOKE_PRESET
 from ..sim.config import SimConfig
 from .closed_loop import FlightLog
@@ -95,11 +95,7 @@ def report_markdown(result: ControlComparison) -> str:
     parts = [
         "# Closed-loop control: PID vs sampling MPC",
         "",
-        *(
-            smoke_banner("The networks " + ", ".join(f"`{m}`" for m in smoke), SMOKE_PRESET)
-            if smoke
-            else []
-        ),  # fmt: skip
+        *networks_banner(smoke, SMOKE_PRESET),
         f"{s['date']}; maneuvers {', '.join(s['maneuvers'])}; sim seeds "
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
         f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "

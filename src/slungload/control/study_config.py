@@ -37,11 +37,13 @@ SWING_BOUND = 0.7  # rad (40 deg): the swing angle beyond it costs (``MPCConfig.
 # and the report lists the MPC flights past it where the geometric controller stayed below
 UNSAFE_SWING = 60.0
 FLOOR = 1.0  # m, 0.5 m below the hover height: lower costs (``MPCConfig.min_height``)
-# What every closed-loop benchmark flies unless told otherwise (the study, --loads, --record)
+# The defaults the study, --loads and --record share (plain ``control`` keeps MPCConfig's)
 SAMPLES = 256  # K of a real-time MPC
 STEPS = 300  # recorded steps per flight (9 s; None in a config: the maneuver's whole length)
 BACKEND = "compiled"  # what the real models predict on (``config.PREDICTION_BACKENDS``)
-LEARNED_TEMPERATURE = 0.1  # the control study's choice for the learned model's MPC
+# the temperature the control study's tuning chose for the learned model's MPC at N = 15
+# (docs/BENCHMARKS.md, 2026-11-25), fixed here for the flights that are not tuned
+LEARNED_TEMPERATURE = 0.1
 COST_GRID: tuple[dict[str, float], ...] = (
     {"max_swing": SWING_BOUND},
     {"position_huber": 0.5},

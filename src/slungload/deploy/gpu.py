@@ -11,10 +11,12 @@ buffers, replaying it and copying the states back: what the MPC calls once per c
 with the same shapes (``MAX_GRAPHS`` shapes are kept, the least recently used dropped). The eager
 model on the device (``model``) answers ``predict_windows``.
 
-What a graph cannot hold is refused when the backend is chosen, never left to fail or fall
-back in flight: the physics model with constants estimated in flight (it reads its estimate
-on the host at every call). A graph replays the constants and weights it was captured with:
-the model must not be changed after its first call.
+What a graph cannot hold is refused before a flight, never left to fail in flight (where the
+MPC would fly on its fallback): the physics model with constants estimated in flight (it reads
+its estimate on the host at every call) when the backend is chosen, and any other failed
+capture when the MPC is built (``prepare``, called by ``control.mpc.SamplingMPC`` with its M,
+K and N). A graph replays the constants and weights it was captured with: the model must not be
+changed after its first call.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import torch
 from torch import Tensor
 
 from ..data.windows import Windows
+from ..layout import INPUT_DIM, LOAD_POS, QUAT, STATE_DIM
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel, check_candidates
 
 CUDA = "cuda"
@@ -57,14 +60,26 @@ class GraphedModel:
     def predict_windows(self, windows: Windows) -> Tensor:
         return self.model.predict_windows(windows)
 
+    def prepare(self, history: int, samples: int, horizon: int) -> None:
+        """Capture the graph of float64 calls of M = ``history``, K = ``samples``, N =
+        ``horizon`` (the MPC's) now, if not yet: a ``ValueError`` here rather than at the first
+        control step. The inputs are a vehicle at rest with its load hanging 1 m below."""
+        x_hist = torch.zeros(history, STATE_DIM, dtype=torch.float64)
+        x_hist[:, QUAT] = torch.tensor([1.0, 0.0, 0.0, 0.0])  # w-x-y-z: level
+        x_hist[:, LOAD_POS] = torch.tensor([0.0, 0.0, -1.0])
+        u_past = torch.zeros(history - 1, INPUT_DIM, dtype=torch.float64)
+        plans = torch.zeros(samples, horizon, INPUT_DIM, dtype=torch.float64)
+        if _key(x_hist, u_past, plans) not in self._graphs:
+            self.predict_candidates(x_hist, u_past, plans)
+
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
-        key = (x_hist.shape[0], *plans.shape[:2], x_hist.dtype, u_past.dtype, plans.dtype)
+        key = _key(x_hist, u_past, plans)
         graph = self._graphs.pop(key, None)  # put back last: the most recently used
         if graph is None:
+            graph = self._capture(x_hist, u_past, plans)
             if len(self._graphs) >= MAX_GRAPHS:  # each holds its own device memory
                 del self._graphs[next(iter(self._graphs))]
-            graph = self._capture(x_hist, u_past, plans)
         else:
             graph.x_hist.copy_(x_hist)
             graph.u_past.copy_(u_past)
@@ -94,14 +109,24 @@ class GraphedModel:
         return _Graph(*inputs, graph, states)
 
 
-def on_gpu(model: PredictionModel) -> GraphedModel:
-    """``model`` (eager) on the first CUDA device, graphed; a network's weights are copied, so
-    that ``model`` stays where it is. A ``ValueError`` naming why where it cannot be."""
+def _key(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> tuple:
+    """What sets a graph: M, K, N and the dtypes."""
+    return (x_hist.shape[0], *plans.shape[:2], x_hist.dtype, u_past.dtype, plans.dtype)
+
+
+def require_gpu() -> None:
+    """A ``ValueError`` naming why the ``cuda`` backend cannot run here, if it cannot."""
     if not torch.cuda.is_available():
         raise ValueError(
             f"the {CUDA} backend runs on a GPU, and torch {torch.__version__} sees none here "
             "(a CPU build of torch, or no CUDA device); use 'compiled' or 'eager'"
         )
+
+
+def on_gpu(model: PredictionModel) -> GraphedModel:
+    """``model`` (eager) on the current CUDA device, graphed; a network's weights are copied,
+    so that ``model`` stays where it is. A ``ValueError`` naming why where it cannot be."""
+    require_gpu()
     if isinstance(model, PhysicsModel):
         if model.constants != "dataset":
             raise ValueError(

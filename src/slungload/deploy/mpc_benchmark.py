@@ -36,7 +36,8 @@ from ..config import ModelConfig, WindowConfig
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..reporting import load_average, machine_line, markdown_table, versions
 from .benchmarks import PACKAGES, benchmark_predictor, physics_windows
-from .compiled.batched import BACKENDS, CUDA, with_backend
+from .compiled.batched import BACKENDS, with_backend
+from .gpu import CUDA, require_gpu
 from .predictor import Predictor, torch_threads
 
 ONNX = "onnxruntime"  # the exported candidates graph (``deploy.onboard.OnnxCandidateModel``)
@@ -181,9 +182,10 @@ def _chosen(backends: Sequence[str] | None, notes: list[str]) -> tuple[str, ...]
             notes.append(f"No {CUDA} row: torch {torch.__version__} sees no GPU here.")
     unknown = [b for b in backends if b not in TIMED]
     if unknown or not backends:
-        raise ValueError(f"backends to time: {list(backends)}; known: {list(TIMED)}")
-    if CUDA in backends and not torch.cuda.is_available():
-        raise ValueError(f"the {CUDA} backend: torch {torch.__version__} sees no GPU here")
+        raise ValueError(f"unknown backends to time {unknown or '(none given)'}; known: "
+                         f"{list(TIMED)}")  # fmt: skip
+    if CUDA in backends:
+        require_gpu()
     return tuple(sorted(dict.fromkeys(backends), key=TIMED.index))
 
 
