@@ -3,13 +3,14 @@
     model = load_model("runs/ps-exc", backend="cuda")       # deploy.compiled.load_model
     states = model.predict_candidates(x_hist, u_past, plans)  # CPU tensors in and out
 
-At the MPC's sizes the eager models are hundreds of small kernels per call (the network's
-decoder ~60 per horizon step, the physics ~50), so on a GPU a call costs what launching them
-costs, whatever K. ``GraphedModel`` captures one call per input shape (M, K, N, dtype) as a CUDA
-graph after warm-up calls, then answers each call by copying the inputs into that graph's
-buffers, replaying it and copying the states back: what the MPC calls once per control step
-with the same shapes (``MAX_GRAPHS`` shapes are kept, the least recently used dropped). The eager
-model on the device (``model``) answers ``predict_windows``.
+At the MPC's sizes an eager call is thousands of small kernels (counted at torch's dispatcher
+at N = 15: the `small` physics-step network ~2,400, ~160 per horizon step; the physics model
+~1,800), so on a GPU a call costs what launching them costs, whatever K. ``GraphedModel``
+captures one call per input shape (M, K, N, dtypes) as a CUDA graph after warm-up calls, then
+answers each call by copying the inputs into that graph's buffers, replaying it and copying
+the states back: what the MPC calls once per control step with the same shapes (``MAX_GRAPHS``
+shapes are kept, the least recently used dropped). The eager model on the device (``model``)
+answers ``predict_windows``.
 
 What a graph cannot hold is refused before a flight, never left to fail in flight (where the
 MPC would fly on its fallback): the physics model with constants estimated in flight (it reads
