@@ -305,6 +305,11 @@ def test_the_control_report_shows_results_only():
     banner = text.split("\n\n")[1]  # under the title
     assert "Smoke run: these numbers are not results" in banner
     assert "`runs/net`" in banner and "runs/other" not in banner
+    assert "GPU" not in text  # an old results.json names none; a GPU is named where flown
+    settings["machine"] = {"cpu": "x", "cores": 16, "gpu": "NVIDIA H100", "load_average": None}
+    assert "(16 cores, load average at the end unknown); GPU NVIDIA H100." in report_markdown(
+        ControlComparison(rows, settings)
+    )
 
 
 def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_its_term():

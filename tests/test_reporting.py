@@ -62,6 +62,17 @@ def test_load_average_reads_the_os(monkeypatch):
     assert reporting.machine()["load_average"] == [1.5, 1.0, 0.5]
 
 
+def test_the_gpu_is_stamped_where_torch_sees_one(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert reporting.machine()["gpu"] is None and "GPU" not in reporting.machine_line()
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "get_device_name", lambda *a: "NVIDIA H100 80GB HBM3")
+    assert reporting.machine()["gpu"] == "NVIDIA H100 80GB HBM3"
+    assert reporting.machine_line().endswith(" cores, GPU NVIDIA H100 80GB HBM3")
+
+
 def test_versions_start_with_the_package():
     found = reporting.versions("numpy")
     assert list(found) == ["slungload", "numpy"] and found["slungload"] == slungload.__version__

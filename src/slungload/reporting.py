@@ -18,6 +18,7 @@ from __future__ import annotations
 import importlib
 import os
 import platform
+import sys
 import zlib
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -147,20 +148,32 @@ def load_average() -> float | None:
     return None if loads is None else loads[0]
 
 
+def gpu_name() -> str | None:
+    """The CUDA GPU's name where torch is loaded and sees one, else None (torch is not loaded
+    for it: a process that never imported torch ran nothing on a GPU)."""
+    torch = sys.modules.get("torch")
+    if torch is None or not torch.cuda.is_available():
+        return None
+    return torch.cuda.get_device_name()
+
+
 def machine() -> dict[str, Any]:
-    """The stamp of a measurement: CPU, core count, load averages (1, 5, 15 min; None where
-    unknown), as plain data for a results file."""
+    """The stamp of a measurement: CPU, core count, the GPU (None where there is none), load
+    averages (1, 5, 15 min; None where unknown), as plain data for a results file."""
     loads = load_averages()
     return {
         "cpu": cpu_name(),
         "cores": os.cpu_count(),
+        "gpu": gpu_name(),
         "load_average": None if loads is None else list(loads),
     }
 
 
 def machine_line() -> str:
-    """The CPU and its cores in words, e.g. "AMD EPYC 7B13, 2 cores"."""
-    return f"{cpu_name()}, {os.cpu_count()} cores"
+    """The CPU and its cores in words, and the GPU where there is one, e.g. "AMD EPYC 7B13,
+    2 cores"."""
+    gpu = gpu_name()
+    return f"{cpu_name()}, {os.cpu_count()} cores" + (f", GPU {gpu}" if gpu else "")
 
 
 def versions(*packages: str) -> dict[str, str]:

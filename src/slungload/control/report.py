@@ -101,7 +101,9 @@ def report_markdown(result: ControlComparison) -> str:
         f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "
         f"{', '.join(map(str, s['samples']))}; torch threads {s['threads']}; prediction "
         f"backend {s.get('backend', 'eager')}; {machine['cpu']} ({machine['cores']} cores, load "
-        f"average at the end {', '.join(f'{x:.1f}' for x in load) if load else 'unknown'}).",
+        f"average at the end {', '.join(f'{x:.1f}' for x in load) if load else 'unknown'})"
+        + (f"; GPU {machine['gpu']}" if machine.get("gpu") else "")
+        + ".",
         "",
         "Errors are means over the seeds of the flights that flew to the end; `failed` counts "
         "the flights that ended early (the reason is in results.json). The load's reference is "
