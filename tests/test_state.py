@@ -12,6 +12,7 @@ from slungload import layout, state
 from slungload.state import (
     GROUPS,
     STATE_DIM,
+    body_z,
     join_state,
     quat_conj,
     quat_continuous,
@@ -61,6 +62,20 @@ def test_layout_slices_partition_the_columns():
 def test_state_re_exports_the_layout():
     for name in ("POS", "QUAT", "GROUPS", "STATE_NAMES", "STATE_COLUMNS", "AUX_DIM"):
         assert getattr(state, name) is getattr(layout, name)
+
+
+def test_body_z_is_the_rotation_matrix_last_column_to_the_bit():
+    gen = torch.Generator().manual_seed(0)
+    for dtype in (torch.float32, torch.float64):
+        q = torch.randn(500, 4, generator=gen, dtype=dtype) * 2.0  # off unit norm too
+        q.requires_grad_(True)
+        want = quat_to_rotmat(q)[..., :, 2]
+        (gw,) = torch.autograd.grad(want.sum(), q)
+        got = body_z(q)
+        (gg,) = torch.autograd.grad(got.sum(), q)
+        assert torch.equal(got, want) and torch.equal(gg, gw)  # the same arithmetic, gradients
+    up = body_z(torch.tensor([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]))
+    torch.testing.assert_close(up, torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]]))
 
 
 def test_split_join_round_trip():

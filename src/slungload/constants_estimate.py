@@ -46,7 +46,7 @@ from torch import Tensor
 
 from .config import ESTIMATE_SMOOTHING_STEPS, VehicleParams
 from .physics import VehicleConstants
-from .state import quat_to_rotmat, split_input, split_state
+from .state import body_z, split_input, split_state
 
 # What a model that adapts to its load runs f with (``adapted``): the mass pulled towards the
 # constants' by this prior, (m/s^2)^2 per equation (one window's median error 13 % against 26 %
@@ -182,7 +182,7 @@ def _smoothed_balance(
     h = params.dt
     p, _, q, p_load = split_state(states)
     thrust = split_input(inputs)[0][..., 1:-1]  # (..., M-2)
-    b = quat_to_rotmat(q[..., 1:-1, :])[..., :, 2]  # body z, (..., M-2, 3)
+    b = body_z(q[..., 1:-1, :])  # (..., M-2, 3)
     up = torch.zeros(3, dtype=states.dtype, device=states.device)
     up[2:].fill_(params.gravity)  # a fill on the device: no copy (a CUDA graph allows none)
     acc = (p[..., 2:, :] - 2 * p[..., 1:-1, :] + p[..., :-2, :]) / (h * h) + up

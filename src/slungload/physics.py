@@ -38,11 +38,11 @@ from .config import VehicleParams
 from .state import (
     LOAD_RATE,
     LOAD_VEL,
+    body_z,
     join_state,
     quat_from_rotvec,
     quat_mul,
     quat_normalize,
-    quat_to_rotmat,
     split_input,
     split_state,
 )
@@ -106,7 +106,7 @@ def cable_direction(p: Tensor, p_load: Tensor, params: Vehicle) -> Tensor:
 
 def thrust_vector(q: Tensor, thrust: Tensor) -> Tensor:
     """T R e3 in the world frame, N: q (..., 4) w-x-y-z, thrust (...,) -> (..., 3)."""
-    return quat_to_rotmat(q)[..., :, 2] * thrust.unsqueeze(-1)
+    return body_z(q) * thrust.unsqueeze(-1)
 
 
 def tension(xi: Tensor, thrust_w: Tensor, load_rate: Tensor, params: Vehicle) -> Tensor:

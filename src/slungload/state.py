@@ -38,7 +38,7 @@ __all__ = [  # the layout's names, re-exported, then this module's own
     "AUX_DIM", "GROUPS", "GROUP_UNITS", "HISTORY_COLUMNS", "HISTORY_DIM", "INPUT_DIM",
     "INPUT_NAMES", "LOAD_POS", "LOAD_RATE", "LOAD_VEL", "POS", "QUAT", "RATES", "STATE_COLUMNS",
     "STATE_DIM", "STATE_NAMES", "THRUST", "VEL",
-    "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
+    "body_z", "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
     "quat_from_rotvec", "quat_identity", "quat_mul", "quat_normalize", "quat_to_rotmat",
     "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "split_input", "split_state",
     "with_unit_quaternion",
@@ -106,6 +106,16 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     gives a rotation.
     """
     return roma.unitquat_to_rotmat(quat_wxyz_to_xyzw(quat_normalize(q)))
+
+
+def body_z(q: Tensor) -> Tensor:
+    """The body z axis (the thrust direction) in the world frame, (..., 3), of w-x-y-z
+    quaternions (..., 4), normalised first: the last column of ``quat_to_rotmat(q)`` with the
+    same arithmetic (roma's), without the other six entries (the physics step's hot path)."""
+    w, x, y, z = quat_normalize(q).unbind(-1)
+    x2, y2, z2, w2 = x * x, y * y, z * z, w * w
+    xz, yw, yz, xw = x * z, y * w, y * z, x * w
+    return torch.stack((2 * (xz + yw), 2 * (yz - xw), -x2 - y2 + z2 + w2), dim=-1)
 
 
 def quat_normalize(q: Tensor, eps: float = 1e-12) -> Tensor:
