@@ -4,8 +4,8 @@
     states = model.predict_candidates(x_hist, u_past, plans)  # CPU tensors in and out
 
 At the MPC's sizes an eager call is thousands of small kernels (counted at torch's dispatcher
-at N = 15: the `small` physics-step network ~2,400, ~160 per horizon step; the physics model
-~1,800), so on a GPU a call costs what launching them costs, whatever K. ``GraphedModel``
+at N = 15: the `small` physics-step network ~2,100, ~140 per horizon step; the physics model
+~1,550), so on a GPU a call costs what launching them costs, whatever K. ``GraphedModel``
 captures one call per input shape (M, K, N, dtypes) as a CUDA graph after warm-up calls, then
 answers each call by copying the inputs into that graph's buffers, replaying it and copying
 the states back: what the MPC calls once per control step with the same shapes (``MAX_GRAPHS``
