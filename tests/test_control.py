@@ -163,6 +163,21 @@ def test_a_model_is_prepared_for_the_mpcs_calls_before_the_flight():
     with pytest.raises(ValueError, match="cannot capture"):  # before flying, not a fallback
         SamplingMPC(model, LIMITS, replace(FAST, samples=9), PARAMS)
 
+    class NumpyPrepared:  # the controller core itself, without torch: the same call
+        name, history, asked = "np", 20, []
+
+        def prepare(self, history, samples, horizon):
+            self.asked.append((history, samples, horizon))
+
+        def predict_candidates(self, x_hist, u_past, plans):
+            return np.broadcast_to(x_hist[-1], (*plans.shape[:2], 13)).copy()
+
+    from slungload.control.mppi import MPPIController
+
+    core = NumpyPrepared()
+    MPPIController(core, LIMITS, replace(FAST, samples=8, horizon=6), PARAMS)
+    assert core.asked == [(20, 8, 6)]
+
 
 def test_input_limits():
     assert LIMITS.contains(np.array([HOVER_T, 4.0, -4.0, 0.0]))

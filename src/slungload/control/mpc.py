@@ -65,6 +65,8 @@ class TorchCandidates:
         self.model = model
         self.name = model.name
         self.history = model.history
+        if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
+            self.prepare = model.prepare
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
@@ -105,8 +107,8 @@ class SamplingMPC:
     in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
     ``core`` is the ``mppi.MPPIController`` it runs; ``stats`` counts steps and fallbacks;
     ``plan`` is the nominal plan of the next step. A model with ``prepare(M, K, N)``
-    (``deploy.gpu.GraphedModel``) is prepared for this MPC's calls here, so that what it
-    cannot run is an error before the flight rather than a fallback in it.
+    (``deploy.gpu.GraphedModel``) is prepared for this MPC's calls when the core is built
+    (``mppi.CandidateModel``).
     """
 
     def __init__(
@@ -130,10 +132,6 @@ class SamplingMPC:
                 )
             estimate = window_estimate(params or VehicleParams())
         self.core = MPPIController(numpy_model, limits, config, params, estimate)
-        prepare = getattr(model, "prepare", None)  # a GPU model captures its graph now
-        if prepare is not None:
-            cfg = self.core.cfg
-            prepare(self.core.history.m, cfg.samples, cfg.horizon)
 
     def attach(self, plant) -> None:
         """Pass the flight's plant on to a model that predicts with it (``oracle``)."""

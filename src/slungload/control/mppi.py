@@ -184,7 +184,10 @@ class Command(NamedTuple):
 @runtime_checkable
 class CandidateModel(Protocol):
     """A prediction model for the controller, numpy in and out (float64 arrays): the
-    ``models.prediction.PredictionModel`` contract's control entry point without torch."""
+    ``models.prediction.PredictionModel`` contract's control entry point without torch. A
+    model may also have ``prepare(M, K, N)`` (a GPU model captures its graph there): the
+    controller calls it when built, so that what the model cannot run is an error then rather
+    than a fallback in flight."""
 
     name: str
     history: int  # M: measured states the model needs (>= 2)
@@ -322,6 +325,9 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
+        prepare = getattr(model, "prepare", None)  # see ``CandidateModel``
+        if prepare is not None:
+            prepare(self.history.m, cfg.samples, cfg.horizon)
 
     @classmethod
     def from_onnx(

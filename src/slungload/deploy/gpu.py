@@ -15,9 +15,9 @@ answers ``predict_windows``.
 What a graph cannot hold is refused before a flight, never left to fail in flight (where the
 MPC would fly on its fallback): the physics model with constants estimated in flight (it reads
 its estimate on the host at every call) when the backend is chosen, and any other failed
-capture when the MPC is built (``prepare``, called by ``control.mpc.SamplingMPC`` with its M,
-K and N). A graph replays the constants and weights it was captured with: the model must not be
-changed after its first call.
+capture when the MPC is built (``prepare``, called by ``control.mppi.MPPIController`` with
+its M, K and N). A graph replays the constants and weights it was captured with: the model
+must not be changed after its first call.
 """
 
 from __future__ import annotations
