@@ -313,17 +313,21 @@ def test_cuda_network_matches_the_eager_network_and_leaves_it_on_the_cpu(archite
     assert next(gpu.model.net.parameters()).device.type == "cuda"
 
 
-@GPU
-def test_control_flies_on_the_cuda_backend(run_cli, tmp_path):
-    out = tmp_path / "ctl"
+def fly_on(run_cli, out, backend: str, samples: int, steps: int) -> None:
+    """``control`` on ``backend``: every flight to the end, the backend in results.json."""
     code, _, err = run_cli(
-        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "64",
-        "--horizon", "5", "--steps", "40", "--out", out, "--quiet", "--backend", "cuda",
+        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", str(samples),
+        "--horizon", "5", "--steps", str(steps), "--out", out, "--quiet", "--backend", backend,
     )  # fmt: skip
     assert code == 0, err
     results = json.loads((out / "results.json").read_text())
-    assert results["settings"]["backend"] == "cuda"
+    assert results["settings"]["backend"] == backend
     assert all(r["completed"] for r in results["rows"])
+
+
+@GPU
+def test_control_flies_on_the_cuda_backend(run_cli, tmp_path):
+    fly_on(run_cli, tmp_path / "ctl", "cuda", samples=64, steps=40)
 
 
 @GPU
@@ -343,14 +347,7 @@ def test_mpc_benchmark_times_the_gpu_beside_the_cpu():
 
 def test_control_flies_on_the_compiled_backend(run_cli, tmp_path):
     out = tmp_path / "ctl"
-    code, _, err = run_cli(
-        "control", "--maneuvers", "roll_35", "--seeds", "100", "--samples", "4",
-        "--horizon", "5", "--steps", "8", "--out", out, "--quiet", "--backend", "compiled",
-    )  # fmt: skip
-    assert code == 0, err
-    results = json.loads((out / "results.json").read_text())
-    assert results["settings"]["backend"] == "compiled"
-    assert all(r["completed"] for r in results["rows"])
+    fly_on(run_cli, out, "compiled", samples=4, steps=8)
     assert "prediction backend compiled" in (out / "report.md").read_text()
     with pytest.raises(SystemExit):  # argparse: invalid choice
         run_cli("control", "--backend", "fast", "--out", tmp_path / "x")

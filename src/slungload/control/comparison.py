@@ -23,7 +23,7 @@ from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model
 from ..deploy.predictor import torch_threads
 from ..fileio import write_json
-from ..models.checkpoints import load_checkpoint
+from ..models.checkpoints import checkpoint_meta
 from ..models.prediction import PHYSICS, PredictionModel
 from ..reporting import machine
 from ..sim.config import SimConfig
@@ -74,7 +74,7 @@ def compare(
         raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
                          "where these would land; use another --out")  # fmt: skip
     # each network's training preset, for the report's smoke-run banner
-    presets = {str(m): load_checkpoint(m).meta.get("preset") for m in models if str(m) != PHYSICS}
+    presets = {str(m): checkpoint_meta(m).get("preset") for m in models if str(m) != PHYSICS}
     plans = _plans(cfg, predictors, samples, base, limits, params)
     with torch_threads(threads):
         rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)

@@ -39,7 +39,7 @@ from ..config import VehicleParams
 from ..deploy.compiled.batched import load_model, with_backend
 from ..deploy.predictor import torch_threads
 from ..fileio import read_json, write_json, write_text
-from ..models.checkpoints import load_checkpoint
+from ..models.checkpoints import checkpoint_meta
 from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
 from ..reporting import markdown_table, networks_banner, save_figure
 from ..run_config import SMOKE_PRESET
@@ -113,7 +113,7 @@ def fly_loads(
                 f"{other} holds flights built for another nominal vehicle than {network}'s "
                 "(its PID and physics flights would be reused for this one); use another --out"
             )
-    preset = load_checkpoint(network).meta.get("preset")  # for the report's smoke banner
+    preset = checkpoint_meta(network).get("preset")  # for the report's smoke banner
     write_json(out / f"loads-{name}.json", {"network": str(network), "config": asdict(cfg),
                                             "nominal": asdict(nominal),
                                             "preset": preset})  # fmt: skip

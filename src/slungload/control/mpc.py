@@ -25,7 +25,7 @@ import torch
 from ..config import ESTIMATE_MIN_STEPS, VEHICLE_FILE, VehicleParams
 from ..deploy.compiled.physics import history_constants
 from ..fileio import read_json
-from ..models.checkpoints import load_checkpoint
+from ..models.checkpoints import checkpoint_meta
 from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
@@ -199,7 +199,7 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
       extrapolation."""
     if str(model) == PHYSICS:
         return []
-    meta = load_checkpoint(model).meta
+    meta = checkpoint_meta(model)
     notes = []
     data = meta.get("data")
     if data and _simulated_without_excitation(Path(data) / VEHICLE_FILE):

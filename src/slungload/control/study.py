@@ -44,7 +44,7 @@ from ..deploy.predictor import torch_threads
 from ..deploy.timing import time_calls
 from ..fileio import read_json, write_json
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
-from ..models.checkpoints import checkpoint_path, load_checkpoint
+from ..models.checkpoints import checkpoint_meta, checkpoint_path
 from ..models.prediction import PHYSICS, PredictionModel
 from ..sim.config import SimConfig, tuples_from_json
 from ..sim.controller import PIDController
@@ -343,7 +343,7 @@ def learned_network(learned: str | Path) -> dict[str, str | None]:
     """Which network a study's learned MPC flies: its checkpoint's path and SHA-256, and the
     preset it trained with."""
     path = checkpoint_path(learned)
-    preset = load_checkpoint(path).meta.get("preset")
+    preset = checkpoint_meta(path).get("preset")
     return {"checkpoint": str(path), "sha256": sha256(path), "preset": preset}
 
 

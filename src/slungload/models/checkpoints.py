@@ -115,6 +115,13 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
     return loaded
 
 
+def checkpoint_meta(path: str | Path) -> dict[str, Any]:
+    """The configs embedded in a checkpoint (a ``.ckpt``, or a run folder's best), e.g. its
+    ``preset`` or ``window``, read with the same checks as ``load_checkpoint`` but without
+    building the network."""
+    return _read_checkpoint(checkpoint_path(path))[1]
+
+
 def _read_checkpoint(path: Path, map_location: Any = "cpu") -> tuple[dict, dict[str, Any]]:
     """The checkpoint dict and its embedded configs, loaded with ``weights_only=True``."""
     if not zipfile.is_zipfile(path):  # torch.load would try any other bytes as a raw pickle
