@@ -18,7 +18,7 @@ from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
 from slungload.control.oracle import PlantCandidates
-from slungload.control.results import label_model, paired_interval, t975
+from slungload.control.results import gap_interval, gap_share, label_model, paired_interval, t975
 from slungload.control.study import run_study, tune_settings, tuning_score
 from slungload.control.study_config import (
     COST_GRID,
@@ -266,6 +266,34 @@ def test_gap_closed_is_measured_on_the_flights_all_three_finished():
              (0.4, 0.22, 0.10)]) for c, v in zip("plo", vals, strict=True)]  # fmt: skip
     mean, interval = gap_closed(seeds, "p", "l", "o", "load_rmse")[0][-1].split(" ", 1)
     assert mean == "+0.110" and interval == "[+0.085, +0.135]"
+
+
+def test_the_gap_closed_and_its_bootstrap_interval():
+    # the learned model flying as the oracle does closes all of the gap, on every resample
+    physics, oracle = [0.5, 0.6, 0.4, 0.7], [0.2, 0.3, 0.1, 0.3]
+    assert gap_share(*np.asarray([physics, oracle, oracle])) == pytest.approx(1.0)
+    assert gap_interval(physics, oracle, oracle) == pytest.approx((1.0, 1.0))
+    # halfway on every flight: 50 % whatever the resample
+    half = [(p + o) / 2 for p, o in zip(physics, oracle, strict=True)]
+    assert gap_interval(physics, half, oracle) == pytest.approx((0.5, 0.5))
+    # a spread over seeds: the interval holds the point, is reproduced, and widens with it
+    rng = np.random.default_rng(3)
+    learned = np.asarray(half) + 0.05 * rng.standard_normal(4)
+    point = float(gap_share(*np.asarray([physics, learned, oracle])))
+    low, high = gap_interval(physics, learned, oracle)
+    assert low < point < high and (low, high) == gap_interval(physics, learned, oracle)
+    wider = np.asarray(half) + 0.15 * rng.standard_normal(4)
+    assert np.ptp(gap_interval(physics, wider, oracle)) > high - low
+    # resamples where the oracle is no better than physics leave no gap: an infinite bound
+    assert gap_interval([0.5, 0.2], [0.3, 0.1], [0.2, 0.4])[1] == math.inf
+    assert gap_share(*np.asarray([[0.2], [0.3], [0.4]])) == -math.inf
+    assert all(math.isnan(v) for v in gap_interval([0.5], [0.3], [0.2]))
+    # the gap table writes the interval beside the share
+    rows = [_row(c, "m", seed, v) for seed, vals in enumerate([(0.5, 0.3, 0.2), (0.6, 0.35, 0.3)])
+            for c, v in zip("plo", vals, strict=True)]  # fmt: skip
+    cell = gap_closed(rows, "p", "l", "o", "load_rmse")[0][-2]
+    low, high = gap_interval([0.5, 0.6], [0.3, 0.35], [0.2, 0.3])
+    assert cell == f"75 % [{100 * low:.0f} %, {100 * high:.0f} %]" and low < 0.75 < high
 
 
 def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():

@@ -2,6 +2,8 @@
 row of ``closed_loop.flight_metrics`` per flight), the rows of one controller by flight
 (``by_flight``) and the flights two flew to the end (``both_completed``), the means over the
 seeds per group (``summary``), paired differences with a 95 % interval (``paired_interval``),
+the share of the physics-to-oracle gap a learned model closes with a bootstrap interval
+(``gap_share``, ``gap_interval``),
 and each network's MPC against MPC + physics at the same K (``versus_physics``). Plain
 numbers, no files: ``comparison`` and ``study`` fly, ``report`` and ``study_report`` write.
 """
@@ -36,6 +38,7 @@ def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
 
 COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
+GAP_RESAMPLES = 4000  # bootstrap resamples of the gap closed's interval (``gap_interval``)
 
 Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was flown
 Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights
@@ -187,6 +190,37 @@ def t975(dof: int) -> float:
     z = 1.959963984540054
     return (z + (z**3 + z) / (4 * dof) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * dof**2)
             + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * dof**3))  # fmt: skip
+
+
+def gap_share(physics: np.ndarray, learned: np.ndarray, oracle: np.ndarray) -> np.ndarray:
+    """(physics - learned) / (physics - oracle) of means along the last axis: the share of the
+    physics-to-oracle gap the learned model closes. Where the oracle is no better than physics
+    there is no gap: +inf where the learned model is better than physics there, -inf where not
+    (so that percentiles over resamples stay ordered)."""
+    p, learn, o = (np.mean(x, axis=-1) for x in (physics, learned, oracle))
+    closed, gap = p - learn, p - o
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = closed / gap
+    return np.where(gap > 1e-12, share, np.where(closed > 0, np.inf, -np.inf))
+
+
+def gap_interval(
+    physics: Sequence[float],
+    learned: Sequence[float],
+    oracle: Sequence[float],
+    resamples: int = GAP_RESAMPLES,
+) -> tuple[float, float]:
+    """95 % paired bootstrap interval of ``gap_share`` over flights (the three sequences hold
+    one figure per flight, in the same order; flights are resampled together, with a fixed
+    seed so a report is reproduced to the digit). NaN for fewer than two flights; a bound may
+    be infinite where resamples leave no gap."""
+    x = np.asarray([physics, learned, oracle], dtype=float)
+    if x.shape[1] < 2:
+        return math.nan, math.nan
+    picks = np.random.default_rng(0).integers(0, x.shape[1], size=(resamples, x.shape[1]))
+    shares = gap_share(*x[:, picks])
+    low, high = np.percentile(shares, (2.5, 97.5), method="inverted_cdf")
+    return float(low), float(high)
 
 
 def paired_interval(differences: Sequence[float]) -> tuple[float, float, float]:

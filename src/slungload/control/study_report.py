@@ -42,6 +42,8 @@ from .results import (
     columns,
     fmt,
     fmt_interval,
+    gap_interval,
+    gap_share,
     label_horizon,
     label_model,
     mean_of,
@@ -55,7 +57,7 @@ from .study_config import NOMINAL, UNSAFE_SWING, StudyConfig
 
 KEYS = columns("load_rmse", "swing_rms", "swing_max", "vehicle_rmse")
 
-GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed",
+GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed [95 %]",
                "learned - oracle")  # fmt: skip
 
 
@@ -144,23 +146,26 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
 
 def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[list[str]]:
     """Per maneuver: means over the seeds all three flew to the end, (physics - learned) /
-    (physics - oracle) ("-" where the oracle is no better than physics: no gap to close), and
-    learned - oracle paired over those seeds with its 95 % t-interval, which says whether a
-    ratio below 100 % is more than the seeds' spread."""
+    (physics - oracle) ("-" where the oracle is no better than physics: no gap to close) with
+    its 95 % bootstrap interval over those seeds (``results.gap_interval``; "inf" where some
+    resamples leave no gap), and learned - oracle paired over those seeds with its 95 %
+    t-interval: both say whether a ratio is more than the seeds' spread."""
     sets = [by_flight(rows, plant=NOMINAL, controller=c) for c in (physics, learned, oracle)]
     out = []
     for maneuver in dict.fromkeys(m for m, _ in sets[0]):
         keys = [
             k
             for k in sets[0]
-            if k[0] == maneuver and all(k in s and s[k]["completed"] for s in sets)
+            if k[0] == maneuver
+            and all(k in s and s[k]["completed"] and math.isfinite(s[k][key]) for s in sets)
         ]
         if not keys:
             out.append([maneuver, "0", "-", "-", "-", "-", "-"])
             continue
-        p, learn, o = (mean_of([s[k] for k in keys], key) for s in sets)
-        gap = (p - learn) / (p - o) if p - o > 1e-12 else math.nan
-        mean, lo, hi = paired_interval([sets[1][k][key] - sets[2][k][key] for k in keys])
+        figures = [[s[k][key] for k in keys] for s in sets]
+        p, learn, o = (float(np.mean(f)) for f in figures)
+        gap = float(gap_share(*np.asarray(figures)))
+        mean, lo, hi = paired_interval([a - b for a, b in zip(*figures[1:], strict=True)])
         spec = "{:+.3f}"
         out.append(
             [
@@ -169,11 +174,24 @@ def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[
                 f"{p:.3f}",
                 f"{learn:.3f}",
                 f"{o:.3f}",
-                fmt(100 * gap, "{:.0f} %"),
+                _share_cell(gap, *gap_interval(*figures)),
                 fmt_interval(mean, lo, hi, spec),
             ]
         )
     return out
+
+
+def _share_cell(share: float, low: float, high: float) -> str:
+    """ "78 % [64 %, 95 %]": a share of the gap and its interval ("-" alone where there is no
+    gap; a bound beyond any finite share written "inf")."""
+    if not math.isfinite(share):
+        return "-"
+
+    def cell(v: float) -> str:
+        return f"{100 * v:.0f} %" if math.isfinite(v) else ("inf" if v > 0 else "-inf")
+
+    bounds = "" if math.isnan(low) else f" [{cell(low)}, {cell(high)}]"
+    return cell(share) + bounds
 
 
 def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> str:
@@ -200,13 +218,14 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     for h in heads:
         mean, lo, hi = paired_interval([costs[1][k][h] - costs[2][k][h] for k in keys])
         difference.append(fmt_interval(mean, lo, hi, spec))
-    physics, learned, oracle = (np.mean([c[k]["total"] for k in keys]) for c in costs)
-    gap = (physics - learned) / (physics - oracle) if physics - oracle > 1e-12 else math.nan
+    totals = np.asarray([[c[k]["total"] for k in keys] for c in costs])
+    gap = float(gap_share(*totals))
     return "\n".join([
         markdown_table(["controller", "flights", *heads], [*table, difference]),
         "",
         "learned - oracle: paired per flight, mean [95 % interval]; "
-        + (f"the learned MPC closes {100 * gap:.0f} % of the physics-to-oracle gap in this cost."
+        + (f"the learned MPC closes {_share_cell(gap, *gap_interval(*totals))} (95 % bootstrap "
+           "interval) of the physics-to-oracle gap in this cost."
            if math.isfinite(gap) else "the oracle is no better than physics in this cost: no "
            "gap to close."),
     ])  # fmt: skip
@@ -323,7 +342,8 @@ def write_study_report(
             "",
             f"(physics - learned) / (physics - oracle) at N = {n}, per maneuver (the oracle "
             "flies the learned MPC's settings at its own K; - where it is no better than "
-            "physics).",
+            "physics), with its 95 % bootstrap interval over the seeds (the seeds resampled "
+            "together; inf where some resamples leave no gap).",
             "",
         ]
         for key, head, _ in KEYS[:2]:
