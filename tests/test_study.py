@@ -97,6 +97,31 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
 # --- the loads study --------------------------------------------------------------------
 
 
+def test_the_loads_report_counts_the_test_flights_each_model_wins(tmp_path):
+    from slungload.config import VehicleParams
+    from slungload.study import LoadsStudyConfig
+    from slungload.study.loads import LoadsRow, flights_better, write_loads_study
+    from slungload.study.loads_config import NOMINAL_ROW, ONE_LOAD_ROW, TRUTH
+
+    # (set, label, flight, load mass, RMSE): the truth wins a, the adaptive network a and b
+    errors = {NOMINAL_ROW: (1.0, 1.0, 1.0), TRUTH: (0.9, 1.1, 1.0),
+              ONE_LOAD_ROW: (0.5, 0.6, 0.4), "adaptive": (0.4, 0.5, 0.45)}  # fmt: skip
+    per_flight = [("inside", label, name, 0.2, e) for label, es in errors.items()
+                  for name, e in zip("abc", es, strict=True)]  # fmt: skip
+    per_flight.append(("beyond", "adaptive", "d", 0.3, 0.1))  # no reference flew it
+    assert flights_better(per_flight, "inside", NOMINAL_ROW) == {
+        TRUTH: (1, 3), ONE_LOAD_ROW: (3, 3), "adaptive": (3, 3)}  # fmt: skip
+    assert flights_better(per_flight, "inside", ONE_LOAD_ROW) == {
+        NOMINAL_ROW: (0, 3), TRUTH: (0, 3), "adaptive": (2, 3)}  # fmt: skip
+    assert flights_better(per_flight, "beyond", NOMINAL_ROW) == {}
+    config = LoadsStudyConfig()
+    rows = [LoadsRow("inside", label, None, n, 1.0) for label in errors for n in config.horizons]
+    write_loads_study(rows, per_flight, {}, tmp_path, config, VehicleParams())
+    text = (tmp_path / "loads.md").read_text()
+    assert f"| model | better than '{NOMINAL_ROW}' | better than '{ONE_LOAD_ROW}' |" in text
+    assert "| adaptive | 3 of 3 | 2 of 3 |" in text and f"| {TRUTH} | 1 of 3 | 0 of 3 |" in text
+
+
 @pytest.mark.slow
 def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyond(tmp_path):
     import csv

@@ -9,7 +9,9 @@ window's constants estimated in flight (``ModelConfig.constants = "window"``), w
 with its correction seeing them (``ModelConfig.constants_input``), over seeds, and
 compared with the physics model run with the nominal constants, with the in-flight estimate
 and with each flight's true constants: combined RMSE at N = 25 and 50, MAE per step, and the
-RMSE at N = 50 of each test flight against its load mass (``loads.png``).
+RMSE at N = 50 of each test flight against its load mass (``loads.png``), and on how many
+test flights each model is better than physics with the nominal constants and than the
+one-load network (``flights_better``).
 
 Layout of ``out``: ``data/{one,many,beyond}/``, ``runs/<set>/<RunConfig.folder()>/``,
 ``inside/`` and ``beyond/`` (the evaluation reports), ``loads.csv``, ``flights.csv``,
@@ -43,6 +45,8 @@ from ..sim import SimConfig, simulate_dataset
 from .loads_config import (
     ESTIMATE_ROW,
     NETWORK_ROWS,
+    NOMINAL_ROW,
+    ONE_LOAD_ROW,
     PHYSICS_ROWS,
     SETS,
     TRUTH,
@@ -247,6 +251,23 @@ def _per_flight(
             for (label, name), v in out.items()]  # fmt: skip
 
 
+def flights_better(
+    per_flight: Sequence[tuple[str, str, str, float, float]], test_set: str, reference: str
+) -> dict[str, tuple[int, int]]:
+    """label -> (test flights of ``test_set`` on which its RMSE (``_per_flight``: seeds
+    averaged) is below ``reference``'s, flights both were tested on); the reference itself and
+    labels sharing no flight with it left out."""
+    rmse = {(label, name): e for s, label, name, _, e in per_flight if s == test_set}
+    mine = {name for label, name in rmse if label == reference}
+    out = {}
+    for label in dict.fromkeys(label for label, _ in rmse):
+        shared = [n for n in mine if (label, n) in rmse]
+        if label != reference and shared:
+            better = sum(rmse[(label, n)] < rmse[(reference, n)] for n in shared)
+            out[label] = (better, len(shared))
+    return out
+
+
 def write_loads_study(
     rows: Sequence[LoadsRow],
     per_flight: Sequence[tuple[str, str, str, float, float]],
@@ -257,8 +278,10 @@ def write_loads_study(
     priors: dict[float, float] | None = None,
 ) -> None:
     """loads.csv (every run), flights.csv, loads.md (mean +- std over seeds, the ratios to
-    physics with the true constants, the horizon steps worse than it: ``worse``; the in-flight
-    estimate's mass prior chosen, from ``priors``: prior -> validation RMSE) and loads.png."""
+    physics with the true constants, the horizon steps worse than it: ``worse``; per test
+    flight, how many each model predicts better than physics with the nominal constants and
+    than the one-load network: ``flights_better``; the in-flight estimate's mass prior chosen,
+    from ``priors``: prior -> validation RMSE) and loads.png."""
     lines = ["set,label,seed,horizon,combined_rmse"]
     lines += [f"{r.test_set},{r.label},{'' if r.seed is None else r.seed},{r.horizon},{r.rmse}"
               for r in rows]  # fmt: skip
@@ -317,6 +340,20 @@ def write_loads_study(
             row.append("-" if steps is None else f"{steps[0]}, {steps[1]}")
             table.append(row)
         parts += ["", f"## {test_set} the training range", "", markdown_table(header, table)]
+        versus = {ref: flights_better(per_flight, test_set, ref)
+                  for ref in (NOMINAL_ROW, ONE_LOAD_ROW)}  # fmt: skip
+        counted = [label for label in labels if any(label in v for v in versus.values())]
+        if counted:
+            n = max(config.horizons)
+            table = [[label, *(f"{v[label][0]} of {v[label][1]}" if label in v else "-"
+                               for v in versus.values())] for label in counted]  # fmt: skip
+            parts += [
+                "",
+                f"Test flights on which each model's combined RMSE at N = {n} (seeds averaged) "
+                "is lower than the reference's:",
+                "",
+                markdown_table(["model", *(f"better than {r!r}" for r in versus)], table),
+            ]
     parts += ["", "![RMSE against load mass](loads.png)", ""]
     write_text(out / "loads.md", "\n".join(parts))
     _figure(per_flight, config, out / "loads.png")

@@ -50,11 +50,13 @@ class LoadsStudyConfig:
 # model runs with.
 TRUTH = "physics (true constants)"  # the reference row
 ESTIMATE_ROW = "physics (in-flight estimate)"  # its mass prior chosen on validation
-PHYSICS_ROWS = {"physics (nominal)": "dataset", ESTIMATE_ROW: "window", TRUTH: "flight"}
+NOMINAL_ROW = "physics (nominal)"
+PHYSICS_ROWS = {NOMINAL_ROW: "dataset", ESTIMATE_ROW: "window", TRUTH: "flight"}
+ONE_LOAD_ROW = "one load"  # the network the adaptive ones are compared with per test flight
 # The networks: the dataset each trains on, the constants its f runs with and whether its
 # correction sees them (``ModelConfig.constants_input``).
 NETWORK_ROWS = {
-    "one load": ("one", "dataset", False),
+    ONE_LOAD_ROW: ("one", "dataset", False),
     "many loads": ("many", "dataset", False),
     "many loads (adaptive)": ("many", "window", False),
     "many loads (adaptive sees constants)": ("many", "window", True),
