@@ -26,7 +26,7 @@ from slungload.deploy.compiled import (
 from slungload.deploy.predictor import PARITY_TOLERANCE
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.prediction import NetworkModel, PhysicsModel, PredictionModel
-from slungload.state import LOAD_POS, POS, QUAT, VEL
+from slungload.state import LOAD_POS, POS, QUAT, VEL, rotate_about_z
 
 torch.set_num_threads(1)
 
@@ -95,11 +95,17 @@ def random_network(config: ModelConfig, params: VehicleParams, seed: int = 0) ->
     return net
 
 
-def assert_parity(net: torch.nn.Module, m: int = M, n: int = N, k: int = K, seed: int = 1):
+def assert_parity(
+    net: torch.nn.Module, m: int = M, n: int = N, k: int = K, seed: int = 1, yaw: float = 0.0
+):
+    """The compiled network's candidates equal the eager network's (a history near hover,
+    away from the origin, heading ``yaw`` rad)."""
     gen = torch.Generator().manual_seed(seed)
     x_hist, u_past = random_history(m, gen)
     x_hist[:, POS] += torch.tensor([1.0, -2.0, 0.5])  # away from the origin
     x_hist[:, LOAD_POS] += torch.tensor([1.0, -2.0, 0.5])
+    if yaw:
+        x_hist = rotate_about_z(x_hist, torch.zeros(m, 6, dtype=x_hist.dtype), yaw)[0]
     plans = random_plans(k, n, gen, scale=1.0)
     want = NetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
     got = CompiledNetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
@@ -115,6 +121,24 @@ def assert_parity(net: torch.nn.Module, m: int = M, n: int = N, k: int = K, seed
 def test_compiled_network_matches_the_eager_network(architecture, change):
     config = replace(TINY, architecture=architecture, **change)
     assert_parity(random_network(config, PARAMS))
+
+
+@pytest.mark.parametrize("architecture", sorted(MODELS))
+def test_compiled_network_in_the_heading_frame_matches_the_eager_network(architecture):
+    config = replace(TINY, architecture=architecture, heading_frame=True)
+    net = random_network(config, PARAMS)
+    assert_parity(net, yaw=2.4)
+    # the frame is the network's: without it the same weights predict something else there
+    gen = torch.Generator().manual_seed(1)
+    x_hist, u_past = random_history(M, gen)
+    x_hist = rotate_about_z(x_hist, torch.zeros(M, 6, dtype=x_hist.dtype), 2.4)[0]
+    plans = random_plans(K, N, gen, scale=1.0)
+    world = replace(config, heading_frame=False)
+    other = random_network(world, PARAMS)
+    other.load_state_dict(net.state_dict())
+    a = CompiledNetworkModel(net, M).predict_candidates(x_hist, u_past, plans)
+    b = CompiledNetworkModel(other, M).predict_candidates(x_hist, u_past, plans)
+    assert (a - b).abs().max() > 1e-3
 
 
 def test_compiled_network_with_absolute_head_matches_the_eager_network():

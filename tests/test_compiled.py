@@ -114,6 +114,13 @@ def test_other_layer_counts_are_refused_by_the_batch_1_predictor_only():
     assert len(fold(net).embed) == 2  # the fold takes any layer count (the batched backend)
 
 
+def test_the_heading_frame_is_refused_by_the_batch_1_predictor_only():
+    net = SlungLoadNet(ModelConfig(heading_frame=True))
+    assert "heading frame" in unsupported(net)
+    with pytest.raises(ValueError, match="heading frame"):
+        CompiledPredictor(Predictor(net, WindowConfig(), VehicleParams(), "x"), warm_up=False)
+
+
 # --- the physics-step network compiled --------------------------------------------------------
 
 

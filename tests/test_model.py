@@ -258,3 +258,53 @@ def test_relative_normalization_uses_the_origin_step():
     model.fit_normalization(x, u, origin_step=M - 1)
     local = x - model.origin(x[:, M - 1]).unsqueeze(1)
     torch.testing.assert_close(model.state_mean, local.reshape(-1, 13).mean(0), atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("architecture", ["lstm-attention", "physics-step"])
+def test_the_heading_frame_makes_the_prediction_turn_with_the_scene(architecture):
+    """Turning a window about the vertical turns a heading-frame network's prediction with it,
+    to rounding, for forward and forward_candidates; a world-frame network's it does not."""
+    from slungload.models import build
+    from slungload.state import rotate_about_z
+
+    x, u = (a.double() for a in physical_windows())
+    x[..., LOAD_POS] = x[..., POS] - torch.tensor([0.1, 0.0, 0.7], dtype=x.dtype)
+    x_hist, u_hist, u_future = x[:, :M], u[:, :M], u[:, M:]
+    yaw = torch.tensor(2.3, dtype=torch.float64)
+
+    def turned(states):
+        return rotate_about_z(states, torch.zeros(*states.shape[:-1], 6).double(), yaw)[0]
+
+    for heading, equal in ((True, True), (False, False)):
+        torch.manual_seed(0)
+        config = ModelConfig.sized("tiny", architecture=architecture, heading_frame=heading)
+        model = build(config).double().eval()
+        model.fit_normalization(x, u, origin_step=M - 1)
+        with torch.no_grad():
+            for p in model.head.parameters():  # a correction of the size of a real one
+                p.normal_(0.0, 0.3)
+            want = turned(model(x_hist, u_hist, u_future).states)
+            got = model(turned(x_hist), u_hist, u_future).states
+            plans = torch.cat([u_hist[:, -1:], u_future[:, :-1]], 1)
+            one = model.forward_candidates(x_hist[0], u_hist[0, :-1], plans).states
+            one_turned = model.forward_candidates(turned(x_hist[0]), u_hist[0, :-1], plans)
+        gap = (got - want).abs().max().item()
+        gap_candidates = (one_turned.states - turned(one)).abs().max().item()
+        if equal:
+            assert gap < 1e-9 and gap_candidates < 1e-9, (gap, gap_candidates)
+        else:
+            assert gap > 1e-3 and gap_candidates > 1e-3
+
+
+def test_the_heading_frame_normalisation_is_the_same_for_every_heading():
+    from slungload.state import rotate_about_z
+
+    x, u = (a.double() for a in physical_windows())
+    yaw = torch.linspace(-3.0, 3.0, x.shape[0], dtype=torch.float64)[:, None]  # one per window
+    turned = rotate_about_z(x, torch.zeros(*x.shape[:-1], 6).double(), yaw)[0]
+    stats = []
+    for states in (x, turned):
+        model = make_model(heading_frame=True).double()
+        model.fit_normalization(states, u, origin_step=M - 1)
+        stats.append(torch.cat([model.state_mean, model.state_std, model.delta_std]))
+    torch.testing.assert_close(stats[0], stats[1], atol=1e-9, rtol=0)

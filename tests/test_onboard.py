@@ -76,6 +76,24 @@ def test_the_smoothed_load_estimate_exports_too(tmp_path):
 
 
 @pytest.mark.parametrize("architecture", ARCHITECTURES)
+def test_the_heading_frame_exports_too(tmp_path, architecture):
+    """A network that sees its windows in the heading frame exports with the turn in the
+    graph: equal to forward_candidates on a history heading far from x."""
+    from slungload.state import rotate_about_z
+
+    predictor = small_predictor(architecture, heading_frame=True)
+    result = export_for_mpc(predictor, tmp_path, horizon=WINDOW.horizon)
+    assert result.max_abs_diff <= PARITY_TOLERANCE
+    x_hist, u_past, plans = (a.astype(np.float64) for a in candidate_inputs(predictor, 6, 16))
+    x_t = torch.from_numpy(x_hist)
+    x_hist = rotate_about_z(x_t, torch.zeros(*x_t.shape[:-1], 6, dtype=x_t.dtype), 2.0)[0].numpy()
+    eager = NetworkModel(predictor.model, WINDOW.history)
+    want = eager.predict_candidates(*(torch.from_numpy(a) for a in (x_hist, u_past, plans)))
+    got = OnnxCandidateModel(result.model).predict_candidates(x_hist, u_past, plans)
+    assert np.abs(got - want.numpy()).max() <= PARITY_TOLERANCE
+
+
+@pytest.mark.parametrize("architecture", ARCHITECTURES)
 def test_the_onboard_mpc_plans_as_the_torch_mpc(exported, architecture):
     """Same seed, so the same samples: the plans differ only by the float32 rounding of the
     two runtimes, through the weights."""

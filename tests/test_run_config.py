@@ -75,6 +75,10 @@ def test_folder_and_label_name_what_differs_from_the_paper():
     assert BEYOND.label(with_horizon=True) == "physics-step/no-physics+fit+mixed+N50+smoothed"
     # Seeds share a label and a schedule's name is not part of the identity.
     assert BEYOND.scheduled("default", seed=0).label() == BEYOND.label()
+    heading = replace(BEYOND, model=replace(BEYOND.model, heading_frame=True))
+    assert heading.folder() == "physics-step-no-physics-fitted-mixed-N50-smoothed-heading-s2"
+    assert heading.label() == BEYOND.label() + "+heading"
+    assert RunConfig.from_toml(heading.to_toml()) == heading
 
 
 def test_from_preset_applies_the_overrides_to_the_preset():

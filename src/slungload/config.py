@@ -205,6 +205,11 @@ class ModelConfig:
     # vehicle position: the dynamics do not depend on where the arena's origin is, and a network
     # that sees absolute positions can tell training flights apart and memorise them.
     relative_positions: bool = True
+    # The network sees each window turned about the world's vertical so that its last measured
+    # heading points along x, and its prediction is turned back (``state.to_heading_frame``):
+    # the dynamics do not depend on the heading (gravity is the only direction they single
+    # out), and a network that sees the heading must learn every heading from data.
+    heading_frame: bool = False
     # How the physics-step network estimates the load state (vL, Omega_L) it starts f from
     # (a name of LOAD_ESTIMATES); the paper's network has no such estimate.
     load_estimate: str = "difference"

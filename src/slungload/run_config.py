@@ -54,6 +54,7 @@ else:  # pragma: no cover
 
 ADAPTIVE = "adaptive"  # the tag of a network whose f runs with constants estimated in flight
 SEEING = "sees-constants"  # ... and of one whose correction sees them too (constants_input)
+HEADING = "heading"  # ... and of one that sees each window in its heading frame (heading_frame)
 
 
 @dataclass(frozen=True)
@@ -206,7 +207,8 @@ class RunConfig:
         ``config.size_tag``), the variant, "fitted" constants, the step weighting, "N<steps>"
         (a training horizon other than the default), the load estimate (unless the backward
         difference), "adaptive" (f runs with each window's constants estimated in flight) and
-        "sees-constants" (the correction network takes them as inputs too)."""
+        "sees-constants" (the correction network takes them as inputs too), "heading" (the
+        network sees each window in its heading frame)."""
         tags = [] if self.model.architecture == DEFAULT_ARCHITECTURE else [self.model.architecture]
         tags += [size_tag(self.model)] if size_tag(self.model) else []
         tags.append(self.variant)
@@ -218,6 +220,7 @@ class RunConfig:
         tags += [estimate] if estimate != ModelConfig().load_estimate else []
         tags += [ADAPTIVE] if self.model.constants == "window" else []
         tags += [SEEING] if self.model.constants_input else []
+        tags += [HEADING] if self.model.heading_frame else []
         return tags
 
     def folder(self) -> str:
@@ -230,7 +233,7 @@ class RunConfig:
         architecture unless that is the paper's network, suffixed by "+fit" (fitted
         constants), "+relative" or "+mixed" (the step weighting), "+N<steps>" with
         ``with_horizon`` (when runs of a report differ in training horizon), "+smoothed" and
-        "+adaptive" and "+sees-constants";
+        "+adaptive", "+sees-constants" and "+heading";
         a named network size other than the paper's joins the architecture; e.g. "proposed",
         "physics-step/no-physics+relative+N50", "physics-step-small/no-physics"."""
         architecture, size = self.model.architecture, size_tag(self.model)
@@ -243,7 +246,8 @@ class RunConfig:
         label += f"+N{self.window.horizon}" if with_horizon else ""
         label += "+smoothed" if self.model.load_estimate == "smoothed" else ""
         label += f"+{ADAPTIVE}" if self.model.constants == "window" else ""
-        return label + (f"+{SEEING}" if self.model.constants_input else "")
+        label += f"+{SEEING}" if self.model.constants_input else ""
+        return label + (f"+{HEADING}" if self.model.heading_frame else "")
 
     # --- files ----------------------------------------------------------------------------
 

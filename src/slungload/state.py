@@ -40,7 +40,8 @@ __all__ = [  # the layout's names, re-exported, then this module's own
     "STATE_DIM", "STATE_NAMES", "THRUST", "VEL",
     "body_z", "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
     "quat_from_rotvec", "quat_identity", "quat_mul", "quat_normalize", "quat_to_rotmat",
-    "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "split_input", "split_state",
+    "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "heading_twist",
+    "to_heading_frame", "from_heading_frame", "turn_states", "split_input", "split_state",
     "with_unit_quaternion",
 ]  # fmt: skip
 
@@ -149,19 +150,59 @@ def rotate_about_z(states: Tensor, aux: Tensor, yaw: Tensor) -> tuple[Tensor, Te
     together. states (..., 13), aux (..., 6), yaw broadcastable to states.shape[:-1].
     """
     yaw = torch.as_tensor(yaw, dtype=states.dtype, device=states.device)
-    yaw = yaw.expand(states.shape[:-1])
-    c, s = torch.cos(yaw).unsqueeze(-1), torch.sin(yaw).unsqueeze(-1)
+    yaw = yaw.expand(states.shape[:-1]).unsqueeze(-1)
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    zero = torch.zeros_like(yaw)
+    q_yaw = torch.cat([torch.cos(0.5 * yaw), zero, zero, torch.sin(0.5 * yaw)], dim=-1)
+    aux_turned = torch.cat([_turn(aux[..., LOAD_VEL], c, s), _turn(aux[..., LOAD_RATE], c, s)], -1)
+    return turn_states(states, q_yaw, c, s), aux_turned
 
-    def turn(vec: Tensor) -> Tensor:  # (..., 3)
-        x, y, z = vec[..., :1], vec[..., 1:2], vec[..., 2:]
-        return torch.cat([c * x - s * y, s * x + c * y, z], dim=-1)
 
-    half = 0.5 * yaw.unsqueeze(-1)
-    zero = torch.zeros_like(half)
-    q_yaw = torch.cat([torch.cos(half), zero, zero, torch.sin(half)], dim=-1)
+def heading_twist(q: Tensor) -> Tensor:
+    """The attitude's turn about the world's vertical, a unit quaternion (w, 0, 0, z) / norm
+    (..., 4) of w-x-y-z quaternions q (..., 4): q's twist about z. Turning the world by psi
+    about z turns it by psi (it is equivariant), so turning a scene by its inverse gives every
+    heading the same frame. Only arithmetic and a square root (exports to any graph);
+    undefined for an attitude upside down (w = z = 0), never met in flight."""
+    w, z = q[..., :1], q[..., 3:]
+    norm = torch.sqrt(w * w + z * z).clamp_min(1e-12)
+    zero = torch.zeros_like(w)
+    return torch.cat([w / norm, zero, zero, z / norm], dim=-1)
+
+
+def to_heading_frame(states: Tensor, twist: Tensor) -> Tensor:
+    """States (..., 13) turned about the world's vertical by the inverse of ``twist`` (a unit
+    quaternion about z, ``heading_twist``, broadcastable to (..., 4)): a scene whose heading
+    was the twist's now heads along x."""
+    return _turn_by(states, quat_conj(twist))
+
+
+def from_heading_frame(states: Tensor, twist: Tensor) -> Tensor:
+    """The inverse of ``to_heading_frame``: states (..., 13) (or any 13 state rows, such as
+    slack variables) turned back by ``twist`` (..., 4)."""
+    return _turn_by(states, twist)
+
+
+def _turn_by(states: Tensor, q_turn: Tensor) -> Tensor:
+    """States turned by a unit quaternion about z (w, 0, 0, z): the angle's cosine w^2 - z^2
+    and sine 2 w z (no trigonometry)."""
+    w, z = q_turn[..., :1], q_turn[..., 3:]
+    return turn_states(states, q_turn, w * w - z * z, 2.0 * w * z)
+
+
+def turn_states(states: Tensor, q_turn: Tensor, c: Tensor, s: Tensor) -> Tensor:
+    """States (..., 13) turned about z: vehicle and load positions and velocity rotated by the
+    angle of cosine ``c`` and sine ``s`` (..., 1), the attitude left-multiplied by ``q_turn``
+    (..., 4), the same turn as a quaternion."""
     p, v, q, p_load = split_state(states)
-    out = join_state(turn(p), turn(v), quat_mul(q_yaw, q), turn(p_load))
-    return out, torch.cat([turn(aux[..., LOAD_VEL]), turn(aux[..., LOAD_RATE])], dim=-1)
+    q_turn = q_turn.expand(*q.shape[:-1], 4)
+    return join_state(_turn(p, c, s), _turn(v, c, s), quat_mul(q_turn, q), _turn(p_load, c, s))
+
+
+def _turn(vec: Tensor, c: Tensor, s: Tensor) -> Tensor:
+    """World vectors (..., 3) rotated about z by the angle of cosine c and sine s (..., 1)."""
+    x, y, z = vec[..., :1], vec[..., 1:2], vec[..., 2:]
+    return torch.cat([c * x - s * y, s * x + c * y, z], dim=-1)
 
 
 def with_unit_quaternion(states: Tensor) -> Tensor:

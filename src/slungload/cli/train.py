@@ -117,6 +117,13 @@ def add_train(sub: Any) -> None:
         "(as ratios to the dataset's) as inputs at every step, with --constants window the "
         "window's estimate",
     )
+    p.add_argument(
+        "--heading-frame",
+        action="store_true",
+        help="the network sees each window turned about the vertical so that its last heading "
+        "points along x, and its prediction is turned back: the same for every heading by "
+        "construction (a network without it must learn each heading from data)",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -126,7 +133,8 @@ def add_train(sub: Any) -> None:
 
 # What a --config file describes instead (its options may not be given beside it).
 RUN_OPTIONS = ("variant", "model", "size", "preset", "fit_constants", "steps", "load_estimate",
-               "constants", "constants_input", "history", "horizon", "stride")  # fmt: skip
+               "constants", "constants_input", "heading_frame", "history", "horizon",
+               "stride")  # fmt: skip
 
 
 def run_from_args(args: argparse.Namespace):
@@ -160,6 +168,7 @@ def run_from_args(args: argparse.Namespace):
             load_estimate=args.load_estimate,
             constants=args.constants,
             constants_input=args.constants_input,
+            heading_frame=args.heading_frame,
         ),
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),

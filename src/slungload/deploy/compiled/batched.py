@@ -53,6 +53,7 @@ from ...models.prediction import (
     load_prediction_model,
 )
 from ...physics import VehicleConstants
+from ...state import from_heading_frame, to_heading_frame
 from ..gpu import CUDA, on_gpu
 from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
@@ -135,6 +136,7 @@ class CompiledNetworkModel:
         self.constants = folded.constants
         self.name, self.history = name, history
         self._eager = NetworkModel(net, history, name=name)
+        self._net = net
         self._buffers: _Buffers | None = None
         # The encoder's batch-1 pass takes (in, out) matrices and (L, 4H) biases.
         rows = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
@@ -147,7 +149,9 @@ class CompiledNetworkModel:
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
         w = self.w
-        x = x_hist.detach().cpu().numpy().astype(np.float64)
+        x_t = x_hist.detach().cpu().to(torch.float64)
+        twist = self._net.heading(x_t[-1])  # (4,) or None: the network's frame turns by it
+        x = (x_t if twist is None else to_heading_frame(x_t, twist)).numpy()
         origin = x[-1, POS] @ w.origin_shift  # (13,)
         x_rel = x - origin
         u_cols = np.ascontiguousarray(  # (N, 4, K)
@@ -175,7 +179,10 @@ class CompiledNetworkModel:
                 b.a["xu"], self._head(b), aux, w.mode, w.add_mean, vehicle, u_next, origin,
                 out, step,
             )  # fmt: skip
-        return torch.from_numpy(out).to(plans.device, plans.dtype)
+        pred = torch.from_numpy(out)
+        if twist is not None:
+            pred = from_heading_frame(pred, twist)
+        return pred.to(plans.device, plans.dtype)
 
     # --- the pieces ---------------------------------------------------------------------------
 

@@ -132,6 +132,11 @@ def unsupported(model: nn.Module) -> str | None:
     if reason is not None:
         return reason
     cfg = model.config
+    if cfg.heading_frame:
+        return (
+            "CompiledPredictor does not turn windows into the heading frame "
+            "(ModelConfig.heading_frame); predict with the torch or ONNX predictor"
+        )
     if len(cfg.embed_sizes) != 3 or len(cfg.head_sizes) != 3:
         return (
             "CompiledPredictor supports three embedding and three head layers (the paper's "
