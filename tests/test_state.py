@@ -124,27 +124,36 @@ def test_the_heading_frame_turns_a_scene_to_heading_zero_and_back():
         POS,
         QUAT,
         from_heading_frame,
+        heading_turn,
         heading_twist,
         quat_normalize,
         rotate_about_z,
         to_heading_frame,
+        turn_states,
     )
 
     g = torch.Generator().manual_seed(4)
     x = torch.randn(5, 7, 13, generator=g, dtype=torch.float64)
     x[..., QUAT] = quat_normalize(x[..., QUAT])
-    twist = heading_twist(x[:, -1:, QUAT])  # (5, 1, 4)
-    torch.testing.assert_close(twist.norm(dim=-1), torch.ones(5, 1, dtype=torch.float64))
-    local = to_heading_frame(x, twist)
+    twist = heading_twist(x[:, -1, QUAT])  # (5, 4)
+    torch.testing.assert_close(twist.norm(dim=-1), torch.ones(5, dtype=torch.float64))
+    turn = heading_turn(twist)  # (5, 13, 13), orthogonal
+    eye = torch.eye(13, dtype=torch.float64).expand(5, 13, 13)
+    torch.testing.assert_close(turn @ turn.transpose(-1, -2), eye, atol=1e-12, rtol=0)
+    # the matrix is the turn written out: vectors rotated, the attitude left-multiplied
+    a, b = twist[:, None, :1], twist[:, None, 3:]
+    want = turn_states(x, twist[:, None], a * a - b * b, 2 * a * b)
+    torch.testing.assert_close(from_heading_frame(x, turn), want, atol=1e-12, rtol=0)
+    local = to_heading_frame(x, turn)
     # the last attitude now has no turn about z: its twist is the identity (up to sign)
     heading = heading_twist(local[:, -1, QUAT])
     torch.testing.assert_close(heading[:, 0].abs(), torch.ones(5, dtype=torch.float64))
-    torch.testing.assert_close(from_heading_frame(local, twist), x, atol=1e-12, rtol=0)
+    torch.testing.assert_close(from_heading_frame(local, turn), x, atol=1e-12, rtol=0)
     # the twist turns with the world, so a turned scene has the same local frame
     yaw = torch.tensor(-1.9, dtype=torch.float64)
     turned = rotate_about_z(x, torch.zeros(5, 7, 6, dtype=torch.float64), yaw)[0]
-    again = to_heading_frame(turned, heading_twist(turned[:, -1:, QUAT]))
+    again = to_heading_frame(turned, heading_turn(heading_twist(turned[:, -1, QUAT])))
     torch.testing.assert_close(again, local, atol=1e-12, rtol=0)
-    # heights, the vertical velocity and distances are untouched
+    # heights and distances are untouched
     torch.testing.assert_close(local[..., 2], x[..., 2])
     torch.testing.assert_close(local[..., POS].norm(dim=-1), x[..., POS].norm(dim=-1))

@@ -9,6 +9,8 @@ them at the edges (``quat_xyzw_to_wxyz``). World frame is z up.
 
 from __future__ import annotations
 
+import functools
+
 import roma
 import torch
 from torch import Tensor
@@ -41,8 +43,8 @@ __all__ = [  # the layout's names, re-exported, then this module's own
     "body_z", "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
     "quat_from_rotvec", "quat_identity", "quat_mul", "quat_normalize", "quat_to_rotmat",
     "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "heading_twist",
-    "to_heading_frame", "from_heading_frame", "turn_states", "split_input", "split_state",
-    "with_unit_quaternion",
+    "heading_turn", "to_heading_frame", "from_heading_frame", "turn_states", "split_input",
+    "split_state", "with_unit_quaternion",
 ]  # fmt: skip
 
 
@@ -170,24 +172,51 @@ def heading_twist(q: Tensor) -> Tensor:
     return torch.cat([w / norm, zero, zero, z / norm], dim=-1)
 
 
-def to_heading_frame(states: Tensor, twist: Tensor) -> Tensor:
-    """States (..., 13) turned about the world's vertical by the inverse of ``twist`` (a unit
-    quaternion about z, ``heading_twist``, broadcastable to (..., 4)): a scene whose heading
-    was the twist's now heads along x."""
-    return _turn_by(states, quat_conj(twist))
+def heading_turn(twist: Tensor) -> Tensor:
+    """The turn of a state about z by ``twist`` (..., 4), a unit quaternion (a, 0, 0, b), as an
+    orthogonal matrix (..., 13, 13) acting on state columns: positions and velocities rotated by
+    the angle of cosine a^2 - b^2 and sine 2 a b, the attitude left-multiplied by the twist. One
+    matrix product then turns every row of a window (``to_heading_frame``)."""
+    a, b = twist[..., 0, None, None], twist[..., 3, None, None]
+    c, s = a * a - b * b, 2.0 * a * b
+    basis = _turn_basis(twist.dtype, twist.device)
+    return basis[0] + c * basis[1] + s * basis[2] + a * basis[3] + b * basis[4]
 
 
-def from_heading_frame(states: Tensor, twist: Tensor) -> Tensor:
-    """The inverse of ``to_heading_frame``: states (..., 13) (or any 13 state rows, such as
-    slack variables) turned back by ``twist`` (..., 4)."""
-    return _turn_by(states, twist)
+@functools.cache  # never freed: a captured CUDA graph may read one
+def _turn_basis(dtype: torch.dtype, device: torch.device) -> Tensor:
+    """(5, 13, 13): ``heading_turn``'s matrix = B0 + c B1 + s B2 + a B3 + b B4, made once per
+    dtype and device (a copy at every call would stop a CUDA graph capture; a plain tensor
+    even under ``torch.inference_mode``, as ``load_state._fit_coefficients``)."""
+    with torch.inference_mode(False):
+        return _basis().to(dtype=dtype, device=device)
 
 
-def _turn_by(states: Tensor, q_turn: Tensor) -> Tensor:
-    """States turned by a unit quaternion about z (w, 0, 0, z): the angle's cosine w^2 - z^2
-    and sine 2 w z (no trigonometry)."""
-    w, z = q_turn[..., :1], q_turn[..., 3:]
-    return turn_states(states, q_turn, w * w - z * z, 2.0 * w * z)
+def _basis() -> Tensor:
+    out = torch.zeros(5, STATE_DIM, STATE_DIM, dtype=torch.float64)
+    for vec in (POS, VEL, LOAD_POS):
+        x, y, z = range(vec.start, vec.stop)
+        out[0, z, z] = 1.0
+        out[1, x, x] = out[1, y, y] = 1.0  # c
+        out[2, x, y], out[2, y, x] = -1.0, 1.0  # s
+    w, qx, qy, qz = range(QUAT.start, QUAT.stop)
+    for i in (w, qx, qy, qz):  # (a, 0, 0, b) (x) q = (a w - b z, a x - b y, a y + b x, a z + b w)
+        out[3, i, i] = 1.0
+    out[4, w, qz], out[4, qx, qy], out[4, qy, qx], out[4, qz, w] = -1.0, -1.0, 1.0, 1.0
+    return out
+
+
+def to_heading_frame(states: Tensor, turn: Tensor) -> Tensor:
+    """States (..., T, 13) turned about the world's vertical by the inverse of ``turn``
+    (``heading_turn`` of a ``heading_twist``, (..., 13, 13) broadcast over the rows): a scene
+    whose heading was the twist's now heads along x."""
+    return states @ turn  # each row times turn^T^-1 = turn (orthogonal)
+
+
+def from_heading_frame(states: Tensor, turn: Tensor) -> Tensor:
+    """The inverse of ``to_heading_frame``: states (..., T, 13) (or any 13 state rows, such as
+    slack variables) turned back by ``turn`` (..., 13, 13)."""
+    return states @ turn.transpose(-1, -2)
 
 
 def turn_states(states: Tensor, q_turn: Tensor, c: Tensor, s: Tensor) -> Tensor:

@@ -150,8 +150,8 @@ class CompiledNetworkModel:
         check_candidates(x_hist, u_past, plans)
         w = self.w
         x_t = x_hist.detach().cpu().to(torch.float64)
-        twist = self._net.heading(x_t[-1])  # (4,) or None: the network's frame turns by it
-        x = (x_t if twist is None else to_heading_frame(x_t, twist)).numpy()
+        turn = self._net.heading(x_t[-1])  # (13, 13) or None: the network's frame undoes it
+        x = (x_t if turn is None else to_heading_frame(x_t, turn)).numpy()
         origin = x[-1, POS] @ w.origin_shift  # (13,)
         x_rel = x - origin
         u_cols = np.ascontiguousarray(  # (N, 4, K)
@@ -180,8 +180,8 @@ class CompiledNetworkModel:
                 out, step,
             )  # fmt: skip
         pred = torch.from_numpy(out)
-        if twist is not None:
-            pred = from_heading_frame(pred, twist)
+        if turn is not None:
+            pred = from_heading_frame(pred, turn)
         return pred.to(plans.device, plans.dtype)
 
     # --- the pieces ---------------------------------------------------------------------------
