@@ -213,7 +213,7 @@ MANEUVER_DESCRIPTIONS: dict[str, str] = {
     "slow_ellipses_xyz": "tilted ellipses (climbing and sinking), 8-11 s a lap",
     "fast_ellipses_xyz": "tilted ellipses, 4-6 s a lap",
     "fast_ellipses_xyz_rand": "tilted ellipses of random size and period",
-    "fast_ellipses_xyz_v2": "tilted ellipses, 4-6 s a lap, with yaw rotation",
+    "fast_ellipses_xyz_v2": "tilted ellipses on a sloping plane, 4-6 s a lap",
     "fast_8_lap_plane": "horizontal figure eights",
     "fast_8_lap_xyz": "figure eights that climb and sink",
     "baf_slow": "back and forth along a line, 7-10 s a cycle",
