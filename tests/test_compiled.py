@@ -114,11 +114,31 @@ def test_other_layer_counts_are_refused_by_the_batch_1_predictor_only():
     assert len(fold(net).embed) == 2  # the fold takes any layer count (the batched backend)
 
 
-def test_the_heading_frame_is_refused_by_the_batch_1_predictor_only():
-    net = SlungLoadNet(ModelConfig(heading_frame=True))
-    assert "heading frame" in unsupported(net)
-    with pytest.raises(ValueError, match="heading frame"):
-        CompiledPredictor(Predictor(net, WindowConfig(), VehicleParams(), "x"), warm_up=False)
+@pytest.mark.parametrize("architecture", sorted(MODELS))
+def test_the_heading_frame_matches_the_eager_network(
+    untrained_predictor, physics_step_predictor, physics_flight, architecture
+):
+    """A network that sees its windows in the heading frame, on histories heading 2 rad from x:
+    the batch-1 compiled pass turns them as the eager network does."""
+    from dataclasses import replace as replace_fields
+
+    from slungload.state import rotate_about_z
+
+    config = ModelConfig(architecture=architecture, heading_frame=True)
+    if architecture == PHYSICS_STEP:
+        predictor = physics_step_predictor(config, VehicleParams())
+    else:
+        predictor = untrained_predictor(config)
+    compiled = CompiledPredictor(predictor)
+    flights = [physics_flight(f"t{i}", 100 + i, M + 40) for i in range(2)]
+    windows = make_windows(flights, WindowConfig(history=M, horizon=25, stride=5))
+    states, aux = rotate_about_z(windows.states, windows.aux, 2.0)
+    history, future = predict_args(replace_fields(windows, states=states, aux=aux))
+    got, want = compiled.predict(history, future), predictor.predict(history, future)
+    np.testing.assert_allclose(got, want, atol=PARITY_TOLERANCE, rtol=0)
+    np.testing.assert_allclose(np.linalg.norm(got[..., QUAT], axis=-1), 1.0, atol=1e-6)
+    # one window alone, unbatched, is the same window of the batch
+    np.testing.assert_allclose(compiled.predict(history[1], future[1]), got[1], atol=1e-6)
 
 
 # --- the physics-step network compiled --------------------------------------------------------

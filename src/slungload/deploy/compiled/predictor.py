@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch import nn
+from torch import Tensor, nn
 
 from ...config import ESTIMATE_MIN_STEPS
 from ...layout import (
@@ -46,6 +46,7 @@ from ...layout import (
     XYZW_TO_WXYZ,
 )
 from ...physics import VehicleConstants
+from ...state import from_heading_frame, to_heading_frame
 from ..predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
 from .fold import (
     PHYSICS_STEP,
@@ -72,6 +73,9 @@ _P, _Q, _U = POS.start, QUAT.start, STATE_DIM  # rows of an (x, u) row: position
 # components of the file's x, y, z, w.
 _FILE_QW, _FILE_QX, _FILE_QY, _FILE_QZ = (QUAT.start + i for i in XYZW_TO_WXYZ)
 _TO_FILE = WXYZ_TO_XYZW
+# State columns: file = package[..., _PACKAGE_TO_FILE], package = file[..., _FILE_TO_PACKAGE].
+_PACKAGE_TO_FILE = [*range(_Q), *(_Q + i for i in WXYZ_TO_XYZW), *range(QUAT.stop, STATE_DIM)]
+_FILE_TO_PACKAGE = [*range(_Q), *(_Q + i for i in XYZW_TO_WXYZ), *range(QUAT.stop, STATE_DIM)]
 _THRUST = STATE_DIM + THRUST.start  # an (x, u) row's thrust column
 
 
@@ -132,11 +136,6 @@ def unsupported(model: nn.Module) -> str | None:
     if reason is not None:
         return reason
     cfg = model.config
-    if cfg.heading_frame:
-        return (
-            "CompiledPredictor does not turn windows into the heading frame "
-            "(ModelConfig.heading_frame); predict with the torch or ONNX predictor"
-        )
     if len(cfg.embed_sizes) != 3 or len(cfg.head_sizes) != 3:
         return (
             "CompiledPredictor supports three embedding and three head layers (the paper's "
@@ -204,13 +203,32 @@ class CompiledPredictor:
         origin = np.empty((batch, STATE_DIM), dtype=np.float32)
         for b in range(batch):
             _relative_rows(hist[b], w.origin_shift, xu[b], origin[b])
+        turns = self._to_heading_frame(xu, origin)
         windows = [self._for_window(xu[b]) for b in range(batch)]
         with torch_threads(p.threads):  # the only torch work: one matrix product
             pre = self._encoder_inputs(xu, np.stack([r.emb0_b for r in windows]))
         out = np.empty((batch, fut.shape[1], STATE_DIM), dtype=np.float32)
         for b in range(batch):
             _forward(xu[b], origin[b], pre[b], fut[b], windows[b], out[b])
+        if turns is not None:  # back to the world frame, in the file layout
+            states = torch.from_numpy(out[..., _FILE_TO_PACKAGE].astype(np.float64))
+            out = from_heading_frame(states, turns).numpy()[..., _PACKAGE_TO_FILE]
         return unbatch(out, single)
+
+    def _to_heading_frame(self, xu: np.ndarray, origin: np.ndarray) -> Tensor | None:
+        """For a network that sees the heading frame (``ModelConfig.heading_frame``): the rows
+        xu (B, M, 17, package layout, relative to ``origin``) and the origins (B, 13) turned in
+        place by each window's heading, as ``SlungLoadNet.forward`` turns them (the same torch
+        helpers); the turns (B, 13, 13), or None for a world-frame network."""
+        last = torch.from_numpy(xu[:, -1, :STATE_DIM].astype(np.float64))  # (B, 13)
+        turns = self.predictor.model.heading(last)
+        if turns is None:
+            return None
+        rows = torch.from_numpy(xu[..., :STATE_DIM].astype(np.float64))
+        xu[..., :STATE_DIM] = to_heading_frame(rows, turns).numpy()
+        here = torch.from_numpy(origin.astype(np.float64)).unsqueeze(1)  # (B, 1, 13)
+        origin[:] = to_heading_frame(here, turns)[:, 0].numpy()
+        return turns
 
     def _for_window(self, xu: np.ndarray) -> _Rows:
         """The rows for this window (M, 17): f's constants the network's, or, adapting to its
