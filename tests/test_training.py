@@ -217,6 +217,19 @@ def test_resume_continues_the_epoch_count_and_matches_one_long_run(
     assert all(torch.allclose(ws[k], wr[k], atol=1e-6) for k in ws)
 
 
+def test_a_run_from_before_a_model_field_existed_resumes(dataset, tmp_path: Path, train_tiny):
+    """A checkpoint whose model config lacks a field added since (here heading_frame) holds its
+    default: resuming it is not refused as "other settings"."""
+    from slungload.models.checkpoints import CKPT_KEY
+
+    first = train_tiny(dataset, tmp_path / "old", max_epochs=1)
+    ckpt = torch.load(first.last_checkpoint, weights_only=True)
+    del ckpt[CKPT_KEY]["model"]["heading_frame"]
+    torch.save(ckpt, first.last_checkpoint)
+    resumed = train_tiny(dataset, tmp_path / "old", max_epochs=2, resume=True)
+    assert resumed.epochs == 2
+
+
 # --- checkpoints ---------------------------------------------------------------------------
 
 

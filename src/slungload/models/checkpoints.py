@@ -178,8 +178,10 @@ def _first_line(exc: BaseException) -> str:
 def check_resumable(last: Path, meta: dict[str, Any]) -> None:
     """Refuse to resume a run with other settings than it was started with, naming them."""
     _, saved = _read_checkpoint(last)
-    if isinstance(saved.get("weights"), dict):  # fields added since get their defaults
-        saved = {**saved, "weights": to_dict(from_dict(LossWeights, saved["weights"]))}
+    # fields added since get their defaults
+    for key, kind in (("weights", LossWeights), ("model", ModelConfig)):
+        if isinstance(saved.get(key), dict):
+            saved = {**saved, key: to_dict(from_dict(kind, saved[key]))}
     # The epoch budget may be raised on resume, the data folder may have moved, and the same
     # constants may come from vehicle.json or from options.
     # The time cap is a safety net, not part of the schedule: a run it stopped resumes without.
