@@ -285,15 +285,17 @@ def test_the_gap_closed_and_its_bootstrap_interval():
     wider = np.asarray(half) + 0.15 * rng.standard_normal(4)
     assert np.ptp(gap_interval(physics, wider, oracle)) > high - low
     # resamples where the oracle is no better than physics leave no gap: an infinite bound
-    assert gap_interval([0.5, 0.2], [0.3, 0.1], [0.2, 0.4])[1] == math.inf
+    assert gap_interval([0.5, 0.2, 0.3], [0.3, 0.1, 0.2], [0.2, 0.4, 0.2])[1] == math.inf
     assert gap_share(*np.asarray([[0.2], [0.3], [0.4]])) == -math.inf
-    assert all(math.isnan(v) for v in gap_interval([0.5], [0.3], [0.2]))
+    # too few flights for an interval: two give only three distinct resamples
+    assert all(math.isnan(v) for v in gap_interval([0.5, 0.6], [0.3, 0.35], [0.2, 0.3]))
     # the gap table writes the interval beside the share
-    rows = [_row(c, "m", seed, v) for seed, vals in enumerate([(0.5, 0.3, 0.2), (0.6, 0.35, 0.3)])
+    figures = [(0.5, 0.3, 0.2), (0.6, 0.35, 0.3), (0.4, 0.25, 0.1)]
+    rows = [_row(c, "m", seed, v) for seed, vals in enumerate(figures)
             for c, v in zip("plo", vals, strict=True)]  # fmt: skip
     cell = gap_closed(rows, "p", "l", "o", "load_rmse")[0][-2]
-    low, high = gap_interval([0.5, 0.6], [0.3, 0.35], [0.2, 0.3])
-    assert cell == f"75 % [{100 * low:.0f} %, {100 * high:.0f} %]" and low < 0.75 < high
+    low, high = gap_interval(*zip(*figures, strict=True))
+    assert cell == f"67 % [{100 * low:.0f} %, {100 * high:.0f} %]" and low < 2 / 3 < high
 
 
 def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():

@@ -41,6 +41,28 @@ def exported(paper_predictor: Predictor, tmp_path_factory: pytest.TempPathFactor
     return {n: export(paper_predictor, folder / f"n{n}.onnx", horizon=n) for n in (25, 50)}
 
 
+def test_a_heading_frame_network_exports_and_is_checked_at_every_heading(
+    untrained_predictor, tmp_path, physics_flight
+):
+    """The export's own samples face every way for a heading-frame network (its statistics are
+    those of heading zero), and the graph equals eager on windows turned 2 rad."""
+    from slungload.config import ModelConfig
+    from slungload.deploy.onnx import sample_inputs
+    from slungload.state import heading_twist, quat_xyzw_to_wxyz, rotate_about_z
+
+    predictor = untrained_predictor(ModelConfig(heading_frame=True))
+    history, _ = sample_inputs(predictor, batch=16)
+    twist = heading_twist(quat_xyzw_to_wxyz(torch.from_numpy(history[:, -1, QUAT]).double()))
+    heading = 2 * torch.atan2(twist[:, 3], twist[:, 0])
+    assert heading.abs().max() > 2.0 and heading.std() > 1.0
+    result = export(predictor, tmp_path / "heading.onnx", horizon=25)
+    windows = make_windows([physics_flight("t", 100, 90)], WindowConfig(history=50, horizon=25))
+    states, aux = rotate_about_z(windows.states, windows.aux, 2.0)
+    history, future = predict_args(dataclasses.replace(windows, states=states, aux=aux))
+    got = OnnxPredictor(result.model).predict(history, future)
+    np.testing.assert_allclose(got, predictor.predict(history, future), atol=1e-4, rtol=0)
+
+
 @pytest.mark.parametrize("horizon", [25, 50])
 def test_exported_matches_eager_on_physics_windows(
     paper_predictor, exported, horizon: int, physics_flight

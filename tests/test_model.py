@@ -296,6 +296,46 @@ def test_the_heading_frame_makes_the_prediction_turn_with_the_scene(architecture
             assert gap > 1e-3 and gap_candidates > 1e-3
 
 
+def test_the_heading_frame_makes_the_physics_loss_with_slack_the_same_for_every_heading():
+    """The slack is added to the physics residual, whose attitude block is an error that a turn
+    of the world conjugates: turned back as such, |residual + slack| is the same at every
+    heading (turned back as a state, it is not)."""
+    from slungload.config import VehicleParams
+    from slungload.loss import physics_residual
+    from slungload.models import build
+    from slungload.models.base import Prediction
+    from slungload.state import from_heading_frame, heading_turn, rotate_about_z
+
+    x, u = (a.double() for a in physical_windows())
+    x[..., LOAD_POS] = x[..., POS] - torch.tensor([0.1, 0.0, 0.7], dtype=x.dtype)
+    u_hist, u_future = u[:, :M], u[:, M:]
+    aux = torch.zeros(*x.shape[:-1], 6, dtype=x.dtype)
+    yaw = torch.tensor(2.3, dtype=torch.float64)
+    torch.manual_seed(0)
+    config = ModelConfig.sized("tiny", architecture="physics-step", heading_frame=True)
+    model = build(config).double().eval()
+    model.fit_normalization(x, u, origin_step=M - 1)
+    with torch.no_grad():
+        for p in model.head.parameters():
+            p.normal_(0.0, 0.3)
+
+    def residual(states, as_states=False):
+        with torch.no_grad():
+            pred = model(states[:, :M], u_hist, u_future)
+        if as_states:  # the slack turned back as if it were a state
+            twist = model.heading(states[:, M - 1])
+            inside = from_heading_frame(pred.slack, heading_turn(twist, errors=True).mT)
+            pred = Prediction(pred.states, from_heading_frame(inside, heading_turn(twist)))
+        inputs = torch.cat([u_hist[:, -1:], u_future[:, :-1]], 1)
+        last, aux_steps = states[:, M - 1], aux[:, M - 1 : -1]
+        r = physics_residual(pred.states, pred.slack, last, inputs, aux_steps, VehicleParams())
+        return r.square().sum(-1)
+
+    turned = rotate_about_z(x, aux, yaw)[0]
+    torch.testing.assert_close(residual(turned), residual(x), atol=1e-9, rtol=0)
+    assert (residual(turned, True) - residual(x, True)).abs().max() > 1e-4
+
+
 def test_the_heading_frame_normalisation_is_the_same_for_every_heading():
     from slungload.state import rotate_about_z
 

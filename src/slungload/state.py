@@ -172,37 +172,47 @@ def heading_twist(q: Tensor) -> Tensor:
     return torch.cat([w / norm, zero, zero, z / norm], dim=-1)
 
 
-def heading_turn(twist: Tensor) -> Tensor:
+def heading_turn(twist: Tensor, *, errors: bool = False) -> Tensor:
     """The turn of a state about z by ``twist`` (..., 4), a unit quaternion (a, 0, 0, b), as an
     orthogonal matrix (..., 13, 13) acting on state columns: positions and velocities rotated by
     the angle of cosine a^2 - b^2 and sine 2 a b, the attitude left-multiplied by the twist. One
-    matrix product then turns every row of a window (``to_heading_frame``)."""
+    matrix product then turns every row of a window (``to_heading_frame``).
+
+    ``errors``: the turn of 13 state *errors* instead, whose quaternion block is an attitude
+    error q1 (x) q2^-1 - q_id (``quat_error``; the slack variables): a turn of the world
+    conjugates it, so its w and z stay and its x and y rotate as a vector's do."""
     a, b = twist[..., 0, None, None], twist[..., 3, None, None]
     c, s = a * a - b * b, 2.0 * a * b
-    basis = _turn_basis(twist.dtype, twist.device)
+    basis = _turn_basis(twist.dtype, twist.device, errors)
+    if errors:
+        return basis[0] + c * basis[1] + s * basis[2]
     return basis[0] + c * basis[1] + s * basis[2] + a * basis[3] + b * basis[4]
 
 
 @functools.cache  # never freed: a captured CUDA graph may read one
-def _turn_basis(dtype: torch.dtype, device: torch.device) -> Tensor:
-    """(5, 13, 13): ``heading_turn``'s matrix = B0 + c B1 + s B2 + a B3 + b B4, made once per
-    dtype and device (a copy at every call would stop a CUDA graph capture; a plain tensor
-    even under ``torch.inference_mode``, as ``load_state._fit_coefficients``)."""
+def _turn_basis(dtype: torch.dtype, device: torch.device, errors: bool) -> Tensor:
+    """(5, 13, 13): ``heading_turn``'s matrix = B0 + c B1 + s B2 (+ a B3 + b B4 for states),
+    made once per dtype and device (a copy at every call would stop a CUDA graph capture; a
+    plain tensor even under ``torch.inference_mode``, as ``load_state._fit_coefficients``)."""
     with torch.inference_mode(False):
-        return _basis().to(dtype=dtype, device=device)
+        return _basis(errors).to(dtype=dtype, device=device)
 
 
-def _basis() -> Tensor:
+def _basis(errors: bool) -> Tensor:
     out = torch.zeros(5, STATE_DIM, STATE_DIM, dtype=torch.float64)
-    for vec in (POS, VEL, LOAD_POS):
-        x, y, z = range(vec.start, vec.stop)
+    w, qx, qy, qz = range(QUAT.start, QUAT.stop)
+    vectors = [range(v.start, v.stop) for v in (POS, VEL, LOAD_POS)]
+    if errors:  # an attitude error's (x, y, z) turns as a vector, its w stays
+        vectors.append(range(qx, qz + 1))
+        out[0, w, w] = 1.0
+    for x, y, z in vectors:
         out[0, z, z] = 1.0
         out[1, x, x] = out[1, y, y] = 1.0  # c
         out[2, x, y], out[2, y, x] = -1.0, 1.0  # s
-    w, qx, qy, qz = range(QUAT.start, QUAT.stop)
-    for i in (w, qx, qy, qz):  # (a, 0, 0, b) (x) q = (a w - b z, a x - b y, a y + b x, a z + b w)
-        out[3, i, i] = 1.0
-    out[4, w, qz], out[4, qx, qy], out[4, qy, qx], out[4, qz, w] = -1.0, -1.0, 1.0, 1.0
+    if not errors:  # (a, 0, 0, b) (x) q = (a w - b z, a x - b y, a y + b x, a z + b w)
+        for i in (w, qx, qy, qz):
+            out[3, i, i] = 1.0
+        out[4, w, qz], out[4, qx, qy], out[4, qy, qx], out[4, qz, w] = -1.0, -1.0, 1.0, 1.0
     return out
 
 

@@ -39,6 +39,7 @@ def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
 COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
 GAP_RESAMPLES = 4000  # bootstrap resamples of the gap closed's interval (``gap_interval``)
+GAP_MIN_FLIGHTS = 3  # flights below which ``gap_interval`` gives none
 
 Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was flown
 Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights
@@ -210,12 +211,14 @@ def gap_interval(
     oracle: Sequence[float],
     resamples: int = GAP_RESAMPLES,
 ) -> tuple[float, float]:
-    """95 % paired bootstrap interval of ``gap_share`` over flights (the three sequences hold
-    one figure per flight, in the same order; flights are resampled together, with a fixed
-    seed so a report is reproduced to the digit). NaN for fewer than two flights; a bound may
-    be infinite where resamples leave no gap."""
+    """95 % paired percentile-bootstrap interval of ``gap_share`` over flights (the three
+    sequences hold one figure per flight, in the same order; flights are resampled together,
+    with a fixed seed so a report is reproduced to the digit). Approximate: with the study's
+    five seeds a percentile bootstrap tends to be narrow. NaN for fewer than
+    ``GAP_MIN_FLIGHTS`` flights (two give three distinct resamples); a bound may be infinite
+    where resamples leave no gap."""
     x = np.asarray([physics, learned, oracle], dtype=float)
-    if x.shape[1] < 2:
+    if x.shape[1] < GAP_MIN_FLIGHTS:
         return math.nan, math.nan
     picks = np.random.default_rng(0).integers(0, x.shape[1], size=(resamples, x.shape[1]))
     shares = gap_share(*x[:, picks])

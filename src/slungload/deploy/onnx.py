@@ -27,6 +27,7 @@ it never imports Lightning or ``training`` (checkpoints are read with torch alon
 from __future__ import annotations
 
 import copy
+import math
 import time
 import warnings
 from collections.abc import Sequence
@@ -54,6 +55,7 @@ from ..state import (
     RATES,
     STATE_DIM,
     THRUST,
+    rotate_about_z,
     with_unit_quaternion,
 )
 from .onboard import CPU as _CPU
@@ -329,8 +331,10 @@ def sample_inputs(
     history (batch, M, 17) and future_inputs (batch, N, 4): per window, a last state drawn
     around the fitted mean with half the fitted spread (the load at the mean offset from the
     vehicle) reached by a random walk in steps of the fitted per-step change, inputs drawn
-    around their means with half their spread, unit quaternions, a random arena position.
-    Used to trace the export and to check it; not a substitute for real windows.
+    around their means with half their spread, unit quaternions, a random arena position, and
+    for a heading-frame network (``ModelConfig.heading_frame``, whose statistics are those of
+    heading zero) a random heading. Used to trace the export and to check it; not a substitute
+    for real windows.
     """
     import torch
 
@@ -352,8 +356,11 @@ def sample_inputs(
         u = model.input_mean + 0.5 * model.input_std * torch.randn(
             batch, m + n, INPUT_DIM, generator=gen
         )
-    x = x.double()
-    x = states_to_file(with_unit_quaternion(x))
+    x = with_unit_quaternion(x.double())
+    if model.config.heading_frame:  # its statistics face one way: check the turn, every way
+        yaw = torch.rand(batch, 1, generator=gen, dtype=torch.float64) * 2 * math.pi - math.pi
+        x = rotate_about_z(x, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype), yaw)[0]
+    x = states_to_file(x)
     history = torch.cat([x, u[:, :m].double()], dim=-1)
     return history.float().numpy(), u[:, m:].float().numpy()
 

@@ -226,9 +226,9 @@ class SlungLoadNet(nn.Module):
         if states.shape[-2] < 2:
             raise ValueError("fit_normalization: need at least 2 time steps for delta_std")
         x = states.detach().to(torch.float64)
-        turn = self.heading(x[..., origin_step, :])
-        if turn is not None:  # the statistics of what the network sees
-            x = to_heading_frame(x, turn)
+        twist = self.heading(x[..., origin_step, :])
+        if twist is not None:  # the statistics of what the network sees
+            x = to_heading_frame(x, heading_turn(twist))
         x = x - (x[..., origin_step, POS] @ self.position_shift.double()).unsqueeze(-2)
         u = inputs.detach().to(torch.float64)
         flat_x, flat_u = x.reshape(-1, STATE_DIM), u.reshape(-1, INPUT_DIM)
@@ -273,9 +273,9 @@ class SlungLoadNet(nn.Module):
         The recursion uses u_{M-1} ... u_{M+N-2}; u_{M+N-1} does not affect the result.
         """
         _check_shapes(x_hist, u_hist, u_future)
-        turn = self.heading(x_hist[:, -1])  # (B, 13, 13) or None
-        if turn is not None:
-            x_hist = to_heading_frame(x_hist, turn)
+        twist = self.heading(x_hist[:, -1])  # (B, 4) or None
+        if twist is not None:
+            x_hist = to_heading_frame(x_hist, heading_turn(twist))
         origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
         x_rel = x_hist - origin  # (B, M, 13) positions relative to the origin
         z_hist = self.normalize_state(x_rel)  # (B, M, 13)
@@ -284,22 +284,23 @@ class SlungLoadNet(nn.Module):
         features = _with(torch.cat([z_hist, self.normalize_input(u_hist)], -1), cond)
         enc, state = self.encoder(self.embed(features))
         pred = self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
-        return self.world_frame(pred, turn)
+        return self.world_frame(pred, twist)
 
     def heading(self, x_last: Tensor) -> Tensor | None:
-        """The turn (``state.heading_turn``, (..., 13, 13)) by the heading of the states
-        x_last (..., 13) that the network's frame undoes, or None unless
-        ``ModelConfig.heading_frame``."""
-        if not self.config.heading_frame:
-            return None
-        return heading_turn(heading_twist(x_last[..., QUAT]))
+        """The heading (``state.heading_twist``, (..., 4)) of the states x_last (..., 13) that
+        the network's frame undoes, or None unless ``ModelConfig.heading_frame``."""
+        return heading_twist(x_last[..., QUAT]) if self.config.heading_frame else None
 
-    def world_frame(self, pred: Prediction, turn: Tensor | None) -> Prediction:
-        """A prediction made in the heading frame of ``turn`` turned back (as it is for None)."""
-        if turn is None:
+    def world_frame(self, pred: Prediction, twist: Tensor | None) -> Prediction:
+        """A prediction made in the heading frame of ``twist`` turned back (as it is for None):
+        the states as states, the slack as the errors it is added to (``loss.physics_residual``)."""
+        if twist is None:
             return pred
-        slack = None if pred.slack is None else from_heading_frame(pred.slack, turn)
-        return Prediction(from_heading_frame(pred.states, turn), slack)
+        states = from_heading_frame(pred.states, heading_turn(twist))
+        slack = pred.slack
+        if slack is not None:
+            slack = from_heading_frame(slack, heading_turn(twist, errors=True))
+        return Prediction(states, slack)
 
     def forward_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Prediction:
         """K candidate futures from one history, as a model-predictive controller asks for.
@@ -319,9 +320,9 @@ class SlungLoadNet(nn.Module):
             )
         u_hist = torch.cat([u_past.expand(k, m - 1, INPUT_DIM), plans[:, :1]], dim=1)
         u_future = torch.cat([plans[:, 1:], plans[:, -1:]], dim=1)
-        turn = self.heading(x_hist[-1])  # (13, 13) or None: the candidates share it
-        if turn is not None:
-            x_hist = to_heading_frame(x_hist, turn)
+        twist = self.heading(x_hist[-1])  # (4,) or None: the candidates share it
+        if twist is not None:
+            x_hist = to_heading_frame(x_hist, heading_turn(twist))
         x_hist = x_hist.expand(k, m, STATE_DIM)  # views: one copy of the history
         _check_shapes(x_hist, u_hist, u_future)
         origin = self.origin(x_hist[:1, -1]).unsqueeze(1)  # (1, 1, 13), shared
@@ -341,7 +342,7 @@ class SlungLoadNet(nn.Module):
         enc_last, state = self.encoder(self.embed(last), state)  # (K, 1, H)
         enc = torch.cat([enc_shared.expand(k, -1, -1), enc_last], dim=1)  # (K, M, H)
         pred = self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
-        return self.world_frame(pred, turn)
+        return self.world_frame(pred, twist)
 
     def _decode(
         self,

@@ -53,7 +53,7 @@ from ...models.prediction import (
     load_prediction_model,
 )
 from ...physics import VehicleConstants
-from ...state import from_heading_frame, to_heading_frame
+from ...state import from_heading_frame, heading_turn, to_heading_frame
 from ..gpu import CUDA, on_gpu
 from .fold import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, fold
 from .kernels import attention_cols, encode_rows, gelu, jit, lstm_cols
@@ -150,7 +150,8 @@ class CompiledNetworkModel:
         check_candidates(x_hist, u_past, plans)
         w = self.w
         x_t = x_hist.detach().cpu().to(torch.float64)
-        turn = self._net.heading(x_t[-1])  # (13, 13) or None: the network's frame undoes it
+        twist = self._net.heading(x_t[-1])  # (4,) or None: the network's frame undoes it
+        turn = None if twist is None else heading_turn(twist)
         x = (x_t if turn is None else to_heading_frame(x_t, turn)).numpy()
         origin = x[-1, POS] @ w.origin_shift  # (13,)
         x_rel = x - origin

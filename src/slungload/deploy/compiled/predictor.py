@@ -46,7 +46,7 @@ from ...layout import (
     XYZW_TO_WXYZ,
 )
 from ...physics import VehicleConstants
-from ...state import from_heading_frame, to_heading_frame
+from ...state import from_heading_frame, heading_turn, to_heading_frame
 from ..predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
 from .fold import (
     PHYSICS_STEP,
@@ -221,9 +221,10 @@ class CompiledPredictor:
         place by each window's heading, as ``SlungLoadNet.forward`` turns them (the same torch
         helpers); the turns (B, 13, 13), or None for a world-frame network."""
         last = torch.from_numpy(xu[:, -1, :STATE_DIM].astype(np.float64))  # (B, 13)
-        turns = self.predictor.model.heading(last)
-        if turns is None:
+        twist = self.predictor.model.heading(last)
+        if twist is None:
             return None
+        turns = heading_turn(twist)
         rows = torch.from_numpy(xu[..., :STATE_DIM].astype(np.float64))
         xu[..., :STATE_DIM] = to_heading_frame(rows, turns).numpy()
         here = torch.from_numpy(origin.astype(np.float64)).unsqueeze(1)  # (B, 1, 13)
