@@ -103,3 +103,18 @@ def test_a_trained_run_records_its_description(tiny_run, tmp_path):
     # and a run trained from that file is the same run again
     again = train(tiny_run.data, written, out=tmp_path / "again", progress=False, num_threads=1)
     assert load_checkpoint(again.out).run == written
+
+
+def test_train_takes_the_heading_frame_option_and_a_config_file_describes_it(tmp_path):
+    from slungload.cli import build_parser
+    from slungload.cli.train import run_from_args
+
+    base = ["train", "--data", "d", "--out", "o"]
+    run = run_from_args(build_parser().parse_args([*base, "--heading-frame"]))
+    assert run.model.heading_frame and run.folder().endswith("-heading-s0")
+    assert not run_from_args(build_parser().parse_args(base)).model.heading_frame
+    path = tmp_path / "run.toml"
+    path.write_text(run.to_toml())
+    with pytest.raises(ValueError, match="--heading-frame"):
+        run_from_args(build_parser().parse_args([*base, "--config", str(path), "--heading-frame"]))
+    assert run_from_args(build_parser().parse_args([*base, "--config", str(path)])) == run
