@@ -129,7 +129,6 @@ def test_the_heading_frame_turns_a_scene_to_heading_zero_and_back():
         quat_normalize,
         rotate_about_z,
         to_heading_frame,
-        turn_states,
     )
 
     g = torch.Generator().manual_seed(4)
@@ -140,9 +139,10 @@ def test_the_heading_frame_turns_a_scene_to_heading_zero_and_back():
     turn = heading_turn(twist)  # (5, 13, 13), orthogonal
     eye = torch.eye(13, dtype=torch.float64).expand(5, 13, 13)
     torch.testing.assert_close(turn @ turn.transpose(-1, -2), eye, atol=1e-12, rtol=0)
-    # the matrix is the turn written out: vectors rotated, the attitude left-multiplied
-    a, b = twist[:, None, :1], twist[:, None, 3:]
-    want = turn_states(x, twist[:, None], a * a - b * b, 2 * a * b)
+    # the matrix is the turn written out (rotate_about_z by the twist's angle): vectors
+    # rotated, the attitude left-multiplied
+    yaw = 2 * torch.atan2(twist[:, 3], twist[:, 0])[:, None]  # (5, 1)
+    want = rotate_about_z(x, torch.zeros(5, 7, 6, dtype=torch.float64), yaw)[0]
     torch.testing.assert_close(from_heading_frame(x, turn), want, atol=1e-12, rtol=0)
     local = to_heading_frame(x, turn)
     # the last attitude now has no turn about z: its twist is the identity (up to sign)

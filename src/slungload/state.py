@@ -43,8 +43,8 @@ __all__ = [  # the layout's names, re-exported, then this module's own
     "body_z", "group_errors", "join_state", "quat_conj", "quat_continuous", "quat_error",
     "quat_from_rotvec", "quat_identity", "quat_mul", "quat_normalize", "quat_to_rotmat",
     "quat_wxyz_to_xyzw", "quat_xyzw_to_wxyz", "rotate_about_z", "heading_twist",
-    "heading_turn", "to_heading_frame", "from_heading_frame", "turn_states", "split_input",
-    "split_state", "with_unit_quaternion",
+    "heading_turn", "to_heading_frame", "from_heading_frame", "split_input", "split_state",
+    "with_unit_quaternion",
 ]  # fmt: skip
 
 
@@ -152,12 +152,19 @@ def rotate_about_z(states: Tensor, aux: Tensor, yaw: Tensor) -> tuple[Tensor, Te
     together. states (..., 13), aux (..., 6), yaw broadcastable to states.shape[:-1].
     """
     yaw = torch.as_tensor(yaw, dtype=states.dtype, device=states.device)
-    yaw = yaw.expand(states.shape[:-1]).unsqueeze(-1)
-    c, s = torch.cos(yaw), torch.sin(yaw)
-    zero = torch.zeros_like(yaw)
-    q_yaw = torch.cat([torch.cos(0.5 * yaw), zero, zero, torch.sin(0.5 * yaw)], dim=-1)
-    aux_turned = torch.cat([_turn(aux[..., LOAD_VEL], c, s), _turn(aux[..., LOAD_RATE], c, s)], -1)
-    return turn_states(states, q_yaw, c, s), aux_turned
+    yaw = yaw.expand(states.shape[:-1])
+    c, s = torch.cos(yaw).unsqueeze(-1), torch.sin(yaw).unsqueeze(-1)
+
+    def turn(vec: Tensor) -> Tensor:  # (..., 3)
+        x, y, z = vec[..., :1], vec[..., 1:2], vec[..., 2:]
+        return torch.cat([c * x - s * y, s * x + c * y, z], dim=-1)
+
+    half = 0.5 * yaw.unsqueeze(-1)
+    zero = torch.zeros_like(half)
+    q_yaw = torch.cat([torch.cos(half), zero, zero, torch.sin(half)], dim=-1)
+    p, v, q, p_load = split_state(states)
+    out = join_state(turn(p), turn(v), quat_mul(q_yaw, q), turn(p_load))
+    return out, torch.cat([turn(aux[..., LOAD_VEL]), turn(aux[..., LOAD_RATE])], dim=-1)
 
 
 def heading_twist(q: Tensor) -> Tensor:
@@ -227,21 +234,6 @@ def from_heading_frame(states: Tensor, turn: Tensor) -> Tensor:
     """The inverse of ``to_heading_frame``: states (..., T, 13) (or any 13 state rows, such as
     slack variables) turned back by ``turn`` (..., 13, 13)."""
     return states @ turn.transpose(-1, -2)
-
-
-def turn_states(states: Tensor, q_turn: Tensor, c: Tensor, s: Tensor) -> Tensor:
-    """States (..., 13) turned about z: vehicle and load positions and velocity rotated by the
-    angle of cosine ``c`` and sine ``s`` (..., 1), the attitude left-multiplied by ``q_turn``
-    (..., 4), the same turn as a quaternion."""
-    p, v, q, p_load = split_state(states)
-    q_turn = q_turn.expand(*q.shape[:-1], 4)
-    return join_state(_turn(p, c, s), _turn(v, c, s), quat_mul(q_turn, q), _turn(p_load, c, s))
-
-
-def _turn(vec: Tensor, c: Tensor, s: Tensor) -> Tensor:
-    """World vectors (..., 3) rotated about z by the angle of cosine c and sine s (..., 1)."""
-    x, y, z = vec[..., :1], vec[..., 1:2], vec[..., 2:]
-    return torch.cat([c * x - s * y, s * x + c * y, z], dim=-1)
 
 
 def with_unit_quaternion(states: Tensor) -> Tensor:

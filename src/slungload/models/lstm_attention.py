@@ -274,8 +274,9 @@ class SlungLoadNet(nn.Module):
         """
         _check_shapes(x_hist, u_hist, u_future)
         twist = self.heading(x_hist[:, -1])  # (B, 4) or None
-        if twist is not None:
-            x_hist = to_heading_frame(x_hist, heading_turn(twist))
+        turn = None if twist is None else heading_turn(twist)  # (B, 13, 13)
+        if turn is not None:
+            x_hist = to_heading_frame(x_hist, turn)
         origin = self.origin(x_hist[:, -1]).unsqueeze(1)  # (B, 1, 13)
         x_rel = x_hist - origin  # (B, M, 13) positions relative to the origin
         z_hist = self.normalize_state(x_rel)  # (B, M, 13)
@@ -284,19 +285,22 @@ class SlungLoadNet(nn.Module):
         features = _with(torch.cat([z_hist, self.normalize_input(u_hist)], -1), cond)
         enc, state = self.encoder(self.embed(features))
         pred = self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
-        return self.world_frame(pred, twist)
+        return self.world_frame(pred, twist, turn)
 
     def heading(self, x_last: Tensor) -> Tensor | None:
         """The heading (``state.heading_twist``, (..., 4)) of the states x_last (..., 13) that
         the network's frame undoes, or None unless ``ModelConfig.heading_frame``."""
         return heading_twist(x_last[..., QUAT]) if self.config.heading_frame else None
 
-    def world_frame(self, pred: Prediction, twist: Tensor | None) -> Prediction:
-        """A prediction made in the heading frame of ``twist`` turned back (as it is for None):
-        the states as states, the slack as the errors it is added to (``loss.physics_residual``)."""
-        if twist is None:
+    def world_frame(
+        self, pred: Prediction, twist: Tensor | None, turn: Tensor | None
+    ) -> Prediction:
+        """A prediction made in the heading frame of ``twist`` (``turn``: its ``heading_turn``)
+        turned back (as it is for None): the states as states, the slack as the errors it is
+        added to (``loss.physics_residual``)."""
+        if twist is None or turn is None:
             return pred
-        states = from_heading_frame(pred.states, heading_turn(twist))
+        states = from_heading_frame(pred.states, turn)
         slack = pred.slack
         if slack is not None:
             slack = from_heading_frame(slack, heading_turn(twist, errors=True))
@@ -321,8 +325,9 @@ class SlungLoadNet(nn.Module):
         u_hist = torch.cat([u_past.expand(k, m - 1, INPUT_DIM), plans[:, :1]], dim=1)
         u_future = torch.cat([plans[:, 1:], plans[:, -1:]], dim=1)
         twist = self.heading(x_hist[-1])  # (4,) or None: the candidates share it
-        if twist is not None:
-            x_hist = to_heading_frame(x_hist, heading_turn(twist))
+        turn = None if twist is None else heading_turn(twist)  # (13, 13)
+        if turn is not None:
+            x_hist = to_heading_frame(x_hist, turn)
         x_hist = x_hist.expand(k, m, STATE_DIM)  # views: one copy of the history
         _check_shapes(x_hist, u_hist, u_future)
         origin = self.origin(x_hist[:1, -1]).unsqueeze(1)  # (1, 1, 13), shared
@@ -342,7 +347,7 @@ class SlungLoadNet(nn.Module):
         enc_last, state = self.encoder(self.embed(last), state)  # (K, 1, H)
         enc = torch.cat([enc_shared.expand(k, -1, -1), enc_last], dim=1)  # (K, M, H)
         pred = self._decode(enc, state, x_rel, u_hist, u_future, origin, carry, cond)
-        return self.world_frame(pred, twist)
+        return self.world_frame(pred, twist, turn)
 
     def _decode(
         self,

@@ -136,7 +136,6 @@ class CompiledNetworkModel:
         self.constants = folded.constants
         self.name, self.history = name, history
         self._eager = NetworkModel(net, history, name=name)
-        self._net = net
         self._buffers: _Buffers | None = None
         # The encoder's batch-1 pass takes (in, out) matrices and (L, 4H) biases.
         rows = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
@@ -150,7 +149,7 @@ class CompiledNetworkModel:
         check_candidates(x_hist, u_past, plans)
         w = self.w
         x_t = x_hist.detach().cpu().to(torch.float64)
-        twist = self._net.heading(x_t[-1])  # (4,) or None: the network's frame undoes it
+        twist = self._eager.net.heading(x_t[-1])  # (4,) or None: the network's frame undoes it
         turn = None if twist is None else heading_turn(twist)
         x = (x_t if turn is None else to_heading_frame(x_t, turn)).numpy()
         origin = x[-1, POS] @ w.origin_shift  # (13,)
