@@ -1,6 +1,6 @@
 """Fly the learned MPC of several trained runs on the same validation flights and pair them:
 lost flights, swings past 60 deg, and the paired differences of each run against the first.
-A choice between models (e.g. before and after `control --record`) made here never touches the
+A choice between models (e.g. before and after `record`) made here never touches the
 control study's evaluation seeds. The MPC flies the learned settings of a study's
 settings.json at N = --horizon (or the defaults), K = --samples.
 
@@ -17,12 +17,12 @@ from dataclasses import dataclass
 from slungload.cli.common import comma_names, seed_range
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
-from slungload.control.results import paired_interval
-from slungload.control.study import plant_config
-from slungload.control.study_config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig
 from slungload.deploy.compiled.batched import load_model
 from slungload.deploy.predictor import torch_threads
 from slungload.fileio import read_json
+from slungload.lab.control.config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig
+from slungload.lab.control.study import plant_config
+from slungload.reporting import paired_interval
 from slungload.sim.config import SimConfig, tuples_from_json, vehicle_params
 from slungload.workers import run_jobs
 
@@ -58,7 +58,7 @@ def main() -> None:
     parser.add_argument("--maneuvers", type=comma_names, default=["xy_step"])
     parser.add_argument("--seeds", default="300..339", help="sim seeds (none of a benchmark's)")
     parser.add_argument("--plants", default=NOMINAL, help=f"';'-separated: {NOMINAL};"
-                        + ";".join(SHIFTS))  # fmt: skip
+                        + ";".join(SHIFTS).replace("%", "%%"))  # fmt: skip
     parser.add_argument("--settings", help="a control study's settings.json (its learned MPC)")
     parser.add_argument("--horizon", type=int, default=15)
     parser.add_argument("--samples", type=int, default=256)

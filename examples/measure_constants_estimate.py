@@ -19,11 +19,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from slungload.config import load_vehicle
 from slungload.constants_estimate import estimate_constants, pool
 from slungload.data.readers import read_flight
 from slungload.sim import SimConfig, simulate_dataset
 from slungload.sim.config import Effects, LoadRanges
+from slungload.vehicle_file import load_vehicle
 
 WINDOW = 50
 CLEAN_OFF = ("thrust_error", "thrust_offset", "wind", "mocap_noise")

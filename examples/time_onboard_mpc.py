@@ -27,11 +27,11 @@ import torch
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.control.mpc import SamplingMPC
 from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
-from slungload.deploy.benchmarks import physics_windows
 from slungload.deploy.candidates import export_for_mpc
 from slungload.deploy.compiled import with_backend
 from slungload.deploy.predictor import Predictor
 from slungload.deploy.timing import time_calls
+from slungload.lab.bench.benchmarks import physics_windows
 from slungload.models import build
 from slungload.models.prediction import NetworkModel
 

@@ -1,5 +1,5 @@
 """Time one oracle look-ahead: K plans of N steps from a plant's state, stepped together
-(``sim.plant_batch.PlantBatch``) against the loop over K twins it replaced (``Plant.fork`` /
+(``lab.control.plant_batch.PlantBatch``) against the loop over K twins it replaced (``Plant.fork`` /
 ``advance``). Seconds per control step, one process, one thread.
 
     python examples/time_oracle.py --samples 256 --horizon 15
@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
+from slungload.lab.control.plant_batch import PlantBatch
 from slungload.sim.config import SimConfig
 from slungload.sim.plant import Plant
-from slungload.sim.plant_batch import PlantBatch
 
 
 def main() -> None:

@@ -13,7 +13,7 @@ from flights import SMALL, TINY
 
 from slungload.cluster import run_on_ray
 from slungload.evaluation.evaluator import evaluate
-from slungload.experiment import _training_jobs, run_training_jobs
+from slungload.lab.reproduce import _training_jobs, run_training_jobs
 from slungload.run_config import RunConfig
 
 ray = pytest.importorskip("ray")
@@ -80,8 +80,8 @@ def test_a_task_whose_worker_dies_is_retried_and_finishes(tmp_path):
 
 def test_tune_searches_and_its_best_configuration_trains(tmp_path):
     from slungload.cli import main
-    from slungload.study.tune import run_tune
-    from slungload.tune_config import SearchSpace, TuneSettings
+    from slungload.lab.study.config import SearchSpace, TuneSettings
+    from slungload.lab.study.tune import run_tune
 
     names = [f"{split}_{i}" for i, split in enumerate(["train", "train", "val", "test"])]
     splits = {s: [n for n in names if n.startswith(s)] for s in ("train", "val", "test")}

@@ -340,8 +340,8 @@ def test_a_network_given_the_constants_is_the_adaptive_one_at_its_estimate(adapt
 
 
 def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_run, tmp_path):
-    from slungload.control.loads import fly_loads, plant_name, write_loads_report
-    from slungload.control.study_config import UnseenLoadsConfig
+    from slungload.lab.control.config import UnseenLoadsConfig
+    from slungload.lab.control.unseen_loads import fly_loads, plant_name, write_loads_report
 
     cfg = UnseenLoadsConfig(loads=((0.3, 0.95),), maneuvers=("xy_step",), seeds=(100,),
                             samples=16, steps=12, backend="eager")  # fmt: skip
@@ -353,7 +353,7 @@ def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_
     assert all(r["plant"] == plant_name(0.3, 0.95) and r["completed"] for r in rows)
     assert all(np.isfinite(r["load_rmse"]) for r in rows)
     report = write_loads_report(rows, cfg, tmp_path).read_text()
-    assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "loads.png").exists()
+    assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "control-loads.png").exists()
     flown = f"swing bound {np.degrees(cfg.max_swing):.0f} deg, floor {cfg.min_height} m"
     assert flown in report  # the settings flown
     # the network's training preset is kept beside its flights; a smoke run's is bannered
@@ -388,11 +388,11 @@ def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(
 ):
     fast = ("--load", "0.3,0.95", "--maneuvers", "xy_step", "--seeds", "100", "--samples", "4",
             "--steps", "2", "--backend", "eager", "--quiet")  # fmt: skip
-    code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), "--horizon", "0",
+    code, _, err = run_cli("study", "control-loads", "--model", str(adaptive_run), "--horizon", "0",
                            "--out", str(tmp_path / "x"), *fast)  # fmt: skip
     assert code == 2 and "got 4, 0, " in err and "Traceback" not in err
     assert not (tmp_path / "x").exists()
-    code, _, err = run_cli("control", "--loads", "--model", str(adaptive_run), *fast,
+    code, _, err = run_cli("study", "control-loads", "--model", str(adaptive_run), *fast,
                            "--maneuvers", ",", "--out", str(tmp_path / "y"))  # fmt: skip
     assert code == 2 and "--maneuvers: give at least one value" in err
 
@@ -400,8 +400,8 @@ def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(
 def test_a_network_with_f_fixed_flies_the_same_loads_beside_the_adaptive_one(
     varied, train_tiny, adaptive_run, tmp_path
 ):
-    from slungload.control.loads import fly_loads, write_loads_report
-    from slungload.control.study_config import UnseenLoadsConfig
+    from slungload.lab.control.config import UnseenLoadsConfig
+    from slungload.lab.control.unseen_loads import fly_loads, write_loads_report
 
     ds, _ = varied
     fixed = dataclasses.replace(ADAPTIVE, constants="dataset")

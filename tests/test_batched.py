@@ -17,7 +17,6 @@ from test_prediction import candidate_windows, random_history, random_plans
 
 from slungload.config import MODEL_SIZES, PREDICTION_BACKENDS, ModelConfig, VehicleParams
 from slungload.deploy.compiled import (
-    BACKENDS,
     CompiledNetworkModel,
     CompiledPhysicsModel,
     load_model,
@@ -214,7 +213,7 @@ def test_compiled_network_refuses_bad_inputs_and_what_it_cannot_run():
 
 
 def test_backends_wrap_the_models_and_refuse_the_unknown(tiny_run):
-    assert BACKENDS == tuple(PREDICTION_BACKENDS) and BACKENDS[0] == "eager"
+    assert list(PREDICTION_BACKENDS)[0] == "eager"
     physics = load_model("physics", PARAMS, backend="compiled")
     assert isinstance(physics, CompiledPhysicsModel) and isinstance(physics, PredictionModel)
     assert isinstance(load_model("physics", PARAMS), PhysicsModel)  # the default is eager
@@ -250,7 +249,7 @@ GPU_MODES = [
 
 
 def test_cuda_backend_without_a_gpu_is_refused_by_name(monkeypatch, run_cli, tmp_path):
-    from slungload.deploy.mpc_benchmark import benchmark_mpc
+    from slungload.lab.bench.mpc import benchmark_mpc
 
     monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     with pytest.raises(ValueError, match="cuda backend runs on a GPU.*sees none"):
@@ -356,7 +355,7 @@ def test_control_flies_on_the_cuda_backend(run_cli, tmp_path):
 
 @GPU
 def test_mpc_benchmark_times_the_gpu_beside_the_cpu():
-    from slungload.deploy.mpc_benchmark import benchmark_mpc
+    from slungload.lab.bench.mpc import benchmark_mpc
 
     config = replace(TINY, architecture=PHYSICS_STEP)
     result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config,
@@ -378,7 +377,7 @@ def test_control_flies_on_the_compiled_backend(run_cli, tmp_path):
 
 
 def test_mpc_benchmark_times_every_backend_on_the_same_calls():
-    from slungload.deploy.mpc_benchmark import MIN_CALLS, benchmark_mpc
+    from slungload.lab.bench.mpc import MIN_CALLS, benchmark_mpc
 
     config = replace(TINY, architecture=PHYSICS_STEP)
     result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config)
@@ -404,7 +403,7 @@ def test_mpc_benchmark_times_every_backend_on_the_same_calls():
 
 
 def test_mpc_benchmark_times_the_backends_asked_for_against_the_first():
-    from slungload.deploy.mpc_benchmark import benchmark_mpc
+    from slungload.lab.bench.mpc import benchmark_mpc
 
     config = replace(TINY, architecture=PHYSICS_STEP)
     result = benchmark_mpc(samples=(3,), horizons=(4,), calls=2, seconds=0.01, model_config=config,

@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from slungload.config import ModelConfig, WindowConfig
-from slungload.deploy.benchmark_report import BACKENDS, BenchmarkResult, paper_ms
-from slungload.deploy.benchmarks import benchmark, file_inputs, physics_windows
+from slungload.lab.bench.benchmarks import benchmark, file_inputs, physics_windows
+from slungload.lab.bench.report import PREDICTORS, BenchmarkResult, paper_ms
 from slungload.state import QUAT
 
 torch.set_num_threads(1)
@@ -37,10 +37,10 @@ def result() -> BenchmarkResult:
 
 def test_every_backend_is_measured_at_every_horizon(result: BenchmarkResult):
     assert {(x.backend, x.horizon) for x in result.latency} == {
-        (b, n) for b in BACKENDS for n in (4, 6)
+        (b, n) for b in PREDICTORS for n in (4, 6)
     }
     assert {(x.backend, x.horizon, x.batch) for x in result.throughput} == {
-        (b, n, 8) for b in BACKENDS for n in (4, 6)
+        (b, n, 8) for b in PREDICTORS for n in (4, 6)
     }
     for x in result.latency:
         assert x.threads == 1 and x.history == 5 and x.repeats == 4
@@ -60,7 +60,7 @@ def test_training_speed_and_parity(result: BenchmarkResult):
 
 def test_markdown_and_dict(result: BenchmarkResult):
     text = result.markdown()
-    for backend in BACKENDS:
+    for backend in PREDICTORS:
         assert f"| {backend} | 4 |" in text
     assert "windows/s" in text and "1.00x" in text  # eager against itself
     assert "epoch windows" in text and "Load average (1 min)" in text
@@ -71,8 +71,8 @@ def test_markdown_and_dict(result: BenchmarkResult):
     # empty in every latency row here (N = 4 and 6; a speed-up may read 10.76x by chance).
     latency = text.split("Batch-1 latency")[1].split("\n\n")[1]  # the table under its title
     rows = [line for line in latency.splitlines()
-            if any(line.startswith(f"| {backend} |") for backend in BACKENDS)]  # fmt: skip
-    assert len(rows) == 2 * len(BACKENDS) and all(line.endswith("| - | - |") for line in rows)
+            if any(line.startswith(f"| {backend} |") for backend in PREDICTORS)]  # fmt: skip
+    assert len(rows) == 2 * len(PREDICTORS) and all(line.endswith("| - | - |") for line in rows)
 
 
 def test_paper_latency_is_read_from_the_papers_table():

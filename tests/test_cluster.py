@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from flights import SMALL, TINY
 
-from slungload.experiment import TrainingJob
+from slungload.lab.reproduce import TrainingJob
 from slungload.run_config import RunConfig
 
 HERE = Path(__file__).parent
@@ -88,7 +88,7 @@ def test_without_ray_a_cluster_is_a_clear_error_and_local_runs_never_import_it()
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     code = (
-        "import sys\nfrom slungload.experiment import run_training_jobs\n"
+        "import sys\nfrom slungload.lab.reproduce import run_training_jobs\n"
         "run_training_jobs([], workers=1, progress=False)\nassert 'ray' not in sys.modules\n"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

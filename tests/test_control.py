@@ -19,8 +19,8 @@ from slungload.config import VehicleParams
 from slungload.control.closed_loop import Arena, flight_metrics, fly, log_path, read_log
 from slungload.control.history import History
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
-from slungload.control.report import report_markdown, versus_lines
-from slungload.control.results import ControlComparison, versus_physics
+from slungload.lab.control.report import report_markdown, versus_lines
+from slungload.lab.control.results import ControlComparison, versus_physics
 from slungload.models.prediction import PhysicsModel
 from slungload.sim.config import SimConfig
 from slungload.sim.controller import Measurement
@@ -384,8 +384,9 @@ def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):
 
 
 def test_the_command_line_says_what_to_know_before_a_network_flies(run_cli, tiny_run, tmp_path):
-    from slungload.control.comparison import compare
     from slungload.control.mpc import ModelNote
+    from slungload.lab.control.comparison import compare
+    from slungload.lab.control.config import ComparisonConfig
 
     fast = ("--maneuvers", "roll_35", "--seeds", "100", "--samples", "4", "--steps", "3",
             "--quiet")  # fmt: skip
@@ -393,5 +394,6 @@ def test_the_command_line_says_what_to_know_before_a_network_flies(run_cli, tiny
         code, _, err = run_cli("control", "--model", tiny_run.out, *fast, "--out", tmp_path / "a")
     assert code == 0, err
     # "physics" given as a model flies beside itself, and its report is written
-    done = compare(["physics"], ("roll_35",), (100,), (4,), tmp_path / "b", steps=3, progress=None)
+    config = ComparisonConfig(maneuvers=("roll_35",), seeds=(100,), samples=(4,), steps=3)
+    done = compare(["physics"], tmp_path / "b", config, progress=None)
     assert done.settings["presets"] == {} and (tmp_path / "b" / "report.md").exists()

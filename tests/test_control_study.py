@@ -17,10 +17,8 @@ import torch
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
-from slungload.control.oracle import PlantCandidates
-from slungload.control.results import gap_interval, gap_share, label_model, paired_interval, t975
-from slungload.control.study import run_study, tune_settings, tuning_score
-from slungload.control.study_config import (
+from slungload.frames import rotation_matrix, swing_angle
+from slungload.lab.control.config import (
     COST_GRID,
     SETTINGS_FIELDS,
     SHIFTS,
@@ -28,9 +26,12 @@ from slungload.control.study_config import (
     UNSAFE_SWING,
     StudyConfig,
 )
-from slungload.control.study_report import gap_closed, paired_table, write_study_report
-from slungload.frames import rotation_matrix, swing_angle
+from slungload.lab.control.oracle import PlantCandidates
+from slungload.lab.control.results import label_model
+from slungload.lab.control.study import run_study, tune_settings, tuning_score
+from slungload.lab.control.study_report import gap_closed, paired_table, write_study_report
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
+from slungload.reporting import gap_interval, gap_share, paired_interval, t975
 from slungload.sim.aero import Aero
 from slungload.sim.config import Effects, SimConfig
 from slungload.sim.controller import Measurement, PIDController
@@ -316,7 +317,7 @@ def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():
 
 
 def test_the_ratio_to_the_truth_is_over_the_flights_both_flew():
-    from slungload.control.loads import IN_FLIGHT, TRUE, label, ratio_to_truth
+    from slungload.lab.control.unseen_loads import IN_FLIGHT, TRUE, label, ratio_to_truth
 
     def row(constants, seed, load, completed=True):
         return {**_row(label("mpc-fixed", constants), "m", seed, load, completed),
@@ -402,13 +403,14 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
 
 
 def test_a_study_and_a_comparison_never_share_a_folder(tmp_path):
-    from slungload.control.comparison import compare
+    from slungload.lab.control.comparison import compare
+    from slungload.lab.control.config import ComparisonConfig
 
     run_study(None, tmp_path / "study", TINY, controllers=("physics",), plants=("nominal",),
               progress=None)  # fmt: skip
     with pytest.raises(ValueError, match="holds a control study"):
-        compare(out=tmp_path / "study", maneuvers=("roll_35",), seeds=(100,), steps=4,
-                progress=None)  # fmt: skip
+        config = ComparisonConfig(maneuvers=("roll_35",), seeds=(100,), steps=4)
+        compare(out=tmp_path / "study", config=config, progress=None)
     (tmp_path / "ctl").mkdir()
     (tmp_path / "ctl" / "results.json").write_text("{}")
     with pytest.raises(ValueError, match="flights of a `control` comparison"):
@@ -427,7 +429,7 @@ def test_control_study_refuses_zero_steps_and_empty_lists(run_cli, tmp_path):
         (("--maneuvers", ","), "--maneuvers"),
         (("--horizons", ","), "--horizons"),
     ):
-        code, _, err = run_cli("control", "--study", *bad, "--out", str(tmp_path / "x"))
+        code, _, err = run_cli("study", "control", *bad, "--out", str(tmp_path / "x"))
         assert code == 2 and says in err and "Traceback" not in err
     assert not (tmp_path / "x").exists()
 
@@ -488,7 +490,7 @@ def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path
 
 
 def test_the_shifted_plants_fly_the_horizons_asked():
-    from slungload.control.study import _plan
+    from slungload.lab.control.study import _plan
 
     nominal = SimConfig()
     settings = {"mpc": {"physics": {"3": {}, "4": {}}}, "samples": {"physics": {"3": 4, "4": 4}}}
@@ -506,7 +508,7 @@ def test_the_shifted_plants_fly_the_horizons_asked():
 
 def test_the_study_command_refuses_two_models(run_cli, tmp_path):
     code, _, err = run_cli(
-        "control", "--study", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"
+        "study", "control", "--model", tmp_path, "--model", tmp_path, "--out", tmp_path / "x"
     )
     assert code == 2 and "one --model" in err
 
@@ -522,7 +524,7 @@ def test_the_study_flies_only_the_plants_and_controllers_asked(tmp_path):
 def test_the_oracle_flies_the_learned_mpcs_settings_at_its_own_k():
     # The oracle and the learned MPC differ only in their model (the gap closed compares
     # them); without a learned model in the study the oracle flies the defaults.
-    from slungload.control.study import _plan
+    from slungload.lab.control.study import _plan
 
     nominal = SimConfig()
     learned = {"temperature": 0.1, "thrust_std": 2.0, "rate_std": [1.0, 1.0, 0.4],

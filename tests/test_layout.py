@@ -1,7 +1,8 @@
 """The package's layout: every import points down the data flow, and no import circle.
 
 config/state/fileio/reporting -> physics -> data -> sim -> models, loss -> training ->
-evaluation -> deploy -> control -> experiment -> cli (docs/design.md). The simulator is a data
+evaluation -> deploy -> control (the product) -> lab (reproduce, studies, benchmarks) -> cli
+(docs/design.md): the product imports nothing from the lab. The simulator is a data
 source above ``data/``: it writes its datasets with ``data``'s writer and split policy, and
 nothing in ``data`` knows it. Read from the source's import statements, so a function-level
 import counts as much as a top-level one.
@@ -17,7 +18,7 @@ import slungload
 PACKAGE = Path(slungload.__file__).parent
 ORDER = {  # wing -> floor; a module may import its own floor and those below
     "_version": 0, "_lazy": 0, "config": 0, "state": 0, "fileio": 0, "run_config": 0,
-    "layout": 0, "frames": 0, "reporting": 0, "workers": 0, "cluster": 0, "tune_config": 0,
+    "layout": 0, "frames": 0, "reporting": 0, "workers": 0, "cluster": 0, "vehicle_file": 0,
     "physics": 1, "load_state": 1, "constants_estimate": 1,
     "data": 2,
     "sim": 3,
@@ -26,7 +27,7 @@ ORDER = {  # wing -> floor; a module may import its own floor and those below
     "evaluation": 6,
     "deploy": 7,
     "control": 8,
-    "experiment": 9, "study": 9,
+    "lab": 9,
     "cli": 10,
 }  # fmt: skip
 
@@ -141,3 +142,37 @@ def test_the_simulator_is_a_data_source_above_data():
     assert upward_imports({"slungload.data.importing": {"slungload.sim.dataset"}}) == [
         "slungload.data.importing -> slungload.sim.dataset"
     ]
+
+
+def test_the_product_imports_nothing_from_the_lab():
+    edges = graph()
+    product = [m for m in edges if wing(m) not in ("lab", "cli")]
+    assert len(product) > 50 and any(wing(m) == "lab" for m in edges)
+    assert [(m, t) for m in product for t in edges[m] if wing(t) == "lab"] == []
+    # The root's lazy names are the product's too (the root is left out of ``graph``).
+    from slungload import _EXPORTS
+
+    assert [m for m in _EXPORTS if m.split(".")[0] == "lab"] == []
+    assert upward_imports({"slungload.control.mpc": {"slungload.lab.control.oracle"}}) == [
+        "slungload.control.mpc -> slungload.lab.control.oracle"
+    ]
+
+
+def test_importing_every_product_module_loads_nothing_of_the_lab():
+    # The import statements say so (above); this checks what a user's process really loads,
+    # lazy re-exports and function-level imports run included.
+    import subprocess
+    import sys
+
+    product = sorted(m for m in graph() if wing(m) not in ("lab", "cli") and "__main__" not in m)
+    code = (
+        "import importlib, sys\n"
+        f"for name in {product!r}:\n"
+        "    importlib.import_module(name)\n"
+        "import slungload\n"
+        "for name in slungload.__all__:\n"
+        "    getattr(slungload, name)\n"
+        "print(sorted(m for m in sys.modules if m.startswith('slungload.lab')))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"

@@ -25,7 +25,7 @@ from log_files import (
 
 from slungload import frames
 from slungload.cli import main
-from slungload.config import VehicleParams, load_vehicle, vehicle_from_dict
+from slungload.config import VehicleParams
 from slungload.data.dataset import load_dataset, read_splits
 from slungload.data.flight import DatasetError
 from slungload.data.importing import (
@@ -39,6 +39,7 @@ from slungload.data.readers.logs import LogError
 from slungload.data.readers.ulog import ulog_streams
 from slungload.data.summary import summarize
 from slungload.fileio import write_json, write_npz, write_splits
+from slungload.vehicle_file import load_vehicle, vehicle_from_dict
 
 
 def _window():

@@ -31,7 +31,7 @@ from log_files import (
 from rosbags.typesys import get_types_from_msg
 
 from slungload.cli import main
-from slungload.config import VehicleParams, load_vehicle
+from slungload.config import VehicleParams
 from slungload.data.dataset import load_dataset, read_splits
 from slungload.data.importing import (
     ImportOptions,
@@ -40,6 +40,7 @@ from slungload.data.importing import (
 )
 from slungload.data.readers.logs import LogError
 from slungload.data.readers.rosbag import MSG_DEFINITIONS
+from slungload.vehicle_file import load_vehicle
 
 
 def simulated_flight() -> dict[str, np.ndarray]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -27,12 +28,56 @@ from slungload.models.lstm_attention import SlungLoadNet
 TINY = ModelConfig(embed_sizes=(8, 8, 8), hidden_size=4, num_layers=2, head_sizes=(8, 8, 8))
 
 
-def test_the_registry_and_the_config_name_the_same_architectures():
-    # The CLI lists ARCHITECTURES without loading torch; MODELS holds the classes.
-    assert set(MODELS) == set(ARCHITECTURES)
+def test_the_registry_reads_the_one_table_of_architectures():
+    # The CLI lists ARCHITECTURES without loading torch; MODELS imports the classes it names.
+    assert list(MODELS) == list(ARCHITECTURES)
     assert MODELS[DEFAULT_ARCHITECTURE] is SlungLoadNet
     for name, cls in MODELS.items():
         assert cls.architecture == name
+
+
+def test_one_line_in_the_table_adds_an_architecture(monkeypatch):
+    from slungload.config import Architecture
+
+    class Renamed(SlungLoadNet):
+        architecture = "renamed"
+
+    import slungload.models.lstm_attention as module
+
+    monkeypatch.setattr(module, "Renamed", Renamed, raising=False)
+    monkeypatch.setitem(ARCHITECTURES, "renamed", Architecture("lstm_attention:Renamed", "test"))
+    assert "renamed" in MODELS and MODELS["renamed"] is Renamed
+    net = build(replace(TINY, architecture="renamed"), VehicleParams())
+    assert isinstance(net, Renamed) and architecture_of(net) == "renamed"
+    # a class registered under another name than its own is refused, naming both
+    monkeypatch.setitem(ARCHITECTURES, "other", Architecture("lstm_attention:Renamed", "test"))
+    with pytest.raises(TypeError, match="'other'"):
+        MODELS["other"]
+
+
+def test_the_controllers_are_registered_once_by_name():
+    from slungload.control.controllers import (
+        CONTROLLERS,
+        REFERENCE,
+        controller_class,
+        reference_maker,
+    )
+    from slungload.control.geometric import GeometricLoadController
+    from slungload.control.mpc import SamplingMPC
+    from slungload.sim.config import SimConfig
+    from slungload.sim.controller import PIDController
+
+    classes = {name: controller_class(name) for name in CONTROLLERS}
+    assert classes == {"pid": PIDController, "geometric": GeometricLoadController,
+                       "mpc": SamplingMPC}  # fmt: skip
+    make = reference_maker("geometric", SimConfig())
+    first, second = make(0), make(1)
+    assert isinstance(first, GeometricLoadController) and first is not second  # one per flight
+    assert set(REFERENCE) < set(CONTROLLERS)
+    with pytest.raises(ValueError, match="unknown controller 'lqr'; known: "):
+        controller_class("lqr")
+    with pytest.raises(ValueError, match="not built from the simulator's config alone"):
+        reference_maker("mpc", SimConfig())
 
 
 def test_build_makes_the_named_architecture():

@@ -17,12 +17,11 @@ from torch import Tensor, nn
 
 from slungload.config import LossWeights, VehicleParams, WindowConfig
 from slungload.data.windows import make_windows
-from slungload.deploy.timing import time_models
+from slungload.deploy.timing import evaluate_runs, time_models
 from slungload.evaluation.evaluator import Candidate, evaluate, evaluate_predictors
 from slungload.evaluation.metrics import METRIC_KEYS
 from slungload.evaluation.report import write_report
 from slungload.evaluation.results import PAPER_RMSE_N50, PHYSICS, Report
-from slungload.experiment import evaluate_runs
 from slungload.models.base import Prediction
 from slungload.models.prediction import NetworkModel, PhysicsModel
 from slungload.state import GROUPS, VEL

@@ -1,10 +1,14 @@
-"""The reporting home: one Markdown table helper, one figure saver at one DPI, one colour per
-model, and a machine stamp whose load average never raises."""
+"""The reporting home: one Markdown table helper, one figure saver at one DPI, one atomic CSV
+writer, one mean ± std over seeds, one colour per model, and a machine stamp whose load average
+never raises."""
 
 from __future__ import annotations
 
+import csv
+import math
 import os
 import re
+import statistics
 import struct
 from pathlib import Path
 
@@ -96,3 +100,44 @@ def test_model_colors_are_stable_per_label_and_distinct_within_a_figure():
 @pytest.mark.parametrize("label", ["proposed", "physics-step/no-physics", "ps-exc"])
 def test_model_color_is_a_palette_colour(label):
     assert reporting.model_colors([label])[label] in reporting.MODEL_COLORS
+
+
+def test_mean_std_is_the_mean_the_sample_std_and_the_count():
+    mean, std, n = reporting.mean_std([1.0, 2.0, 3.0, 4.0])
+    assert (mean, n) == (2.5, 4) and std == pytest.approx(math.sqrt(5 / 3), rel=1e-15)
+    values = [0.1234, 0.5678, 0.9012]  # the digits a report prints: statistics' own
+    assert reporting.mean_std(values) == (statistics.fmean(values), statistics.stdev(values), 3)
+    assert reporting.mean_std(v for v in (2.0, 4.0)) == (3.0, math.sqrt(2.0), 2)  # any iterable
+
+
+def test_mean_std_of_one_value_has_no_spread():
+    assert reporting.mean_std([0.731]) == (0.731, 0.0, 1)
+
+
+def test_write_csv_round_trips_through_the_csv_module(tmp_path):
+    rows = [["physics", None, 50, 0.1 + 0.2, math.inf], ["a, b", 3, 25, 1e-7, 'x"y']]
+    header = ["label", "seed", "N", "rmse", "e"]
+    path = reporting.write_csv(tmp_path / "sub" / "t.csv", header, rows)
+    assert path == tmp_path / "sub" / "t.csv"
+    text = path.read_text()
+    assert text.splitlines()[1] == "physics,,50,0.30000000000000004,inf" and "\r" not in text
+    with open(path, newline="") as f:
+        read = list(csv.reader(f))
+    assert read[0] == header
+    assert read[1] == ["physics", "", "50", repr(0.1 + 0.2), "inf"]
+    assert read[2][0] == "a, b" and float(read[2][3]) == 1e-7 and read[2][4] == 'x"y'
+    assert [p.name for p in path.parent.iterdir()] == ["t.csv"]  # no temporary file left
+    assert reporting.write_csv(tmp_path / "h.csv", ["only"], []).read_text() == "only\n"
+
+
+def test_write_csv_leaves_the_old_file_when_a_row_cannot_be_written(tmp_path):
+    class Unwritable:
+        def __str__(self) -> str:
+            raise ValueError("no text for this cell")
+
+    path = reporting.write_csv(tmp_path / "t.csv", ["a", "b"], [[1, 2.5]])
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match="no text"):
+        reporting.write_csv(path, ["a", "b"], [[3, 4.5], [Unwritable(), 1]])
+    assert path.read_bytes() == before == b"a,b\n1,2.5\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["t.csv"]

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from slungload.config import load_vehicle, to_dict
+from slungload.config import to_dict
 from slungload.data.split import SPLIT_FRACTIONS, split_flights, windows_of
 from slungload.fileio import FLIGHT_KEYS, read_npz
 from slungload.sim import (
@@ -34,6 +34,7 @@ from slungload.sim.controller import excitation_signal
 from slungload.sim.dataset import flight_plan
 from slungload.sim.plant import Plant, PlantParams
 from slungload.sim.sensors import Mocap
+from slungload.vehicle_file import load_vehicle
 
 IDEAL = SimConfig(effects=Effects.none())
 

@@ -2,27 +2,23 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 from flights import SMALL
 
 from slungload.data.dataset import read_splits
+from slungload.lab.study import study_data
+from slungload.lab.study.config import DataStudyConfig, SizeStudyConfig
 from slungload.sim import simulate_dataset
-from slungload.study import study_data
 
 
 @pytest.mark.slow
 def test_study_trains_on_nested_subsets_and_writes_its_table(tmp_path):
     data = tmp_path / "data"
     simulate_dataset(data, flights=10, seed=0, workers=1, progress=False)
-    rows = study_data(
-        out=tmp_path / "study",
-        flights=(1, 3),
-        data=data,
-        variants=("no-physics",),
-        preset="quick",
-        workers=1,
-        progress=False,
-    )
+    config = DataStudyConfig(flights=(1, 3), variants=("no-physics",), preset="quick")
+    rows = study_data(out=tmp_path / "study", config=config, data=data, workers=1, progress=False)
     splits = {k: read_splits(tmp_path / "study" / "subsets" / f"train{k}") for k in (1, 3)}
     full = read_splits(data)
     assert len(splits[1]["train"]) == 1 and len(splits[3]["train"]) == 3
@@ -33,7 +29,7 @@ def test_study_trains_on_nested_subsets_and_writes_its_table(tmp_path):
     assert labels == {(1, "physics"), (1, "no-physics"), (3, "physics"), (3, "no-physics")}
     physics = {r.rmse for r in rows if r.label == "physics"}
     assert len(physics) == 1  # the same test flights for every subset
-    for name in ("study.csv", "study.md", "study.png"):
+    for name in ("data.csv", "data.md", "data.png"):
         assert (tmp_path / "study" / name).is_file()
 
 
@@ -41,7 +37,7 @@ def test_study_trains_on_nested_subsets_and_writes_its_table(tmp_path):
 
 
 def test_the_front_keeps_the_sizes_no_other_beats_on_both_counts():
-    from slungload.study.size import RolloutTiming, SizeRow, pareto_front
+    from slungload.lab.study.size import RolloutTiming, SizeRow, pareto_front
 
     def timing(size: str, ms: float) -> RolloutTiming:
         return RolloutTiming(size, 1, ms, ms, 256, 15, 10, None)
@@ -57,8 +53,8 @@ def test_the_front_keeps_the_sizes_no_other_beats_on_both_counts():
 
 def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_path):
     from slungload.config import ModelConfig
+    from slungload.lab.study import study_size
     from slungload.run_config import RunConfig
-    from slungload.study import study_size
 
     names = ["a", "b", "c", "d", "e"]
     data = write_dataset(
@@ -68,11 +64,11 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
         physics=True,
     )
     template = RunConfig("no-physics", model=ModelConfig(architecture="physics-step"), window=SMALL)
-    options = dict(
-        data=data, out=tmp_path / "study", sizes=("small", "tiny"), seeds=(0,),
-        front_seeds=(1,), template=template, preset="quick", horizon=SMALL.horizon,
-        samples=8, steps=3, repeats=3, workers=1, progress=False,
-    )  # fmt: skip
+    config = SizeStudyConfig(sizes=("small", "tiny"), seeds=(0,), front_seeds=(1,),
+                             preset="quick", horizon=SMALL.horizon, samples=8, steps=3,
+                             repeats=3)  # fmt: skip
+    options = dict(data=data, out=tmp_path / "study", config=config, template=template,
+                   workers=1, progress=False)  # fmt: skip
     study = study_size(**options)
     assert {t.size for t in study.timings} == {"small", "tiny"}
     assert all(t.median_ms > 0 and (t.samples, t.steps) == (8, 3) for t in study.timings)
@@ -87,7 +83,7 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
     runs = sorted(p.name for p in runs_dir.iterdir())
     assert "physics-step-small-no-physics-N4-s0" in runs
     # Without training, the finished runs are evaluated again (and timed afresh).
-    again = study_size(**{**options, "train": False, "backend": "eager"})
+    again = study_size(**{**options, "train": False, "config": replace(config, backend="eager")})
     assert again.rows == study.rows and sorted(p.name for p in runs_dir.iterdir()) == runs
     assert {t.backend for t in study.timings} == {"compiled"}
     assert {t.backend for t in again.timings} == {"eager"}
@@ -99,9 +95,9 @@ def test_the_size_study_trains_times_and_writes_its_table(write_dataset, tmp_pat
 
 def test_the_loads_report_counts_the_test_flights_each_model_wins(tmp_path):
     from slungload.config import VehicleParams
-    from slungload.study import LoadsStudyConfig
-    from slungload.study.loads import LoadsRow, flights_better, write_loads_study
-    from slungload.study.loads_config import NOMINAL_ROW, ONE_LOAD_ROW, TRUTH
+    from slungload.lab.study import LoadsStudyConfig
+    from slungload.lab.study.config import NOMINAL_ROW, ONE_LOAD_ROW, TRUTH
+    from slungload.lab.study.loads import LoadsRow, flights_better, write_loads_study
 
     # (set, label, flight, load mass, RMSE): the truth wins a, the adaptive network a and b
     errors = {NOMINAL_ROW: (1.0, 1.0, 1.0), TRUTH: (0.9, 1.1, 1.0),
@@ -128,14 +124,13 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
 
     from slungload.config import WindowConfig
     from slungload.data.dataset import load_dataset
-    from slungload.study import LoadsStudyConfig, study_loads
-    from slungload.study.loads import choose_estimate_prior
-    from slungload.study.loads_config import NETWORK_ROWS, PHYSICS_ROWS, TRUTH
+    from slungload.lab.study import LoadsStudyConfig, study_loads
+    from slungload.lab.study.config import NETWORK_ROWS, PHYSICS_ROWS, TRUTH
+    from slungload.lab.study.loads import choose_estimate_prior
 
-    config = LoadsStudyConfig(flights=4, beyond_flights=2, size="tiny")
+    config = LoadsStudyConfig(flights=4, beyond_flights=2, size="tiny", preset="quick", epochs=1)
     out = tmp_path / "loads"
-    rows = study_loads(out=out, config=config, preset="quick", epochs=1, workers=1,
-                       progress=False)  # fmt: skip
+    rows = study_loads(out=out, config=config, workers=1, progress=False)
     labels = [*PHYSICS_ROWS, *NETWORK_ROWS]
     assert {(r.test_set, r.label, r.horizon) for r in rows} == {
         (s, label, n) for s in ("inside", "beyond") for label in labels for n in (25, 50)
@@ -170,3 +165,26 @@ def test_the_loads_study_trains_on_one_and_many_loads_and_tests_inside_and_beyon
     # Every network's seed-0 run is kept in its dataset's folder (a re-run trains nothing).
     runs = sorted(p.parent.parent.name for p in (out / "runs").glob("*/*/run.json"))
     assert runs == sorted(source for source, _, _ in NETWORK_ROWS.values())
+
+
+def test_every_study_config_refuses_what_it_cannot_run_and_the_cli_reads_its_defaults(run_cli):
+    with pytest.raises(ValueError, match="positive counts"):
+        DataStudyConfig(flights=(0, 3))
+    with pytest.raises(ValueError, match="unknown network sizes"):
+        SizeStudyConfig(sizes=("huge",))
+    from slungload.cli import build_parser
+
+    parser = build_parser()
+    for argv in (["study", "data", "--out", "x"], ["study", "size", "--data", "d", "--out", "x"],
+                 ["study", "loads", "--out", "x"], ["study", "control", "--out", "x"],
+                 ["study", "control-loads", "--out", "x"], ["control", "--out", "x"],
+                 ["record", "--base", "b", "--out", "x"]):  # fmt: skip
+        args = parser.parse_args(argv)
+        # nothing the configs hold is defaulted on the command line: argparse leaves it None
+        for name in ("seeds", "preset", "samples", "steps", "horizon", "maneuvers", "flights",
+                     "backend", "horizons", "sizes", "temperature"):  # fmt: skip
+            assert getattr(args, name, None) is None, (argv, name)
+    text = parser.parse_args(["study", "size", "--data", "d", "--out", "x"])
+    assert text.front_seeds is None and text.repeats is None
+    code, _, err = run_cli("study", "data", "--flights", "0,3", "--out", "x")
+    assert code == 2 and "positive counts" in err

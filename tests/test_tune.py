@@ -1,4 +1,4 @@
-"""The configuration search's parts that need no Ray (``tune_config``, ``study.tune``) and
+"""The configuration search's parts that need no Ray (``lab.study.config``, ``lab.study.tune``) and
 ``train --config``; the search itself runs in ``ray_cases.py`` (``test_cluster.py``)."""
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ import math
 import subprocess
 import sys
 
-from slungload.experiment import BEYOND_PAPER
+from slungload.lab.reproduce import BEYOND_PAPER
+from slungload.lab.study.config import SearchSpace, TuneSettings
+from slungload.lab.study.tune import choice_run, hand_chosen, within
 from slungload.run_config import read_toml
-from slungload.study.tune import choice_run, hand_chosen, within
-from slungload.tune_config import SearchSpace, TuneSettings
 
 
 def test_the_first_trial_is_reproduces_configuration():
@@ -56,7 +56,7 @@ def test_a_trial_without_a_physics_step_trains_the_default_load_estimate():
 
 
 def test_trials_are_numbered_in_the_order_they_started(tmp_path):
-    from slungload.study.tune import OBJECTIVE, STARTED, _in_start_order, write_tune
+    from slungload.lab.study.tune import OBJECTIVE, STARTED, _in_start_order, write_tune
 
     choice = hand_chosen("quick")
     rows = [{"trial": trial, STARTED: started, **choice, "epochs": 2, "val_rmse": 1.0,

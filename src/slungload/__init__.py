@@ -11,8 +11,8 @@ from ._lazy import lazy_exports
 from ._version import __version__
 
 _EXPORTS: dict[str, tuple[str, ...]] = {
-    "config": ("LossWeights", "ModelConfig", "TrainConfig", "VehicleParams", "WindowConfig",
-               "load_vehicle"),
+    "config": ("LossWeights", "ModelConfig", "TrainConfig", "VehicleParams", "WindowConfig"),
+    "vehicle_file": ("load_vehicle", "read_vehicle"),
     "state": ("GROUPS", "INPUT_DIM", "STATE_DIM", "quat_error"),
     "physics": ("rollout", "step"),
     "sim": ("Controller", "Effects", "MANEUVERS", "Measurement", "PIDController", "SimConfig",
@@ -38,10 +38,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "deploy.predictor": ("FlightWindow", "Predictor", "flight_window"),
     "deploy.compiled": ("CompiledPredictor",),
     "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
-    "deploy.timing": ("time_inference",),
-    "deploy.benchmark_report": ("BenchmarkResult",),
-    "deploy.benchmarks": ("benchmark",),
-    "experiment": ("Reproduction", "evaluate_runs", "reproduce"),
+    "deploy.timing": ("evaluate_runs", "time_inference"),
 }  # fmt: skip
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 __all__ += ["__version__"]

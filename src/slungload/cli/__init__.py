@@ -15,10 +15,11 @@ import warnings
 from collections.abc import Callable, Sequence
 
 from .._version import __version__
-from .control import add_control
+from .control import add_control, add_record
 from .data import add_import, add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
-from .evaluate import add_evaluate, add_reproduce, add_study, add_tune
+from .evaluate import add_evaluate, add_reproduce
+from .study import add_study, add_tune
 from .train import add_identify, add_train
 
 USER_ERRORS = (
@@ -54,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_study(sub)
     add_tune(sub)
     add_control(sub)
+    add_record(sub)
     return parser
 
 

@@ -163,7 +163,7 @@ def vehicle_overrides(args: argparse.Namespace) -> dict[str, float]:
 def resolve_params(folder: Path, args: argparse.Namespace):
     """Vehicle constants for a dataset folder with the CLI's overrides applied, or None when
     there are none (the data module then reads vehicle.json or says it uses the defaults)."""
-    from ..config import load_vehicle
+    from ..vehicle_file import load_vehicle
 
     overrides = vehicle_overrides(args)
     if not overrides:
@@ -181,3 +181,22 @@ def add_cluster_option(p: argparse.ArgumentParser) -> None:
         "this machine) or ray://HOST:PORT; the dataset, OUT and the package at the same path on "
         "every node; a re-run skips finished runs and resumes the rest (docs/cluster.md)",
     )
+
+
+def given(**options: Any) -> dict[str, Any]:
+    """The options the user gave (argparse leaves the others None): a config's changes. A value
+    given as 0 is kept, so that the config refuses it rather than the default replacing it; a
+    list given empty (``--maneuvers ,``) is refused by name."""
+    for name, value in options.items():
+        if isinstance(value, (list, tuple)) and not value:
+            raise ValueError(f"--{name.replace('_', '-')}: give at least one value")
+    return {name: value for name, value in options.items() if value is not None}
+
+
+def joined(values: Any) -> str:
+    """A config's numbers as a user types them: (100, 101, 102) -> '100..102', (15, 25) ->
+    '15,25', 32 -> '32'."""
+    if not isinstance(values, (list, tuple)):
+        return str(values)
+    run = len(values) > 2 and list(values) == list(range(values[0], values[0] + len(values)))
+    return f"{values[0]}..{values[-1]}" if run else ",".join(map(str, values))

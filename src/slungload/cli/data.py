@@ -440,10 +440,11 @@ def _limits_text() -> str:
 def cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from ..config import VehicleParams, read_vehicle
+    from ..config import VehicleParams
     from ..data.consistency import ConsistencyLimits
     from ..data.importing import ImportOptions, SecondLog, import_logs
     from ..data.readers.logs import load_mapping
+    from ..vehicle_file import read_vehicle
 
     overrides = vehicle_overrides(args)
     params = None

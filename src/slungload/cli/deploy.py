@@ -118,7 +118,7 @@ def add_benchmark(sub: Any) -> None:
 
 def cmd_benchmark(args: argparse.Namespace) -> int:
     from ..config import ModelConfig
-    from ..deploy.benchmarks import benchmark
+    from ..lab.bench.benchmarks import benchmark
 
     if args.mpc:
         return _benchmark_mpc(args)
@@ -137,7 +137,7 @@ def cmd_benchmark(args: argparse.Namespace) -> int:
 
 def _benchmark_mpc(args: argparse.Namespace) -> int:
     from ..config import ModelConfig
-    from ..deploy.mpc_benchmark import benchmark_mpc
+    from ..lab.bench.mpc import benchmark_mpc
 
     if args.run is not None and (args.model or args.size):
         raise ValueError("--model and --size build a random network; a RUN_DIR brings its own")

@@ -40,33 +40,7 @@ def add_train(sub: Any) -> None:
         "configuration `slungload tune` writes) instead of the options below; --seed and "
         "--epochs still apply",
     )
-    p.add_argument(
-        "--variant",
-        default=RUN.variant,
-        choices=choices("variants"),
-        help=f"loss variant (default {RUN.variant}: {LOSS_VARIANTS[RUN.variant].description})",
-    )
-    p.add_argument(
-        "--model",
-        default=RUN.model.architecture,
-        choices=choices("models"),
-        help=f"network architecture (default {RUN.model.architecture}: "
-        f"{ARCHITECTURES[RUN.model.architecture]})",
-    )
-    p.add_argument(
-        "--size",
-        default=RUN.model.size,
-        choices=choices("sizes"),
-        help="network size: "
-        + "; ".join(f"{n} ({s.summary()}: {s.description})" for n, s in MODEL_SIZES.items())
-        + f" (default {RUN.model.size})",
-    )
-    p.add_argument(
-        "--preset",
-        default=RUN.preset,
-        choices=choices("presets"),
-        help=preset_help(RUN.preset),
-    )
+    _add_model_options(p)
     p.add_argument(
         "--device",
         default="auto",
@@ -83,6 +57,43 @@ def add_train(sub: Any) -> None:
         "--fit-constants",
         action="store_true",
         help="fit the physics model's constants to the training flights first (as `identify`)",
+    )
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_window_options(p)
+    add_vehicle_options(p)
+    p.set_defaults(func=cmd_train, run_defaults={d: p.get_default(d) for d in RUN_OPTIONS})
+
+
+def _add_model_options(p: argparse.ArgumentParser) -> None:
+    """The options that describe the run's network and loss (``RUN_OPTIONS``), their defaults
+    read from ``RunConfig()``."""
+    p.add_argument(
+        "--variant",
+        default=RUN.variant,
+        choices=choices("variants"),
+        help=f"loss variant (default {RUN.variant}: {LOSS_VARIANTS[RUN.variant].description})",
+    )
+    p.add_argument(
+        "--model",
+        default=RUN.model.architecture,
+        choices=choices("models"),
+        help=f"network architecture (default {RUN.model.architecture}: "
+        f"{ARCHITECTURES[RUN.model.architecture].description})",
+    )
+    p.add_argument(
+        "--size",
+        default=RUN.model.size,
+        choices=choices("sizes"),
+        help="network size: "
+        + "; ".join(f"{n} ({s.summary()}: {s.description})" for n, s in MODEL_SIZES.items())
+        + f" (default {RUN.model.size})",
+    )
+    p.add_argument(
+        "--preset",
+        default=RUN.preset,
+        choices=choices("presets"),
+        help=preset_help(RUN.preset),
     )
     p.add_argument(
         "--steps",
@@ -124,11 +135,6 @@ def add_train(sub: Any) -> None:
         "points along x, and its prediction is turned back: the same for every heading by "
         "construction (a network without it must learn each heading from data)",
     )
-    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_window_options(p)
-    add_vehicle_options(p)
-    p.set_defaults(func=cmd_train, run_defaults={d: p.get_default(d) for d in RUN_OPTIONS})
 
 
 # What a --config file describes instead (its options may not be given beside it).

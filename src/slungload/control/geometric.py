@@ -37,8 +37,6 @@ from ..sim.config import SimConfig
 from ..sim.controller import Measurement, PIDController
 from ..sim.maneuvers import Reference
 
-GEOMETRIC = "geometric"
-
 
 @dataclass(frozen=True)
 class GeometricGains:

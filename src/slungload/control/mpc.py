@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..config import ESTIMATE_MIN_STEPS, VEHICLE_FILE, VehicleParams
+from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
 from ..fileio import read_json
 from ..models.checkpoints import checkpoint_meta
@@ -30,6 +30,7 @@ from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
+from ..vehicle_file import VEHICLE_FILE
 from .mppi import (
     CandidateModel,
     ConstantsEstimate,
@@ -40,7 +41,6 @@ from .mppi import (
     ReferenceAhead,
     trajectory_cost,
 )
-from .oracle import PlantCandidates
 
 __all__ = [
     "InputLimits",
@@ -169,14 +169,19 @@ def knots_for(horizon: int) -> int:
 
 
 def mpc_maker(
-    model: PredictionModel | None, limits: InputLimits, mpc: MPCConfig, params: VehicleParams
+    model: PredictionModel | Callable[[], CandidateModel],
+    limits: InputLimits,
+    mpc: MPCConfig,
+    params: VehicleParams,
 ) -> Callable[[int], SamplingMPC]:
-    """seed -> a fresh MPC over ``model`` (None: a fresh oracle, ``oracle.PlantCandidates``)
-    seeded by the flight, so every flight of a study samples its own noise."""
+    """seed -> a fresh MPC over ``model`` seeded by the flight, so every flight of a study
+    samples its own noise. ``model``: a prediction model shared by the flights, or a factory
+    of a fresh numpy ``CandidateModel`` per flight (one that holds the flight's plant, such as
+    the lab's oracle)."""
+    fresh = isinstance(model, type) or not hasattr(model, "predict_candidates")
 
     def make(seed: int) -> SamplingMPC:
-        chosen = PlantCandidates() if model is None else model
-        return SamplingMPC(chosen, limits, replace(mpc, seed=seed), params)
+        return SamplingMPC(model() if fresh else model, limits, replace(mpc, seed=seed), params)
 
     return make
 

@@ -11,8 +11,9 @@ from pathlib import Path
 
 import torch
 
-from ..config import VehicleParams, WindowConfig, load_vehicle, to_dict
+from ..config import VehicleParams, WindowConfig, to_dict
 from ..fileio import SPLITS
+from ..vehicle_file import load_vehicle
 from .cache import cache_key, default_cache_dir, load_cache, save_cache
 from .flight import DatasetError, DataWarning, Flight
 from .readers import flight_files, flight_suffixes, load_flight

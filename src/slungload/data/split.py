@@ -159,7 +159,7 @@ def recordings_of(folder: Path, names: list[str]) -> dict[str, str]:
     (the log a piece came from), else the flight itself."""
     import json
 
-    from ..config import VEHICLE_FILE
+    from ..vehicle_file import VEHICLE_FILE
 
     try:
         data = json.loads((folder / VEHICLE_FILE).read_text(encoding="utf-8"))
@@ -268,8 +268,8 @@ def split_blocks(folder: str | Path, *, gap: int = WINDOW_STEPS) -> dict[str, li
     (the parts of it in each block, time restarting at 0), listed in their splits;
     ``vehicle.json`` keeps its content and records the cut under ``"blocks"``. All or
     nothing (``writer.DatasetWriter``). Returns the split lists."""
-    from ..config import VEHICLE_FILE, load_vehicle
     from ..fileio import read_npz
+    from ..vehicle_file import VEHICLE_FILE, load_vehicle
     from .dataset import check_folder
     from .writer import DatasetWriter
 

@@ -14,13 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import VEHICLE_FILE, VehicleParams, WindowConfig
+from ..config import VehicleParams, WindowConfig
 from ..fileio import SPLITS
 from ..frames import swing_angle
 from ..state import (
     THRUST,
     split_state,
 )
+from ..vehicle_file import VEHICLE_FILE
 from .consistency import Check, flight_checks
 from .dataset import check_folder, read_splits, resolve_params
 from .flight import DatasetError, DataWarning, Flight

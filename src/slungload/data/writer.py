@@ -25,8 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from ..config import VEHICLE_FILE, VehicleParams, to_dict
+from ..config import VehicleParams, to_dict
 from ..fileio import write_json, write_npz, write_splits
+from ..vehicle_file import VEHICLE_FILE
 
 
 class DatasetWriter:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import statistics
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
 
 import torch
 from torch import nn
@@ -13,7 +15,8 @@ from tqdm.auto import tqdm
 
 from ..config import VehicleParams
 from ..data.windows import Windows
-from ..evaluation.results import Timing, TimingResult
+from ..evaluation.evaluator import evaluate
+from ..evaluation.results import Report, Timing, TimingResult
 from ..reporting import device_name, load_average
 from .compiled import CompiledPredictor, unsupported
 from .predictor import Predictor, states_to_file
@@ -138,3 +141,31 @@ def time_models(
             bar.update()
     bar.close()
     return tuple(out)
+
+
+def evaluate_runs(
+    runs: Sequence[str | Path],
+    *,
+    timing: bool = False,
+    timing_repeats: int = 100,
+    device: str = "cpu",
+    progress: bool = True,
+    **options: Any,
+) -> Report:
+    """``evaluation.evaluate`` with, if ``timing``, the batch-1 time of every network (eager
+    on ``device`` and the compiled predictor, ``timing_repeats`` calls each) in its report.
+    ``options`` go to ``evaluate`` (data, out, horizons, include_physics, ...)."""
+    timer = None
+    if timing:
+
+        def timer(networks, windows, params):  # an evaluator.Timer
+            return time_models(
+                networks,
+                windows,
+                params=params,
+                repeats=timing_repeats,
+                device=device,
+                progress=progress,
+            )
+
+    return evaluate(runs, timer=timer, device=device, progress=progress, **options)

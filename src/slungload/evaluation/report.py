@@ -14,8 +14,6 @@ Layout of the output folder::
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import re
 from collections.abc import Sequence
@@ -23,7 +21,7 @@ from pathlib import Path
 
 from ..config import to_dict
 from ..fileio import write_json, write_text
-from ..reporting import markdown_table, smoke_banner
+from ..reporting import markdown_table, smoke_banner, write_csv
 from ..run_config import SMOKE_PRESET
 from ..state import GROUPS
 from . import plots
@@ -124,7 +122,7 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
         for r in report.results
     ]
     paths.append(
-        _write_csv(out / "rmse.csv", ["label", "seed", "horizon", "windows", *METRIC_KEYS], rows)
+        write_csv(out / "rmse.csv", ["label", "seed", "horizon", "windows", *METRIC_KEYS], rows)
     )
 
     header = ["label", "horizon", "seeds"]
@@ -133,7 +131,7 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
         [r.label, r.horizon, r.seeds] + [v for k in METRIC_KEYS for v in (r.mean[k], r.std[k])]
         for r in report.table
     ]
-    paths.append(_write_csv(out / "rmse_table.csv", header, rows))
+    paths.append(write_csv(out / "rmse_table.csv", header, rows))
 
     for label, by_horizon in report.curves.items():
         for n, curves in by_horizon.items():
@@ -146,7 +144,7 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
                     c = curves[g]
                     row += [c.mean[k], c.q1[k], c.median[k], c.q3[k]]
                 rows.append(row)
-            paths.append(_write_csv(out / f"mae_{_slug(label)}_N{n}.csv", header, rows))
+            paths.append(write_csv(out / f"mae_{_slug(label)}_N{n}.csv", header, rows))
 
     header = ["label", "seed", "backend", "history", "horizon", "mean_ms", "std_ms", "repeats",
               "threads", "device"]  # fmt: skip
@@ -166,25 +164,10 @@ def write_csvs(report: Report, out: Path) -> list[Path]:
         for t in report.timings
     ]
     if rows:  # timed only with --timing
-        paths.append(_write_csv(out / "timing.csv", header, rows))
+        paths.append(write_csv(out / "timing.csv", header, rows))
     else:  # an earlier run's into the same folder would no longer match report.md
         (out / "timing.csv").unlink(missing_ok=True)
     return paths
-
-
-def _write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[object]]) -> Path:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(header)
-    for row in rows:
-        writer.writerow([_cell(v) for v in row])
-    write_text(path, buf.getvalue())
-    return path
-
-
-def _cell(value: object) -> object:
-    # repr of a float round-trips exactly, so the CSVs hold the Report's numbers.
-    return repr(float(value)) if isinstance(value, float) else value
 
 
 def _blank(value: object) -> object:

@@ -6,7 +6,6 @@ inference time).
 from __future__ import annotations
 
 import dataclasses
-import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -14,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..config import VehicleParams, to_dict
+from ..reporting import mean_std
 from .metrics import METRIC_KEYS, Curve, Metrics
 
 PHYSICS = "physics"  # label of the physics-only open-loop predictor
@@ -210,14 +210,14 @@ def table_rows(results: Sequence[RunResult]) -> tuple[RmseRow, ...]:
         groups.setdefault((r.label, r.metrics.horizon), []).append(r.metrics)
     rows = []
     for (label, horizon), runs in groups.items():
-        vals = {k: [m.rmse[k] for m in runs] for k in METRIC_KEYS}
+        stats = {k: mean_std(m.rmse[k] for m in runs) for k in METRIC_KEYS}
         rows.append(
             RmseRow(
                 label=label,
                 horizon=horizon,
                 seeds=len(runs),
-                mean={k: statistics.fmean(v) for k, v in vals.items()},
-                std={k: statistics.stdev(v) if len(v) > 1 else 0.0 for k, v in vals.items()},
+                mean={k: mean for k, (mean, _, _) in stats.items()},
+                std={k: std for k, (_, std, _) in stats.items()},
             )
         )
     return tuple(rows)

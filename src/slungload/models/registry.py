@@ -3,21 +3,40 @@
 Every architecture maps a window's history and the future inputs to the predicted states
 (``base.DynamicsModel``) and is built as ``cls(config, params)`` from a ``ModelConfig`` and the
 vehicle constants alone, so a checkpoint that records ``ModelConfig.architecture`` is rebuilt
-from the file. A new architecture is a module in this package and one line below.
+from the file. ``MODELS`` reads the one table, ``config.ARCHITECTURES`` (name -> "module:Class"),
+and imports a class on first use: a new architecture is a module in this package and one line
+there.
 """
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Iterator, Mapping
+
 from torch import nn
 
-from ..config import ModelConfig, VehicleParams
-from .lstm_attention import SlungLoadNet
-from .physics_step import PhysicsStepNet
+from ..config import ARCHITECTURES, ModelConfig, VehicleParams
 
-MODELS: dict[str, type[nn.Module]] = {
-    SlungLoadNet.architecture: SlungLoadNet,  # the paper's network
-    PhysicsStepNet.architecture: PhysicsStepNet,  # the paper's network on f's step
-}
+
+class _Architectures(Mapping[str, type[nn.Module]]):
+    """name -> the network class ``config.ARCHITECTURES`` names, imported on first use."""
+
+    def __getitem__(self, name: str) -> type[nn.Module]:
+        module, cls_name = ARCHITECTURES[name].target.split(":")
+        cls = getattr(importlib.import_module(f".{module}", __package__), cls_name)
+        if getattr(cls, "architecture", None) != name:
+            raise TypeError(f"{cls.__name__}.architecture must be {name!r}, the name it is "
+                            "registered under")  # fmt: skip
+        return cls
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(ARCHITECTURES)
+
+    def __len__(self) -> int:
+        return len(ARCHITECTURES)
+
+
+MODELS: Mapping[str, type[nn.Module]] = _Architectures()
 
 
 def get_model_class(name: str) -> type[nn.Module]:

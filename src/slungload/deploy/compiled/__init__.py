@@ -8,7 +8,6 @@ discrete model and the load-state estimates (``physics``).
 from __future__ import annotations
 
 from .batched import (
-    BACKENDS,
     CompiledNetworkModel,
     CompiledPhysicsModel,
     load_model,
@@ -18,7 +17,6 @@ from .fold import COMPILED_ARCHITECTURES, FoldedWeights, fold
 from .predictor import PARITY_TOLERANCE, CompiledPredictor, unsupported
 
 __all__ = [
-    "BACKENDS",
     "COMPILED_ARCHITECTURES",
     "PARITY_TOLERANCE",
     "CompiledNetworkModel",

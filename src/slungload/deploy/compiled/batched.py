@@ -25,8 +25,8 @@ Both equal the eager model to float32 rounding for the network (tests: both arch
 every model mode) and to round-off for the physics (float64); ``predict_windows`` is the eager
 model's. The ``cuda`` backend is the eager model on the GPU, replayed from CUDA graphs
 (``deploy.gpu``; CPU tensors in and out, as the MPC calls it). ``load_model(spec, params,
-backend=...)`` picks one of ``BACKENDS``; a model a backend cannot run, or a GPU that torch
-does not see, is a ``ValueError`` naming why, never a silent fallback.
+backend=...)`` picks one of ``config.PREDICTION_BACKENDS``; a model a backend cannot run, or a
+GPU that torch does not see, is a ``ValueError`` naming why, never a silent fallback.
 """
 
 from __future__ import annotations
@@ -65,7 +65,6 @@ from .physics import (
     physics_step_columns,
 )
 
-BACKENDS = tuple(PREDICTION_BACKENDS)  # ``load_model``'s choices; eager: models.prediction
 _Q = QUAT.start
 
 
@@ -383,12 +382,15 @@ def _next_columns(xu, y, aux, mode, add_mean, vehicle, u_next, origin, out, step
 
 
 def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
-    """``model`` on ``backend`` (one of ``BACKENDS``): itself for "eager"; for "compiled" a
-    ``CompiledPhysicsModel`` of a ``PhysicsModel`` or a ``CompiledNetworkModel`` of a
-    ``NetworkModel`` on the CPU; for "cuda" a ``deploy.gpu.GraphedModel`` of a copy on the GPU.
+    """``model`` on ``backend`` (one of ``config.PREDICTION_BACKENDS``): itself for "eager";
+    for "compiled" a ``CompiledPhysicsModel`` of a ``PhysicsModel`` or a
+    ``CompiledNetworkModel`` of a ``NetworkModel`` on the CPU; for "cuda" a
+    ``deploy.gpu.GraphedModel`` of a copy on the GPU.
     Anything else is a ``ValueError`` naming why, a GPU that torch does not see too."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
+    if backend not in PREDICTION_BACKENDS:
+        raise ValueError(
+            f"unknown prediction backend {backend!r}; known: {list(PREDICTION_BACKENDS)}"
+        )
     if backend == "eager":
         return model
     if backend == CUDA:
@@ -416,7 +418,9 @@ def load_model(
     constants: VehicleParams | None = None,
 ) -> PredictionModel:
     """``models.prediction.load_prediction_model(spec, params, constants=constants)`` on
-    ``backend`` (``BACKENDS``; see ``with_backend``)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown prediction backend {backend!r}; known: {list(BACKENDS)}")
+    ``backend`` (``config.PREDICTION_BACKENDS``; see ``with_backend``)."""
+    if backend not in PREDICTION_BACKENDS:
+        raise ValueError(
+            f"unknown prediction backend {backend!r}; known: {list(PREDICTION_BACKENDS)}"
+        )
     return with_backend(load_prediction_model(spec, params, constants=constants), backend)

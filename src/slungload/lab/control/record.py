@@ -18,20 +18,21 @@ from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
-from .._version import __version__
-from ..config import VEHICLE_FILE, WindowConfig, load_vehicle, to_dict
-from ..data.dataset import read_splits
-from ..data.readers import flight_files
-from ..data.writer import DatasetWriter
-from ..deploy.compiled.batched import load_model
-from ..deploy.predictor import torch_threads
-from ..fileio import read_json, write_npz
-from ..models.prediction import PredictionModel
-from ..sim.config import SimConfig, vehicle_params
-from ..workers import run_jobs
-from .closed_loop import fly
-from .mpc import InputLimits, MPCConfig, knots_for, mpc_maker
-from .study_config import RecordConfig
+from ..._version import __version__
+from ...config import WindowConfig, to_dict
+from ...control.closed_loop import fly
+from ...control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
+from ...data.dataset import read_splits
+from ...data.readers import flight_files
+from ...data.writer import DatasetWriter
+from ...deploy.compiled.batched import load_model
+from ...deploy.predictor import torch_threads
+from ...fileio import read_json, write_npz
+from ...models.prediction import PredictionModel
+from ...sim.config import SimConfig, vehicle_params
+from ...vehicle_file import VEHICLE_FILE, load_vehicle
+from ...workers import run_jobs
+from .config import RecordConfig
 
 
 @dataclass(frozen=True)

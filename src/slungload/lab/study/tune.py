@@ -23,7 +23,6 @@ namespace (docs/cluster.md).
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 import time
@@ -36,19 +35,19 @@ import numpy as np
 import torch
 from matplotlib.figure import Figure
 
-from ..cluster import connect, require_ray
-from ..config import LossWeights, ModelConfig, WindowConfig
-from ..data.dataset import load_dataset
-from ..data.windows import Windows
-from ..evaluation.evaluator import evaluate, horizon_windows
-from ..evaluation.metrics import COMBINED, compute_metrics
-from ..experiment import BEYOND_PAPER
-from ..fileio import write_text
-from ..models.prediction import NetworkModel
-from ..reporting import markdown_table, save_figure
-from ..run_config import RunConfig
-from ..training.trainer import train
-from ..tune_config import SearchSpace, TuneSettings
+from ...cluster import connect, require_ray
+from ...config import LossWeights, ModelConfig, WindowConfig
+from ...data.dataset import load_dataset
+from ...data.windows import Windows
+from ...evaluation.evaluator import evaluate, horizon_windows
+from ...evaluation.metrics import COMBINED, compute_metrics
+from ...fileio import write_text
+from ...models.prediction import NetworkModel
+from ...reporting import markdown_table, save_figure, write_csv
+from ...run_config import RunConfig
+from ...training.trainer import train
+from ..reproduce import BEYOND_PAPER
+from .config import SearchSpace, TuneSettings
 
 OBJECTIVE = "objective"  # combined RMSE at N = 50 on val, mean of the seeds
 # ASHA's signal: each epoch's combined RMSE at the objective's horizon on a fixed subset of the
@@ -261,10 +260,7 @@ def write_tune(
 ) -> Path:
     """trials.csv, tune.md, tune.png and best.toml (see the module); returns tune.md."""
     keys = list(rows[0]) if rows else []
-    with open(out / "trials.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(out / "trials.csv", keys, [[r.get(k, "") for k in keys] for r in rows])
     finished = [r for r in rows if math.isfinite(r[OBJECTIVE])]
     lines = [
         "# Configuration search",

@@ -7,8 +7,8 @@ flights, beside the physics model's (which no training changes).
 
 Layout of ``out``: ``data/`` (simulated unless given), ``subsets/train<k>/`` (the k first
 flights of a seeded order as train.txt, the same val.txt and test.txt; the listed flights
-linked, not copied), ``runs/train<k>/<RunConfig.folder()>/``, ``study.csv``,
-``study.md``, ``study.png``. Finished runs are kept, so an interrupted study can be re-run.
+linked, not copied), ``runs/train<k>/<RunConfig.folder()>/``, ``data.csv``,
+``data.md``, ``data.png``. Finished runs are kept, so an interrupted study can be re-run.
 """
 
 from __future__ import annotations
@@ -16,24 +16,25 @@ from __future__ import annotations
 import math
 import os
 import shutil
-import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..config import DEFAULT_ARCHITECTURE, VEHICLE_FILE, ModelConfig
-from ..data.dataset import check_folder, read_splits
-from ..data.split import SPLIT_FRACTIONS
-from ..evaluation.evaluator import evaluate
-from ..evaluation.metrics import COMBINED
-from ..evaluation.results import PHYSICS
-from ..experiment import PAPER_VARIANTS, TrainingJob, run_training_jobs
-from ..fileio import write_splits, write_text
-from ..reporting import markdown_table, model_colors, save_figure
-from ..run_config import RunConfig
-from ..sim import simulate_dataset
+from ...config import ModelConfig
+from ...data.dataset import check_folder, read_splits
+from ...data.split import SPLIT_FRACTIONS
+from ...evaluation.evaluator import evaluate
+from ...evaluation.metrics import COMBINED
+from ...evaluation.results import PHYSICS
+from ...fileio import write_splits, write_text
+from ...reporting import markdown_table, mean_std, model_colors, save_figure, write_csv
+from ...run_config import RunConfig
+from ...sim import simulate_dataset
+from ...vehicle_file import VEHICLE_FILE
+from ..reproduce import TrainingJob, run_training_jobs
+from .config import DataStudyConfig
 
 TRAIN_SHARE = SPLIT_FRACTIONS["train"]  # of a simulated dataset's windows in training
 
@@ -51,25 +52,21 @@ class StudyRow:
 def study_data(
     *,
     out: str | Path,
-    flights: Sequence[int] = (6, 12, 24, 48),
+    config: DataStudyConfig | None = None,
     data: str | Path | None = None,
-    variants: Sequence[str] = PAPER_VARIANTS,
-    architectures: Sequence[str] = (DEFAULT_ARCHITECTURE,),
-    seeds: Sequence[int] = (0,),
-    preset: str = "default",
-    horizon: int = 50,
-    sim_seed: int = 0,
     workers: int = 2,
     progress: bool = True,
     cluster: str | None = None,
 ) -> list[StudyRow]:
-    """Train every (architecture, variant, seed) on the first k training flights for each k
-    in ``flights`` and evaluate at ``horizon`` on the fixed test flights; writes the table and
-    the figure into ``out`` and returns the rows. ``cluster``: train on a Ray cluster
-    (``cluster.run_on_ray``) instead of ``workers`` local processes."""
-    sizes = sorted({int(k) for k in flights})
-    if not sizes or sizes[0] < 1:
-        raise ValueError(f"--flights must be positive counts, got {flights}")
+    """Train every (architecture, variant, seed) of ``config`` (default ``DataStudyConfig()``)
+    on the first k training flights for each k in ``config.flights`` and evaluate at its
+    horizon on the fixed test flights of ``data`` (None: a dataset simulated into
+    ``out/data``); writes the table and the figure into ``out`` and returns the rows.
+    ``cluster``: train on a Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local
+    processes."""
+    cfg = config or DataStudyConfig()
+    preset, horizon, sim_seed = cfg.preset, cfg.horizon, cfg.sim_seed
+    sizes = sorted({int(k) for k in cfg.flights})
     out = Path(out)
     data = (
         Path(data)
@@ -79,9 +76,9 @@ def study_data(
     subsets = _nested_subsets(data, out / "subsets", sizes, sim_seed)
     runs = [
         RunConfig(variant, model=ModelConfig(architecture=arch)).scheduled(preset, seed=seed)
-        for arch in architectures
-        for variant in variants
-        for seed in seeds
+        for arch in cfg.architectures
+        for variant in cfg.variants
+        for seed in cfg.seeds
     ]
     jobs = []
     for k, folder in subsets.items():
@@ -143,28 +140,24 @@ def _run_dir(root: Path, run: RunConfig) -> Path:
 
 
 def write_study(rows: Sequence[StudyRow], out: Path, horizon: int) -> None:
-    """study.csv (every run), study.md (mean +- std over seeds) and study.png."""
-    lines = ["flights,label,seed,combined_rmse"]
-    lines += [f"{r.flights},{r.label},{'' if r.seed is None else r.seed},{r.rmse}" for r in rows]
-    write_text(out / "study.csv", "\n".join(lines) + "\n")
+    """data.csv (every run), data.md (mean +- std over seeds) and data.png."""
+    write_csv(out / "data.csv", ["flights", "label", "seed", "combined_rmse"],
+              [[r.flights, r.label, r.seed, r.rmse] for r in rows])  # fmt: skip
     table = _mean_std(rows)
     labels = list(dict.fromkeys(label for (_, label) in table))
     sizes = sorted({k for (k, _) in table})
     rows = [[k, *(_cell(table.get((k, label))) for label in labels)] for k in sizes]
     md = markdown_table(["training flights", *labels], rows)
     title = f"# Data-efficiency study: combined RMSE at N = {horizon} on the test flights"
-    write_text(out / "study.md", f"{title}\n\n{md}\n")
-    _figure(table, labels, sizes, out / "study.png", horizon)
+    write_text(out / "data.md", f"{title}\n\n{md}\n")
+    _figure(table, labels, sizes, out / "data.png", horizon)
 
 
 def _mean_std(rows: Sequence[StudyRow]) -> dict[tuple[int, str], tuple[float, float, int]]:
     groups: dict[tuple[int, str], list[float]] = {}
     for r in rows:
         groups.setdefault((r.flights, r.label), []).append(r.rmse)
-    return {
-        key: (statistics.fmean(v), statistics.stdev(v) if len(v) > 1 else 0.0, len(v))
-        for key, v in groups.items()
-    }
+    return {key: mean_std(v) for key, v in groups.items()}
 
 
 def _cell(value: tuple[float, float, int] | None) -> str:

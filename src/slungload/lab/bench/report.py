@@ -11,11 +11,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..evaluation.results import PAPER_TIMING
-from ..reporting import markdown_table
+from ...evaluation.results import PAPER_TIMING
+from ...reporting import markdown_table
 
 EAGER, SCRIPT, ONNX, COMPILED = "torch eager", "torch script", "onnxruntime", "numba compiled"
-BACKENDS = (EAGER, SCRIPT, ONNX, COMPILED)
+# The batch-1 predictors timed, by their row label (not the MPC's ``config.PREDICTION_BACKENDS``)
+PREDICTORS = (EAGER, SCRIPT, ONNX, COMPILED)
 PAPER_DEVICES = ("NVIDIA RTX 3090", "NVIDIA Jetson Orin Nano")  # columns of the latency table
 
 

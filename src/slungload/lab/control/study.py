@@ -37,29 +37,27 @@ from typing import Any
 
 import numpy as np
 
-from ..config import VehicleParams
-from ..deploy.compiled.batched import load_model
-from ..deploy.onboard import sha256
-from ..deploy.predictor import torch_threads
-from ..deploy.timing import time_calls
-from ..fileio import read_json, write_json
-from ..layout import LOAD_POS, POS, QUAT, STATE_DIM
-from ..models.checkpoints import checkpoint_meta, checkpoint_path
-from ..models.prediction import PHYSICS, PredictionModel
-from ..sim.config import SimConfig, tuples_from_json
-from ..sim.controller import PIDController
-from ..sim.dataset import vehicle_params
-from ..workers import run_jobs
-from .closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
-from .geometric import GEOMETRIC, GeometricLoadController
-from .mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
-from .mppi import ReferenceAhead
-from .oracle import ORACLE
-from .results import mpc_label
-from .study_config import (
+from ...config import VehicleParams
+from ...control.closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
+from ...control.controllers import REFERENCE, reference_maker
+from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
+from ...control.mppi import ReferenceAhead
+from ...deploy.compiled.batched import load_model
+from ...deploy.onboard import sha256
+from ...deploy.predictor import torch_threads
+from ...deploy.timing import time_calls
+from ...fileio import read_json, write_json
+from ...layout import LOAD_POS, POS, QUAT, STATE_DIM
+from ...models.checkpoints import checkpoint_meta, checkpoint_path
+from ...models.prediction import PHYSICS, PredictionModel
+from ...sim.config import SimConfig, tuples_from_json
+from ...sim.dataset import vehicle_params
+from ...workers import run_jobs
+from .config import (
     CONTROLLERS,
     COST_GRID,
     NOMINAL,
+    ORACLE,
     PHYSICS_SAMPLES,
     SETTINGS_FIELDS,
     SHIFTS,
@@ -67,6 +65,8 @@ from .study_config import (
     UNSAFE_SWING,
     StudyConfig,
 )
+from .oracle import PlantCandidates
+from .results import mpc_label
 
 
 @dataclass(frozen=True)
@@ -216,10 +216,8 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
     """Every (plant, controller) to fly, plant by plant, the cheap controllers first."""
     plans: list[Flown] = []
     for plant in plants:
-        if "pid" in controllers:
-            plans.append(Flown(plant, "pid", lambda seed: PIDController(nominal)))
-        if GEOMETRIC in controllers:
-            plans.append(Flown(plant, GEOMETRIC, lambda seed: GeometricLoadController(nominal)))
+        plans += [Flown(plant, kind, reference_maker(kind, nominal))
+                  for kind in REFERENCE if kind in controllers]  # fmt: skip
         horizons = cfg.horizons if plant == NOMINAL else cfg.shifted_horizons
         for kind in (PHYSICS, "learned"):
             if kind not in controllers or kind not in models:
@@ -236,7 +234,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                           if "learned" in models else {})  # fmt: skip
                 mpc = MPCConfig(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
                 plans.append(Flown(plant, mpc_label(ORACLE, n),
-                                   mpc_maker(None, limits, mpc, params)))  # fmt: skip
+                                   mpc_maker(PlantCandidates, limits, mpc, params)))  # fmt: skip
     return plans
 
 

@@ -1,7 +1,7 @@
 """``slungload control``: the PID, MPC + physics model and MPC + each network, flown and measured.
 
-``compare(models, maneuvers, seeds, samples, out)`` flies every controller on every maneuver
-and seed (every unmodelled effect on), one MPC per prediction model and K in ``samples``, and
+``compare(models, out, config)`` flies every controller on every maneuver and seed of
+``config.ComparisonConfig`` (every unmodelled effect on), one MPC per prediction model and K, and
 writes into ``out``: ``results.json`` (one row of ``closed_loop.flight_metrics`` per flight,
 the settings and the machine), each flight's log where the control study keeps it
 (``closed_loop.log_path``: ``flights/nominal/<controller>/<maneuver>_s<seed>.npz``), and the
@@ -19,67 +19,56 @@ from datetime import date
 from pathlib import Path
 from typing import Any
 
-from ..config import VehicleParams
-from ..deploy.compiled.batched import load_model
-from ..deploy.predictor import torch_threads
-from ..fileio import write_json
-from ..models.checkpoints import checkpoint_meta
-from ..models.prediction import PHYSICS, PredictionModel
-from ..reporting import machine
-from ..sim.config import SimConfig
-from ..sim.controller import PIDController
-from ..sim.dataset import vehicle_params
-from ..sim.maneuvers import MANEUVERS
-from .closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
-from .mpc import InputLimits, MPCConfig, knots_for, mpc_maker
+from ...config import VehicleParams
+from ...control.closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
+from ...control.controllers import PID, reference_maker
+from ...control.mpc import InputLimits, MPCConfig, mpc_maker
+from ...deploy.compiled.batched import load_model
+from ...deploy.predictor import torch_threads
+from ...fileio import write_json
+from ...models.checkpoints import checkpoint_meta
+from ...models.prediction import PHYSICS, PredictionModel
+from ...reporting import machine
+from ...sim.config import SimConfig
+from ...sim.dataset import vehicle_params
+from .config import NOMINAL, ComparisonConfig
 from .report import write_report
 from .results import ControlComparison
-from .study_config import DEFAULT_MANEUVERS, NOMINAL
-
-PID = "pid"
 
 
 def compare(
     models: Sequence[str | Path] = (),
-    maneuvers: Sequence[str] = DEFAULT_MANEUVERS,
-    seeds: Sequence[int] = (100, 101, 102),
-    samples: Sequence[int] = (32,),
     out: str | Path | None = None,
+    config: ComparisonConfig | None = None,
     *,
-    horizon: int | None = None,
-    steps: int | None = None,
-    config: SimConfig | None = None,
+    sim: SimConfig | None = None,
     threads: int = 1,
-    backend: str = "eager",
     progress: Callable[[str], None] | None = print,
 ) -> ControlComparison:
-    """Fly the PID, MPC + physics and MPC + each network (run folders) and write the report.
-
-    samples: K values; each prediction model runs once per K. horizon: the MPC's N (default
-    ``MPCConfig.horizon``). steps: cut every flight to this many recorded steps (smoke runs).
-    threads: torch threads while flying (restored after). backend: what the prediction models
-    run on (``deploy.compiled.BACKENDS``: "eager" torch, "compiled" kernels, or "cuda").
-    """
-    unknown = [m for m in maneuvers if m not in MANEUVERS]
-    if unknown:
-        raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
-    cfg = config or SimConfig()
-    params = vehicle_params(cfg)
-    limits = InputLimits.from_sim(cfg)
-    predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=backend)]
-    predictors += [load_model(m, backend=backend) for m in models]
-    base = MPCConfig() if horizon is None else MPCConfig(horizon=horizon, knots=knots_for(horizon))
+    """Fly the PID, MPC + physics and MPC + each network (run folders) as ``config`` says
+    (default ``ComparisonConfig()``) on the plant ``sim`` (default ``SimConfig()``) and write
+    the report into ``out`` (None: nothing written). threads: torch threads while flying
+    (restored after)."""
+    cfg = config or ComparisonConfig()
+    plant = sim or SimConfig()
+    params = vehicle_params(plant)
+    limits = InputLimits.from_sim(plant)
+    predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=cfg.backend)]
+    predictors += [load_model(m, backend=cfg.backend) for m in models]
+    base = cfg.mpc
     out_dir = Path(out) if out is not None else None
     if out_dir is not None and (out_dir / "settings.json").exists():
         raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
                          "where these would land; use another --out")  # fmt: skip
     # each network's training preset, for the report's smoke-run banner
     presets = {str(m): checkpoint_meta(m).get("preset") for m in models if str(m) != PHYSICS}
-    plans = _plans(cfg, predictors, samples, base, limits, params)
+    plans = _plans(plant, predictors, cfg.samples, base, limits, params)
     with torch_threads(threads):
-        rows, logs = _fly_all(maneuvers, seeds, plans, cfg, limits, steps, out_dir, progress)
-    settings = _settings(models, maneuvers, seeds, samples, base, limits, steps, threads)
-    settings.update(backend=backend, presets=presets)
+        rows, logs = _fly_all(cfg.maneuvers, cfg.seeds, plans, plant, limits, cfg.steps, out_dir,
+                              progress)  # fmt: skip
+    settings = _settings(models, cfg.maneuvers, cfg.seeds, cfg.samples, base, limits, cfg.steps,
+                         threads)  # fmt: skip
+    settings.update(backend=cfg.backend, presets=presets)
     result = ControlComparison(rows, settings, out_dir, logs)
     if out_dir is not None:
         write_json(out_dir / "results.json", {"settings": settings, "rows": rows})
@@ -99,7 +88,7 @@ def _plans(
     params: VehicleParams,
 ) -> list[_Plan]:
     """The controllers to fly: the PID, then one MPC per K and prediction model."""
-    plans: list[_Plan] = [(PID, None, lambda seed: PIDController(cfg))]
+    plans: list[_Plan] = [(PID, None, reference_maker(PID, cfg))]
     for k in samples:
         for model in predictors:
             mpc_cfg = replace(base, samples=int(k))

@@ -18,9 +18,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from ..frames import rotation_matrix
-from .mjcf import THRUST_ACTUATOR
-from .plant import Plant
+from ...frames import rotation_matrix
+from ...sim.mjcf import THRUST_ACTUATOR
+from ...sim.plant import Plant
 
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, act (no mocap, no plugins)
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED

@@ -21,28 +21,27 @@ on where it stopped.
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ..config import VehicleParams, WindowConfig
-from ..constants_estimate import ADAPT_PRIOR_WEIGHT
-from ..data.dataset import Dataset, load_dataset, resolve_params
-from ..data.windows import Windows, make_windows
-from ..evaluation.evaluator import Candidate, evaluate_predictors
-from ..evaluation.metrics import COMBINED, compute_metrics
-from ..evaluation.report import write_report
-from ..experiment import BEYOND_PAPER, TrainingJob, run_training_jobs
-from ..fileio import write_text
-from ..models import load_checkpoint
-from ..models.prediction import NetworkModel, PhysicsModel
-from ..reporting import markdown_table, model_colors, save_figure
-from ..run_config import RunConfig
-from ..sim import SimConfig, simulate_dataset
-from .loads_config import (
+from ...config import VehicleParams, WindowConfig
+from ...constants_estimate import ADAPT_PRIOR_WEIGHT
+from ...data.dataset import Dataset, load_dataset, resolve_params
+from ...data.windows import Windows, make_windows
+from ...evaluation.evaluator import Candidate, evaluate_predictors
+from ...evaluation.metrics import COMBINED, compute_metrics
+from ...evaluation.report import write_report
+from ...fileio import write_text
+from ...models import load_checkpoint
+from ...models.prediction import NetworkModel, PhysicsModel
+from ...reporting import markdown_table, mean_std, model_colors, save_figure, write_csv
+from ...run_config import RunConfig
+from ...sim import SimConfig, simulate_dataset
+from ..reproduce import BEYOND_PAPER, TrainingJob, run_training_jobs
+from .config import (
     ESTIMATE_ROW,
     NETWORK_ROWS,
     NOMINAL_ROW,
@@ -70,19 +69,15 @@ def study_loads(
     *,
     out: str | Path,
     config: LoadsStudyConfig = LoadsStudyConfig(),  # noqa: B008 (frozen)
-    seeds: Sequence[int] = (0,),
-    preset: str = "default",
-    epochs: int | None = None,
-    sim_seed: int = 0,
     workers: int = 2,
     progress: bool = True,
     cluster: str | None = None,
 ) -> list[LoadsRow]:
     """Simulate, train and evaluate the loads study into ``out`` (see the module); returns the
-    rows of ``loads.csv``. ``epochs`` replaces the preset's budget; ``cluster`` trains on Ray."""
+    rows of ``loads.csv``. ``cluster`` trains on Ray."""
     out = Path(out)
-    data = _datasets(out / "data", config, sim_seed, workers, progress)
-    runs = {label: _runs(config, constants, seeing, preset, seeds, epochs)
+    data = _datasets(out / "data", config, config.sim_seed, workers, progress)
+    runs = {label: _runs(config, constants, seeing, config.preset, config.seeds, config.epochs)
             for label, (_, constants, seeing) in NETWORK_ROWS.items()}  # fmt: skip
     jobs = []
     for label, (source, _, _) in NETWORK_ROWS.items():
@@ -247,7 +242,7 @@ def _per_flight(
             out.setdefault((cand.label, name), []).append(value)
     first = {name: float(masses[windows.flight == i][0]) for i, name in enumerate(windows.names)
              if bool((windows.flight == i).any())}  # fmt: skip
-    return [(test_set, label, name, first[name], statistics.fmean(v))
+    return [(test_set, label, name, first[name], mean_std(v)[0])
             for (label, name), v in out.items()]  # fmt: skip
 
 
@@ -282,18 +277,32 @@ def write_loads_study(
     flight, how many each model predicts better than physics with the nominal constants and
     than the one-load network: ``flights_better``; the in-flight estimate's mass prior chosen,
     from ``priors``: prior -> validation RMSE) and loads.png."""
-    lines = ["set,label,seed,horizon,combined_rmse"]
-    lines += [f"{r.test_set},{r.label},{'' if r.seed is None else r.seed},{r.horizon},{r.rmse}"
-              for r in rows]  # fmt: skip
-    write_text(out / "loads.csv", "\n".join(lines) + "\n")
-    lines = [f"set,label,flight,mass_load_kg,combined_rmse_N{max(config.horizons)}"]
-    lines += [f"{s},{label},{name},{m},{e}" for s, label, name, m, e in per_flight]
-    write_text(out / "flights.csv", "\n".join(lines) + "\n")
+    write_csv(out / "loads.csv", ["set", "label", "seed", "horizon", "combined_rmse"],
+              [[r.test_set, r.label, r.seed, r.horizon, r.rmse] for r in rows])  # fmt: skip
+    header = ["set", "label", "flight", "mass_load_kg", f"combined_rmse_N{max(config.horizons)}"]
+    write_csv(out / "flights.csv", header, per_flight)
     groups: dict[tuple[str, str, int], list[float]] = {}
     for r in rows:
         groups.setdefault((r.test_set, r.label, r.horizon), []).append(r.rmse)
     labels = list(dict.fromkeys(r.label for r in rows))
-    truth = TRUTH
+    parts = _loads_intro(config, params, priors)
+    for test_set in SETS:
+        parts += [
+            "",
+            f"## {test_set} the training range",
+            "",
+            _loads_table(test_set, labels, groups, worse, config),
+        ]
+        parts += _flights_better_table(test_set, labels, per_flight, config)
+    parts += ["", "![RMSE against load mass](loads.png)", ""]
+    write_text(out / "loads.md", "\n".join(parts))
+    _figure(per_flight, config, out / "loads.png")
+
+
+def _loads_intro(
+    config: LoadsStudyConfig, params: VehicleParams, priors: dict[float, float] | None
+) -> list[str]:
+    """loads.md's title and what was trained and tested (and the estimate's prior chosen)."""
     parts = [
         "# Loads study: one model for many loads",
         "",
@@ -303,7 +312,7 @@ def write_loads_study(
         f"one-load network's); tested on unseen loads inside that range and on "
         f"{config.beyond_mass[0]:g}-{config.beyond_mass[1]:g} kg, "
         f"{config.beyond_length[0]:g}-{config.beyond_length[1]:g} m beyond it. Combined RMSE "
-        f"(mean ± std over seeds) and its ratio to {truth!r}.",
+        f"(mean ± std over seeds) and its ratio to {TRUTH!r}.",
     ]
     if priors:
         parts += [
@@ -316,47 +325,65 @@ def write_loads_study(
             + f"). The adaptive networks' f runs on the same estimate with the prior "
             f"{ADAPT_PRIOR_WEIGHT:g}.",
         ]
-    for test_set in SETS:
-        header = ["model"]
+    return parts
+
+
+def _loads_table(
+    test_set: str,
+    labels: Sequence[str],
+    groups: dict[tuple[str, str, int], list[float]],
+    worse: dict[tuple[str, str], tuple[int, int]],
+    config: LoadsStudyConfig,
+) -> str:
+    """One test set's table: per label and horizon the combined RMSE (mean ± std over seeds,
+    ``groups``: (set, label, N) -> the seeds' RMSEs) and its ratio to ``TRUTH``'s, and the
+    horizon steps worse than ``TRUTH`` (``worse``)."""
+    header = ["model"]
+    for n in config.horizons:
+        header += [f"RMSE N = {n}", f"/ truth N = {n}"]
+    header.append(f"steps worse than truth (position, load position; of {max(config.horizons)})")
+    table = []
+    for label in labels:
+        row = [label]
         for n in config.horizons:
-            header += [f"RMSE N = {n}", f"/ truth N = {n}"]
-        header.append(
-            f"steps worse than truth (position, load position; of {max(config.horizons)})"
-        )
-        table = []
-        for label in labels:
-            row = [label]
-            for n in config.horizons:
-                values = groups.get((test_set, label, n))
-                ref = groups.get((test_set, truth, n))
-                if not values:
-                    row += ["-", "-"]
-                    continue
-                mean = statistics.fmean(values)
-                std = statistics.stdev(values) if len(values) > 1 else 0.0
-                row.append(f"{mean:.3f}" + (f" ± {std:.3f}" if len(values) > 1 else ""))
-                row.append(f"{mean / statistics.fmean(ref):.2f}" if ref else "-")
-            steps = worse.get((test_set, label))
-            row.append("-" if steps is None else f"{steps[0]}, {steps[1]}")
-            table.append(row)
-        parts += ["", f"## {test_set} the training range", "", markdown_table(header, table)]
-        versus = {ref: flights_better(per_flight, test_set, ref)
-                  for ref in (NOMINAL_ROW, ONE_LOAD_ROW)}  # fmt: skip
-        counted = [label for label in labels if any(label in v for v in versus.values())]
-        if counted:
-            n = max(config.horizons)
-            table = [[label, *(f"{v[label][0]} of {v[label][1]}" if label in v else "-"
-                               for v in versus.values())] for label in counted]  # fmt: skip
-            parts += [
-                "",
-                f"Test flights on which each model's combined RMSE at N = {n} (seeds averaged) "
-                "is lower than the reference's:",
-                "",
-                markdown_table(["model", *(f"better than {r!r}" for r in versus)], table),
-            ]
-    parts += ["", "![RMSE against load mass](loads.png)", ""]
-    write_text(out / "loads.md", "\n".join(parts))
-    _figure(per_flight, config, out / "loads.png")
+            values = groups.get((test_set, label, n))
+            ref = groups.get((test_set, TRUTH, n))
+            if not values:
+                row += ["-", "-"]
+                continue
+            mean, std, seeds = mean_std(values)
+            row.append(f"{mean:.3f}" + (f" ± {std:.3f}" if seeds > 1 else ""))
+            row.append(f"{mean / mean_std(ref)[0]:.2f}" if ref else "-")
+        steps = worse.get((test_set, label))
+        row.append("-" if steps is None else f"{steps[0]}, {steps[1]}")
+        table.append(row)
+    return markdown_table(header, table)
+
+
+def _flights_better_table(
+    test_set: str,
+    labels: Sequence[str],
+    per_flight: Sequence[tuple[str, str, str, float, float]],
+    config: LoadsStudyConfig,
+) -> list[str]:
+    """loads.md's lines (none where no label is counted) of how many test flights of
+    ``test_set`` each model predicts better than physics with the nominal constants and than
+    the one-load network (``flights_better``)."""
+    versus = {ref: flights_better(per_flight, test_set, ref)
+              for ref in (NOMINAL_ROW, ONE_LOAD_ROW)}  # fmt: skip
+    counted = [label for label in labels if any(label in v for v in versus.values())]
+    if not counted:
+        return []
+    n = max(config.horizons)
+    table = [[label, *(f"{v[label][0]} of {v[label][1]}" if label in v else "-"
+                       for v in versus.values())] for label in counted]  # fmt: skip
+    return [
+        "",
+        f"Test flights on which each model's combined RMSE at N = {n} (seeds averaged) "
+        "is lower than the reference's:",
+        "",
+        markdown_table(["model", *(f"better than {r!r}" for r in versus)], table),
+    ]
 
 
 def _figure(per_flight, config: LoadsStudyConfig, path: Path) -> None:

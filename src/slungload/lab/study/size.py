@@ -3,7 +3,7 @@
 The physics-step network does most of its work through the discrete model f, so it may not
 need the paper's 239k weights, and the MPC pays for every one of them K x N times per control
 step. For each named size (``config.MODEL_SIZES``) the study trains one template run (by
-default ``experiment.BEYOND_PAPER[0]``: physics-step, no-physics, mixed step weighting, N = 50,
+default ``lab.reproduce.BEYOND_PAPER[0]``: physics-step, no-physics, mixed step weighting, N = 50,
 smoothed load estimate) on one dataset (for control: excited flights, docs/control.md) and
 measures, per size:
 
@@ -27,7 +27,6 @@ kept, so an interrupted study goes on where it stopped; the rollouts are timed a
 
 from __future__ import annotations
 
-import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,20 +34,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..config import MODEL_SIZES, WindowConfig
-from ..data.dataset import load_dataset
-from ..deploy.compiled import with_backend
-from ..deploy.timing import time_calls
-from ..evaluation.evaluator import evaluate, horizon_windows
-from ..evaluation.metrics import COMBINED
-from ..evaluation.results import PHYSICS
-from ..experiment import BEYOND_PAPER, TrainingJob, run_training_jobs
-from ..fileio import write_text
-from ..models.base import count_parameters
-from ..models.checkpoints import load_checkpoint
-from ..models.prediction import NetworkModel
-from ..reporting import load_average, markdown_table, save_figure
-from ..run_config import RunConfig
+from ...config import MODEL_SIZES, WindowConfig
+from ...data.dataset import load_dataset
+from ...deploy.compiled import with_backend
+from ...deploy.timing import time_calls
+from ...evaluation.evaluator import evaluate, horizon_windows
+from ...evaluation.metrics import COMBINED
+from ...evaluation.results import PHYSICS
+from ...fileio import write_text
+from ...models.base import count_parameters
+from ...models.checkpoints import load_checkpoint
+from ...models.prediction import NetworkModel
+from ...reporting import load_average, markdown_table, mean_std, save_figure, write_csv
+from ...run_config import RunConfig
+from ..reproduce import BEYOND_PAPER, TrainingJob, run_training_jobs
+from .config import SizeStudyConfig
 
 
 @dataclass(frozen=True)
@@ -101,37 +101,26 @@ def study_size(
     *,
     data: str | Path,
     out: str | Path,
-    sizes: Sequence[str] = tuple(MODEL_SIZES),
-    seeds: Sequence[int] = (0,),
-    front_seeds: Sequence[int] = (1, 2),
+    config: SizeStudyConfig | None = None,
     template: RunConfig = BEYOND_PAPER[0],
-    preset: str = "default",
-    horizon: int = 50,
-    samples: int = 256,
-    steps: int = 15,
-    repeats: int = 200,
-    backend: str = "compiled",
-    epochs: int | None = None,
     workers: int = 2,
     train: bool = True,
     progress: bool = True,
     cluster: str | None = None,
 ) -> SizeStudy:
-    """Train ``template`` at every size of ``sizes`` for every seed of ``seeds``, measure
-    validation RMSE at ``horizon`` and the batched rollout time, then train the sizes on the
-    Pareto front for ``front_seeds`` as well; writes the table and the figure into ``out``.
-    With ``train=False`` nothing is trained: the finished runs among those named are
-    evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
-    ``epochs`` replaces the preset's epoch budget (its schedule fitted to it); ``backend`` is
-    what the rollouts are timed on (``config.PREDICTION_BACKENDS``); ``cluster``: train on a
-    Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local processes."""
-    unknown = [s for s in sizes if s not in MODEL_SIZES]
-    if unknown or not sizes:
-        raise ValueError(f"unknown network sizes {unknown}; known: {', '.join(MODEL_SIZES)}")
+    """Train ``template`` at every size of ``config`` (default ``SizeStudyConfig()``) for every
+    seed, measure validation RMSE at its horizon and the batched rollout time, then train the
+    sizes on the Pareto front for its ``front_seeds`` as well; writes the table and the figure
+    into ``out``. With ``train=False`` nothing is trained: the finished runs among those named
+    are evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
+    ``cluster``: train on a Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local
+    processes."""
+    cfg = config or SizeStudyConfig()
+    sizes, seeds, front_seeds, horizon = cfg.sizes, cfg.seeds, cfg.front_seeds, cfg.horizon
     out, data = Path(out), Path(data)
 
     def run_of(size: str, seed: int) -> RunConfig:
-        return size_run(template, size, preset=preset, seed=seed, epochs=epochs)
+        return size_run(template, size, preset=cfg.preset, seed=seed, epochs=cfg.epochs)
 
     if train:
         _train(data, out, run_of, sizes, seeds, (workers, cluster), progress)
@@ -142,7 +131,13 @@ def study_size(
         raise FileNotFoundError(f"no finished run of the sizes {missing} under {out / 'runs'}")
     timings = tuple(
         _time_size(
-            s, finished[s][0], data, samples=samples, steps=steps, repeats=repeats, backend=backend
+            s,
+            finished[s][0],
+            data,
+            samples=cfg.samples,
+            steps=cfg.steps,
+            repeats=cfg.repeats,
+            backend=cfg.backend,
         )
         for s in sizes
     )
@@ -281,28 +276,18 @@ def _means(rows: Sequence[SizeRow]) -> dict[str, tuple[float, float, int]]:
     groups: dict[str, list[float]] = {}
     for r in rows:
         groups.setdefault(r.size, []).append(r.rmse)
-    return {
-        size: (statistics.fmean(v), statistics.stdev(v) if len(v) > 1 else 0.0, len(v))
-        for size, v in groups.items()
-    }
+    return {size: mean_std(v) for size, v in groups.items()}
 
 
 def write_size_study(study: SizeStudy, out: Path) -> None:
     """size.csv (every run), timing.csv (every size), size.md (the table) and size.png."""
-    runs = ["size,parameters,seed,val_combined_rmse,epochs"]
-    runs += [
-        f"{r.size},{r.parameters},{'' if r.seed is None else r.seed},{r.rmse},"
-        f"{'' if r.epochs is None else r.epochs}"
-        for r in study.rows
-    ]
-    write_text(out / "size.csv", "\n".join(runs) + "\n")
-    times = ["size,parameters,median_ms,p90_ms,samples,steps,repeats,load_average,backend"]
-    times += [
-        f"{t.size},{t.parameters},{t.median_ms},{t.p90_ms},{t.samples},{t.steps},{t.repeats},"
-        f"{'' if t.load_average is None else t.load_average},{t.backend}"
-        for t in study.timings
-    ]
-    write_text(out / "timing.csv", "\n".join(times) + "\n")
+    write_csv(out / "size.csv", ["size", "parameters", "seed", "val_combined_rmse", "epochs"],
+              [[r.size, r.parameters, r.seed, r.rmse, r.epochs] for r in study.rows])  # fmt: skip
+    header = ["size", "parameters", "median_ms", "p90_ms", "samples", "steps", "repeats",
+              "load_average", "backend"]  # fmt: skip
+    write_csv(out / "timing.csv", header,
+              [[t.size, t.parameters, t.median_ms, t.p90_ms, t.samples, t.steps, t.repeats,
+                t.load_average, t.backend] for t in study.timings])  # fmt: skip
     write_text(out / "size.md", size_table(study) + "\n")
     _figure(study, out / "size.png")
 

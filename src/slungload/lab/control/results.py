@@ -1,11 +1,10 @@
 """What ``slungload control`` measured and its statistics: the typed ``ControlComparison`` (one
 row of ``closed_loop.flight_metrics`` per flight), the rows of one controller by flight
 (``by_flight``) and the flights two flew to the end (``both_completed``), the means over the
-seeds per group (``summary``), paired differences with a 95 % interval (``paired_interval``),
-the share of the physics-to-oracle gap a learned model closes with a bootstrap interval
-(``gap_share``, ``gap_interval``),
-and each network's MPC against MPC + physics at the same K (``versus_physics``). Plain
-numbers, no files: ``comparison`` and ``study`` fly, ``report`` and ``study_report`` write.
+seeds per group (``summary``) and each network's MPC against MPC + physics at the same K
+(``versus_physics``). Plain numbers, no files: ``comparison`` and ``study`` fly, ``report``
+and ``study_report`` write. The statistics every report shares (``paired_interval``,
+``gap_share``, ``gap_interval``) live in ``slungload.reporting``.
 """
 
 from __future__ import annotations
@@ -19,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from ..models.prediction import PHYSICS
-from .closed_loop import FlightLog
+from ...control.closed_loop import FlightLog
+from ...models.prediction import PHYSICS
 
 METRICS = {  # a flight's figures (``closed_loop.flight_metrics``): key -> (header, format)
     "vehicle_rmse": ("vehicle RMSE (m)", "{:.3f}"),
@@ -38,8 +37,6 @@ def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
 
 COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
-GAP_RESAMPLES = 4000  # bootstrap resamples of the gap closed's interval (``gap_interval``)
-GAP_MIN_FLIGHTS = 3  # flights below which ``gap_interval`` gives none
 
 Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was flown
 Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights
@@ -175,66 +172,3 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
                 len(both), physics_failed, *means,
             ))  # fmt: skip
     return out
-
-
-# Student's t at 97.5 % for 1 .. 30 degrees of freedom (beyond: ``t975``'s expansion).
-_T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
-         2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
-         2.060, 2.056, 2.052, 2.048, 2.045, 2.042)  # fmt: skip
-
-
-def t975(dof: int) -> float:
-    """Student's t at 97.5 % for ``dof`` >= 1 degrees of freedom: the table to 30, beyond it
-    the Cornish-Fisher expansion about the normal's 1.96 (within 1e-4 of t from 30 on)."""
-    if dof <= len(_T975):
-        return _T975[dof - 1]
-    z = 1.959963984540054
-    return (z + (z**3 + z) / (4 * dof) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * dof**2)
-            + (3 * z**7 + 19 * z**5 + 17 * z**3 - 15 * z) / (384 * dof**3))  # fmt: skip
-
-
-def gap_share(physics: np.ndarray, learned: np.ndarray, oracle: np.ndarray) -> np.ndarray:
-    """(physics - learned) / (physics - oracle) of means along the last axis: the share of the
-    physics-to-oracle gap the learned model closes. Where the oracle is no better than physics
-    there is no gap: +inf where the learned model is better than physics there, -inf where not
-    (so that percentiles over resamples stay ordered)."""
-    p, learn, o = (np.mean(x, axis=-1) for x in (physics, learned, oracle))
-    closed, gap = p - learn, p - o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        share = closed / gap
-    return np.where(gap > 1e-12, share, np.where(closed > 0, np.inf, -np.inf))
-
-
-def gap_interval(
-    physics: Sequence[float],
-    learned: Sequence[float],
-    oracle: Sequence[float],
-    resamples: int = GAP_RESAMPLES,
-) -> tuple[float, float]:
-    """95 % paired percentile-bootstrap interval of ``gap_share`` over flights (the three
-    sequences hold one figure per flight, in the same order; flights are resampled together,
-    with a fixed seed so a report is reproduced to the digit). Approximate: with the study's
-    five seeds a percentile bootstrap tends to be narrow. NaN for fewer than
-    ``GAP_MIN_FLIGHTS`` flights (two give three distinct resamples); a bound may be infinite
-    where resamples leave no gap."""
-    x = np.asarray([physics, learned, oracle], dtype=float)
-    if x.shape[1] < GAP_MIN_FLIGHTS:
-        return math.nan, math.nan
-    picks = np.random.default_rng(0).integers(0, x.shape[1], size=(resamples, x.shape[1]))
-    shares = gap_share(*x[:, picks])
-    low, high = np.percentile(shares, (2.5, 97.5), method="inverted_cdf")
-    return float(low), float(high)
-
-
-def paired_interval(differences: Sequence[float]) -> tuple[float, float, float]:
-    """Mean of paired differences and its 95 % t-interval (mean, low, high); NaN for none, the
-    mean alone (an interval of zero width is never claimed) for one."""
-    d = np.asarray([x for x in differences if math.isfinite(x)], dtype=float)
-    if d.size == 0:
-        return math.nan, math.nan, math.nan
-    mean = float(d.mean())
-    if d.size == 1:
-        return mean, math.nan, math.nan
-    t = t975(d.size - 1)
-    half = t * float(d.std(ddof=1)) / math.sqrt(d.size)
-    return mean, mean - half, mean + half

@@ -20,8 +20,8 @@ unmodelled effect on) x maneuver x evaluation seed:
 
 Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound,
 floor). Flights land as in the control study (``closed_loop.log_path``; the plant named by its
-load), so a second run flies only what is missing. ``write_loads_report`` writes ``loads.md``
-and ``loads.png``.
+load), so a second run flies only what is missing. ``write_loads_report`` writes
+``control-loads.md`` and ``control-loads.png``.
 """
 
 from __future__ import annotations
@@ -35,21 +35,21 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..config import VehicleParams
-from ..deploy.compiled.batched import load_model, with_backend
-from ..deploy.predictor import torch_threads
-from ..fileio import read_json, write_json, write_text
-from ..models.checkpoints import checkpoint_meta
-from ..models.prediction import PHYSICS, PhysicsModel, load_prediction_model
-from ..reporting import markdown_table, networks_banner, save_figure
-from ..run_config import SMOKE_PRESET
-from ..sim.config import SimConfig
-from ..sim.controller import PIDController
-from ..sim.dataset import vehicle_params
-from .mpc import InputLimits, MPCConfig, mpc_maker
+from ...config import VehicleParams
+from ...control.controllers import PID, reference_maker
+from ...control.mpc import InputLimits, MPCConfig, mpc_maker
+from ...deploy.compiled.batched import load_model, with_backend
+from ...deploy.predictor import torch_threads
+from ...fileio import read_json, write_json, write_text
+from ...models.checkpoints import checkpoint_meta
+from ...models.prediction import PHYSICS, PhysicsModel, load_prediction_model
+from ...reporting import markdown_table, networks_banner, save_figure
+from ...run_config import SMOKE_PRESET
+from ...sim.config import SimConfig
+from ...sim.dataset import vehicle_params
+from .config import UnseenLoadsConfig
 from .results import fmt, mean_of, ratio
 from .study import Flown, collect_rows, fly_once
-from .study_config import UnseenLoadsConfig
 from .study_report import (
     KEYS,
     completed_pairs,
@@ -124,7 +124,7 @@ def fly_loads(
             limits = InputLimits.from_sim(plant)  # scored against; and the MPCs given the truth
             told_nothing = InputLimits.from_sim(nominal_sim)  # thrust floor from the nominal mass
             plant_label = plant_name(load_mass, cable_length)
-            flown = [Flown(plant_label, "pid", lambda seed: PIDController(nominal_sim))]
+            flown = [Flown(plant_label, PID, reference_maker(PID, nominal_sim))]
             for model, in_flight, given in (
                 (f"mpc-{PHYSICS}", physics, load_model(PHYSICS, truth, backend=cfg.backend)),
                 (name, trained, load_model(network, backend=cfg.backend, constants=truth)),
@@ -154,8 +154,8 @@ def ratio_to_truth(rows: list[dict[str, Any]], plant: str, model: str, key: str)
 
 
 def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, out: Path) -> Path:
-    """``loads.md`` and ``loads.png`` into ``out`` from ``fly_loads``' rows; returns the path of
-    loads.md."""
+    """``control-loads.md`` and ``control-loads.png`` into ``out`` from ``fly_loads``' rows;
+    returns the path of control-loads.md."""
     out = Path(out)
     plants = [plant_name(*load) for load in config.loads]
     flown = {r["controller"] for r in rows}
@@ -199,16 +199,16 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         "",
         markdown_table(header, summary),
         "",
-        "![load RMSE per load](loads.png)",
+        "![load RMSE per load](control-loads.png)",
     ]
     for plant in plants:
         lines += ["", f"## {plant}", "", means_table(rows, plant), "",
                   "Paired differences (mean [95 % interval], and the mean as a share of the "
                   "second's):", "",
                   paired_table(rows, plant, pairs)]  # fmt: skip
-    plot_loads(rows, plants, out / "loads.png")
-    write_text(out / "loads.md", "\n".join(lines) + "\n")
-    return out / "loads.md"
+    plot_loads(rows, plants, out / "control-loads.png")
+    write_text(out / "control-loads.md", "\n".join(lines) + "\n")
+    return out / "control-loads.md"
 
 
 def plot_loads(rows: list[dict[str, Any]], plants: Sequence[str], path: Path) -> Path:

@@ -5,7 +5,7 @@
 
 What one control step of the MPC costs in prediction: one history (M = 50 rows) and K plans of
 N steps, ``PredictionModel.predict_candidates`` (float64 tensors in and out, as the MPC calls
-it), for the physics model and a network, on every backend of ``deploy.compiled.BACKENDS``
+it), for the physics model and a network, on every backend of ``config.PREDICTION_BACKENDS``
 (eager torch, compiled kernels, eager torch on the GPU where torch sees one) and on ONNX
 Runtime over the exported candidates graph (``deploy.candidates``, numpy in and out, as the
 onboard MPC calls it); ``backends`` picks some. One thread (torch's and ONNX Runtime's); the
@@ -32,16 +32,16 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..config import ModelConfig, WindowConfig
-from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
-from ..reporting import load_average, machine_line, markdown_table, versions
+from ...config import PREDICTION_BACKENDS, ModelConfig, WindowConfig
+from ...deploy.compiled.batched import with_backend
+from ...deploy.gpu import CUDA, require_gpu
+from ...deploy.predictor import Predictor, torch_threads
+from ...models.prediction import NetworkModel, PhysicsModel, PredictionModel
+from ...reporting import load_average, machine_line, markdown_table, versions
 from .benchmarks import PACKAGES, benchmark_predictor, physics_windows
-from .compiled.batched import BACKENDS, with_backend
-from .gpu import CUDA, require_gpu
-from .predictor import Predictor, torch_threads
 
 ONNX = "onnxruntime"  # the exported candidates graph (``deploy.onboard.OnnxCandidateModel``)
-TIMED = (*BACKENDS, ONNX)  # what ``benchmark_mpc`` can time, by name
+TIMED = (*PREDICTION_BACKENDS, ONNX)  # what ``benchmark_mpc`` can time, by name
 MIN_CALLS = 5
 HISTORY = 50  # M of the benchmark's history without a run (a run's own M otherwise)
 
@@ -210,9 +210,9 @@ def _backends(
 def _onnx_model(predictor: Predictor, horizon: int, folder: Path, notes: list[str]) -> Any:
     """The exported candidates graph at this N on ONNX Runtime, or None (with a note saying
     why) when the exporter refuses it: its own parity check against eager."""
-    from .candidates import export_for_mpc
-    from .onboard import OnnxCandidateModel
-    from .onnx import OnnxModelError
+    from ...deploy.candidates import export_for_mpc
+    from ...deploy.onboard import OnnxCandidateModel
+    from ...deploy.onnx import OnnxModelError
 
     try:
         result = export_for_mpc(predictor, folder / f"n{horizon}.mpc.onnx", horizon=horizon)

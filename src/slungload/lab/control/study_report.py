@@ -27,13 +27,22 @@ from typing import Any, NamedTuple
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..fileio import read_json, write_text
-from ..reporting import markdown_table, model_colors, save_figure, smoke_banner
-from ..run_config import SMOKE_PRESET
-from ..sim.config import SimConfig, tuples_from_json, vehicle_params
-from ..sim.flight import flight_reference
-from .closed_loop import COST_TERMS, realized_cost
-from .mpc import MPCConfig, knots_for
+from ...control.closed_loop import COST_TERMS, realized_cost
+from ...control.mpc import MPCConfig, knots_for
+from ...fileio import read_json, write_text
+from ...reporting import (
+    gap_interval,
+    gap_share,
+    markdown_table,
+    model_colors,
+    paired_interval,
+    save_figure,
+    smoke_banner,
+)
+from ...run_config import SMOKE_PRESET
+from ...sim.config import SimConfig, tuples_from_json, vehicle_params
+from ...sim.flight import flight_reference
+from .config import CONTROLLERS, NOMINAL, UNSAFE_SWING, StudyConfig
 from .report import plot_paths
 from .results import (
     Row,
@@ -42,18 +51,14 @@ from .results import (
     columns,
     fmt,
     fmt_interval,
-    gap_interval,
-    gap_share,
     label_horizon,
     label_model,
     mean_of,
     mpc_label,
-    paired_interval,
     ratio,
     summary,
 )
 from .study import load_log
-from .study_config import NOMINAL, UNSAFE_SWING, StudyConfig
 
 KEYS = columns("load_rmse", "swing_rms", "swing_max", "vehicle_rmse")
 
@@ -63,7 +68,7 @@ GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed 
 
 def ordered_labels(labels) -> list[str]:
     """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
-    order = ("pid", "geometric", "physics", "learned", "oracle")
+    order = CONTROLLERS
 
     def rank(label: str) -> tuple[int, str, int]:
         model = label_model(label)
@@ -147,7 +152,7 @@ def paired_table(rows, plant: str, pairs: Sequence[tuple[str, str]]) -> str:
 def gap_closed(rows, physics: str, learned: str, oracle: str, key: str) -> list[list[str]]:
     """Per maneuver: means over the seeds all three flew to the end, (physics - learned) /
     (physics - oracle) ("-" where the oracle is no better than physics: no gap to close) with
-    its 95 % bootstrap interval over those seeds (``results.gap_interval``; "inf" where some
+    its 95 % bootstrap interval over those seeds (``reporting.gap_interval``; "inf" where some
     resamples leave no gap), and learned - oracle paired over those seeds with its 95 %
     t-interval: both say whether a ratio is more than the seeds' spread."""
     sets = [by_flight(rows, plant=NOMINAL, controller=c) for c in (physics, learned, oracle)]
@@ -283,22 +288,8 @@ def write_study_report(
     settings = read_json(out / "settings.json") if (out / "settings.json").exists() else {}
     labels = list(dict.fromkeys(r["controller"] for r in rows if r["plant"] == NOMINAL))
     horizons = sorted({label_horizon(lb) for lb in labels if label_horizon(lb)})
-    has = set(labels).__contains__
     first = horizons[0] if horizons else None
-    pairs = _flown(
-        labels,
-        [(mpc_label("learned", n), mpc_label("physics", n)) for n in horizons]
-        + [(mpc_label(m, n), mpc_label(m, first)) for m in ("learned", "physics")
-           for n in horizons[1:]]
-        # the payload-aware controller against the learned MPC at every horizon, the PID at
-        # the first
-        + [(mpc_label("learned", n), c)
-           for c, ns in (("geometric", horizons), ("pid", horizons[:1])) for n in ns]
-        # what is left between the learned model and the perfect one (same MPC settings), and
-        # what the perfect one gains over physics
-        + [(mpc_label(m, n), mpc_label(b, n)) for n in horizons
-           for m, b in (("learned", "oracle"), ("oracle", "physics"))],
-    )  # fmt: skip
+    pairs = _nominal_pairs(labels, horizons)
     network = settings.get("learned_network") or {}
     parts = [
         "# Closed-loop control study",
@@ -334,46 +325,10 @@ def write_study_report(
         "",
     ]
     for n in horizons:
-        trio = [mpc_label(m, n) for m in ("physics", "learned", "oracle")]
-        if not all(map(has, trio)):
-            continue
-        parts += [
-            f"## The gap to the oracle, N = {n}",
-            "",
-            f"(physics - learned) / (physics - oracle) at N = {n}, per maneuver (the oracle "
-            "flies the learned MPC's settings at its own K; - where it is no better than "
-            "physics), with its 95 % bootstrap interval over the seeds (the seeds resampled "
-            "together; inf where some resamples leave no gap).",
-            "",
-        ]
-        for key, head, _ in KEYS[:2]:
-            parts += [
-                f"{head}:",
-                "",
-                markdown_table(list(GAP_COLUMNS), gap_closed(rows, *trio, key)),
-                "",
-            ]
-        chosen = settings.get("mpc", {}).get("learned", {}).get(str(n))
-        if chosen is not None:
-            mpc = MPCConfig(**tuples_from_json(chosen), horizon=n, knots=knots_for(n))
-            parts += [
-                f"The MPC's own cost over each flight at N = {n} (the learned MPC's settings, "
-                "which the oracle flies; terms by weight group, no terminal weight):",
-                "",
-                cost_table(out, rows, n, mpc, config.steps),
-                "",
-            ]
-    if has("geometric"):
+        parts += _oracle_gap_section(rows, labels, n, settings, config, out)
+    if "geometric" in labels:
         parts += [f"## Swings past {UNSAFE_SWING:g} deg", "", _past_limit(rows, labels), ""]
-    for plant in dict.fromkeys(r["plant"] for r in rows):
-        if plant != NOMINAL:
-            parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
-            flown = {r["controller"] for r in rows if r["plant"] == plant}
-            ns = sorted({label_horizon(c) for c in flown} - {None})
-            shifted = _flown(flown, [(mpc_label("learned", n), mpc_label("physics", n))
-                                     for n in ns])  # fmt: skip
-            if shifted:
-                parts += [paired_table(rows, plant, shifted), ""]
+    parts += _shifted_sections(rows)
     write_text(out / "study.md", "\n".join(parts))
     plot_horizons(rows, out / "horizons.png")
     if pairs:
@@ -388,6 +343,81 @@ def write_study_report(
     ]
     plot_paths([load_log(out, r) for r in shown], out / "paths_3d.png")
     return out / "study.md"
+
+
+def _nominal_pairs(labels: Sequence[str], horizons: Sequence[int]) -> list[tuple[str, str]]:
+    """The pairs compared on the nominal plant (those flown of ``labels``): the learned MPC
+    against the physics MPC at each N, each against itself at the first N, the geometric
+    controller and the PID against the learned MPC, and the oracle against both."""
+    first = horizons[0] if horizons else None
+    return _flown(
+        labels,
+        [(mpc_label("learned", n), mpc_label("physics", n)) for n in horizons]
+        + [(mpc_label(m, n), mpc_label(m, first)) for m in ("learned", "physics")
+           for n in horizons[1:]]
+        # the payload-aware controller against the learned MPC at every horizon, the PID at
+        # the first
+        + [(mpc_label("learned", n), c)
+           for c, ns in (("geometric", horizons), ("pid", horizons[:1])) for n in ns]
+        # what is left between the learned model and the perfect one (same MPC settings), and
+        # what the perfect one gains over physics
+        + [(mpc_label(m, n), mpc_label(b, n)) for n in horizons
+           for m, b in (("learned", "oracle"), ("oracle", "physics"))],
+    )  # fmt: skip
+
+
+def _oracle_gap_section(
+    rows, labels: Sequence[str], n: int, settings: dict[str, Any], config: StudyConfig, out: Path
+) -> list[str]:
+    """study.md's lines on the gap to the oracle at N = ``n`` (none unless the physics and
+    learned MPCs and the oracle all flew at that N): the gap closed per maneuver and figure,
+    and the MPC's own cost where the learned MPC's settings are known."""
+    trio = [mpc_label(m, n) for m in ("physics", "learned", "oracle")]
+    if not all(label in labels for label in trio):
+        return []
+    parts = [
+        f"## The gap to the oracle, N = {n}",
+        "",
+        f"(physics - learned) / (physics - oracle) at N = {n}, per maneuver (the oracle "
+        "flies the learned MPC's settings at its own K; - where it is no better than "
+        "physics), with its 95 % bootstrap interval over the seeds (the seeds resampled "
+        "together; inf where some resamples leave no gap).",
+        "",
+    ]
+    for key, head, _ in KEYS[:2]:
+        parts += [
+            f"{head}:",
+            "",
+            markdown_table(list(GAP_COLUMNS), gap_closed(rows, *trio, key)),
+            "",
+        ]
+    chosen = settings.get("mpc", {}).get("learned", {}).get(str(n))
+    if chosen is not None:
+        mpc = MPCConfig(**tuples_from_json(chosen), horizon=n, knots=knots_for(n))
+        parts += [
+            f"The MPC's own cost over each flight at N = {n} (the learned MPC's settings, "
+            "which the oracle flies; terms by weight group, no terminal weight):",
+            "",
+            cost_table(out, rows, n, mpc, config.steps),
+            "",
+        ]
+    return parts
+
+
+def _shifted_sections(rows) -> list[str]:
+    """study.md's lines on each shifted plant: the means per controller and the learned MPC
+    against the physics MPC at each N flown there, paired."""
+    parts = []
+    for plant in dict.fromkeys(r["plant"] for r in rows):
+        if plant != NOMINAL:
+            parts += [f"## Shifted plant: {plant}", "", means_table(rows, plant), ""]
+            flown = {r["controller"] for r in rows if r["plant"] == plant}
+            ns = sorted({label_horizon(c) for c in flown} - {None})
+            shifted = _flown(flown, [(mpc_label("learned", n), mpc_label("physics", n))
+                                     for n in ns])  # fmt: skip
+            if shifted:
+                parts += [paired_table(rows, plant, shifted), ""]
+    return parts
 
 
 def _flown(labels, pairs: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:

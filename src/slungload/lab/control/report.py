@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..fileio import write_text
-from ..frames import swing_angle
-from ..reporting import markdown_table, model_colors, networks_banner, save_figure
-from ..run_config import SMOKE_PRESET
-from ..sim.config import SimConfig
-from .closed_loop import FlightLog
+from ...control.closed_loop import FlightLog
+from ...fileio import write_text
+from ...frames import swing_angle
+from ...reporting import markdown_table, model_colors, networks_banner, save_figure
+from ...run_config import SMOKE_PRESET
+from ...sim.config import SimConfig
 from .results import (
     COLUMNS,
     ControlComparison,

@@ -12,17 +12,15 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from .config import LossWeights, ModelConfig, WindowConfig
-from .deploy.timing import time_models
-from .evaluation.evaluator import evaluate
-from .evaluation.results import Report
-from .loss import LOSS_VARIANTS
-from .run_config import RunConfig
-from .sim import simulate_dataset
-from .training.trainer import Run, train
-from .workers import run_jobs
+from ..config import LossWeights, ModelConfig, WindowConfig
+from ..deploy.timing import evaluate_runs
+from ..evaluation.results import Report
+from ..loss import LOSS_VARIANTS
+from ..run_config import RunConfig
+from ..sim import simulate_dataset
+from ..training.trainer import Run, train
+from ..workers import run_jobs
 
 PAPER_VARIANTS = ("proposed", "no-slack", "no-physics")
 
@@ -176,34 +174,6 @@ def stopped_by_time_cap(run_dir: Path) -> bool:
     run = json.loads(summary.read_text())
     budget = run.get("config", {}).get("train", {}).get("max_epochs")
     return run.get("stop_reason") == "max_time" and (budget is None or run["epochs"] < budget)
-
-
-def evaluate_runs(
-    runs: Sequence[str | Path],
-    *,
-    timing: bool = False,
-    timing_repeats: int = 100,
-    device: str = "cpu",
-    progress: bool = True,
-    **options: Any,
-) -> Report:
-    """``evaluation.evaluate`` with, if ``timing``, the batch-1 time of every network (eager
-    on ``device`` and the compiled predictor, ``timing_repeats`` calls each) in its report.
-    ``options`` go to ``evaluate`` (data, out, horizons, include_physics, ...)."""
-    timer = None
-    if timing:
-
-        def timer(networks, windows, params):  # an evaluator.Timer
-            return time_models(
-                networks,
-                windows,
-                params=params,
-                repeats=timing_repeats,
-                device=device,
-                progress=progress,
-            )
-
-    return evaluate(runs, timer=timer, device=device, progress=progress, **options)
 
 
 def run_training_jobs(

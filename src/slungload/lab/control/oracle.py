@@ -18,11 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
-from ..sim.plant import Plant
-from ..sim.plant_batch import PlantBatch
-
-ORACLE = "oracle"
+from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
+from ...sim.plant import Plant
+from .config import ORACLE
+from .plant_batch import PlantBatch
 
 
 class PlantCandidates:

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import (
+from ...config import (
     DEFAULT_ARCHITECTURE,
     LossWeights,
     ModelConfig,
@@ -47,15 +47,26 @@ from ..config import (
     VehicleParams,
     WindowConfig,
 )
-from ..data.windows import Windows, make_windows
-from ..load_state import estimate_load_state
-from ..loss import compute_loss, model_config_for
-from ..models.base import count_parameters
-from ..models.registry import build
-from ..physics import hover_thrust, rollout
-from ..reporting import load_average, machine_line, versions
-from ..state import join_state, quat_from_rotvec
-from .benchmark_report import (
+from ...data.windows import Windows, make_windows
+from ...deploy.compiled import CompiledPredictor, unsupported
+from ...deploy.onnx import OnnxPredictor, export
+from ...deploy.predictor import (
+    FileLayoutNet,
+    Predictor,
+    check_inputs,
+    states_to_file,
+    torch_threads,
+    unbatch,
+)
+from ...deploy.timing import time_calls
+from ...load_state import estimate_load_state
+from ...loss import compute_loss, model_config_for
+from ...models.base import count_parameters
+from ...models.registry import build
+from ...physics import hover_thrust, rollout
+from ...reporting import load_average, machine_line, versions
+from ...state import join_state, quat_from_rotvec
+from .report import (
     COMPILED,
     EAGER,
     ONNX,
@@ -65,17 +76,6 @@ from .benchmark_report import (
     Throughput,
     TrainingSpeed,
 )
-from .compiled import CompiledPredictor, unsupported
-from .onnx import OnnxPredictor, export
-from .predictor import (
-    FileLayoutNet,
-    Predictor,
-    check_inputs,
-    states_to_file,
-    torch_threads,
-    unbatch,
-)
-from .timing import time_calls
 
 PAPER_WINDOW = WindowConfig(history=50, horizon=25)  # M, N of the training benchmark
 PACKAGES = ("torch", "onnxruntime", "onnx", "numpy")  # whose versions a benchmark records
@@ -214,7 +214,7 @@ def measure_training(
     loss of ``variant``, backward, gradient clipping (``grad_clip``) and a step of the module's
     own optimiser (Adam). ``threads``: torch intra-op threads (default: every CPU core).
     """
-    from ..training.module import SlungLoadModule  # Lightning: only when training is timed
+    from ...training.module import SlungLoadModule  # Lightning: only when training is timed
 
     cfg = TrainConfig()
     threads = threads or os.cpu_count() or 1

@@ -1,14 +1,18 @@
-"""What the control study flies, without importing torch or MuJoCo (the command line's help
-reads it): ``StudyConfig``, the shifted plants, the maneuvers, the controller kinds, the tuning
-grid. ``study`` flies it."""
+"""What the closed-loop experiments fly, without importing torch or MuJoCo (the command line's
+help reads them): ``ComparisonConfig`` (``slungload control``), ``StudyConfig`` (``study
+control``), ``UnseenLoadsConfig`` (``study control-loads``), ``RecordConfig`` (``record``), the
+shifted plants, the maneuvers, the tuning grid. Every option's default on the command line is
+read from these."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-from ..sim.config import SimConfig
-from ..sim.maneuvers import MANEUVERS
+from ...control.controllers import REFERENCE
+from ...control.mppi import MPCConfig
+from ...sim.config import SimConfig
+from ...sim.maneuvers import MANEUVERS
 
 # The simulator's three fastest maneuvers, what ``slungload control`` flies by default: back and
 # forth along a line at 2.8-3.6 s a cycle, roll doublets of 25-35 degrees, and figure eights
@@ -24,9 +28,11 @@ SHIFTS: dict[str, Callable[[SimConfig], SimConfig]] = {
     "wind x2": lambda c: replace(c, wind_std=2.0 * c.wind_std),
     "thrust lag x2": lambda c: replace(c, thrust_tau=2.0 * c.thrust_tau),
 }
-# The kinds ``run_study`` may fly: the PID, ``geometric``, the MPC over the physics model, the
-# learned model and the ``oracle``.
-CONTROLLERS = ("pid", "geometric", "physics", "learned", "oracle")
+# The kinds ``run_study`` may fly: the reference controllers (``control.controllers``), the MPC
+# over the physics model, over the learned model and over the ``oracle``.
+LEARNED = "learned"
+ORACLE = "oracle"
+CONTROLLERS = (*REFERENCE, "physics", LEARNED, ORACLE)
 PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may use
 # (temperature, noise scale) pairs ``tune_settings`` tries first, with the default cost
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
@@ -37,7 +43,8 @@ SWING_BOUND = 0.7  # rad (40 deg): the swing angle beyond it costs (``MPCConfig.
 # and the report lists the MPC flights past it where the geometric controller stayed below
 UNSAFE_SWING = 60.0
 FLOOR = 1.0  # m, 0.5 m below the hover height: lower costs (``MPCConfig.min_height``)
-# The defaults the study, --loads and --record share (plain ``control`` keeps MPCConfig's)
+# The defaults the study, the unseen loads and the recorded flights share (the comparison
+# keeps MPCConfig's)
 SAMPLES = 256  # K of a real-time MPC
 STEPS = 300  # recorded steps per flight (9 s; None in a config: the maneuver's whole length)
 BACKEND = "compiled"  # what the real models predict on (``config.PREDICTION_BACKENDS``)
@@ -61,6 +68,33 @@ SETTINGS_FIELDS = (
     "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps", "tune",
     "backend",
 )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ComparisonConfig:
+    """What ``slungload control`` flies (``comparison.compare``): the PID, then the MPC over
+    each prediction model once per K in ``samples``, on every maneuver x seed (defaults: the
+    README's nine flights)."""
+
+    maneuvers: tuple[str, ...] = DEFAULT_MANEUVERS
+    seeds: tuple[int, ...] = (100, 101, 102)  # the default dataset is simulated from seed 0
+    samples: tuple[int, ...] = (MPCConfig.samples,)  # K, one flight per model and K
+    horizon: int = MPCConfig.horizon  # N, steps of 0.03 s
+    steps: int | None = None  # recorded steps per flight (None: the maneuver's whole length)
+    backend: str = "eager"  # what the prediction models run on (``config.PREDICTION_BACKENDS``)
+
+    def __post_init__(self) -> None:
+        _check_steps("ComparisonConfig", self.steps)
+        unknown = sorted(set(self.maneuvers) - set(MANEUVERS))
+        if unknown:
+            raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
+        if not self.samples or min(self.samples) < 2:
+            raise ValueError(f"ComparisonConfig.samples: K >= 2 each, got {list(self.samples)}")
+
+    @property
+    def mpc(self) -> MPCConfig:
+        """The MPC's settings but K (``MPCConfig`` with this horizon and its knots)."""
+        return MPCConfig(horizon=self.horizon, knots=min(MPCConfig.knots, self.horizon))
 
 
 @dataclass(frozen=True)
@@ -104,7 +138,7 @@ class StudyConfig:
 
 @dataclass(frozen=True)
 class UnseenLoadsConfig:
-    """What ``control --loads`` flies (``loads.fly_loads``; defaults: the benchmark's,
+    """What ``study control-loads`` flies (``loads.fly_loads``; defaults: the benchmark's,
     docs/control.md). Every MPC flies K = ``samples``, N = ``horizon`` at ``temperature`` with
     the swing bound ``max_swing`` and the floor ``min_height`` (``MPCConfig``)."""
 
@@ -145,7 +179,7 @@ BENCHMARK_SEEDS = frozenset(
 
 @dataclass(frozen=True)
 class RecordConfig:
-    """What ``control --record`` flies (``record.record_flights``): the MPC over a trained model
+    """What ``record`` flies (``record.record_flights``): the MPC over a trained model
     on ``flights`` (maneuver, count) with sim seeds ``first_seed``, ``first_seed`` + 1, ...,
     each flight recorded until it ends or the arena stops it, as training data on the states
     that MPC visits (docs/control.md). Defaults: the control study's learned MPC at N = 15 (its
