@@ -636,3 +636,20 @@ def test_each_horizon_gets_its_own_settings(tmp_path):
         run_study(None, tmp_path, config, controllers=("physics",), progress=None)
     with pytest.raises(ValueError, match="oracle horizons"):
         replace(TINY, oracle_horizons=(5,))
+
+
+def test_the_unseen_loads_flown_lie_where_the_loads_study_trains_and_beyond():
+    # Two experiments of loads, two configs: the closed-loop one flies loads the open-loop
+    # study's ranges call inside (the first two) and beyond (the last).
+    from slungload.lab.control.config import UnseenLoadsConfig
+    from slungload.lab.study.config import LoadsStudyConfig
+
+    study, flown = LoadsStudyConfig(), UnseenLoadsConfig().loads
+
+    def within(value: float, bounds: tuple[float, float]) -> bool:
+        return bounds[0] <= value <= bounds[1]
+
+    for mass, length in flown[:-1]:
+        assert within(mass, study.train_mass) and within(length, study.train_length)
+    mass, length = flown[-1]
+    assert within(mass, study.beyond_mass) and within(length, study.beyond_length)
