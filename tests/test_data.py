@@ -19,8 +19,9 @@ from flights import flight_arrays
 
 from slungload._version import __version__
 from slungload.config import VehicleParams, WindowConfig, to_dict
-from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.dataset import load_dataset
 from slungload.data.flight import DataWarning, FlightFormatError
+from slungload.data.folder import read_splits
 from slungload.data.readers import read_flight
 from slungload.data.summary import summarize
 from slungload.data.writer import DatasetWriter

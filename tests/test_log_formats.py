@@ -26,8 +26,9 @@ from log_files import (
 from slungload import frames
 from slungload.cli import main
 from slungload.config import VehicleParams
-from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.dataset import load_dataset
 from slungload.data.flight import DatasetError
+from slungload.data.folder import read_splits
 from slungload.data.importing import (
     ImportOptions,
     find_logs,

@@ -32,7 +32,8 @@ from rosbags.typesys import get_types_from_msg
 
 from slungload.cli import main
 from slungload.config import VehicleParams
-from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.dataset import load_dataset
+from slungload.data.folder import read_splits
 from slungload.data.importing import (
     ImportOptions,
     backward_velocity,

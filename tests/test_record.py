@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from slungload.control.closed_loop import fly
-from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.dataset import load_dataset
+from slungload.data.folder import read_splits
 from slungload.lab.control.config import BENCHMARK_SEEDS, RecordConfig
 from slungload.lab.control.record import record_flights
 from slungload.sim import Effects, SimConfig, simulate_dataset, simulate_flight

@@ -14,7 +14,8 @@ from log_files import PARAMS, default_columns, truth, write_csv
 
 from slungload.cli import main
 from slungload.config import WindowConfig
-from slungload.data.dataset import load_dataset, read_splits
+from slungload.data.dataset import load_dataset
+from slungload.data.folder import read_splits
 from slungload.data.importing import ImportOptions, import_logs
 from slungload.data.split import split_dataset, split_flights, time_blocks
 

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 from flights import SMALL
 
-from slungload.data.dataset import read_splits
+from slungload.data.folder import read_splits
 from slungload.lab.study import study_data
 from slungload.lab.study.config import DataStudyConfig, SizeStudyConfig
 from slungload.sim import simulate_dataset

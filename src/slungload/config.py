@@ -89,6 +89,10 @@ class WindowConfig:
         """Steps one window spans (M + N)."""
         return self.history + self.horizon
 
+    def count(self, steps: int) -> int:
+        """Windows of ``length`` steps at ``stride`` in a flight of ``steps`` steps."""
+        return 0 if steps < self.length else (steps - self.length) // self.stride + 1
+
 
 @dataclass(frozen=True)
 class Architecture:

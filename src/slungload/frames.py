@@ -111,6 +111,17 @@ def quat_conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
+def quat_continuous(q: np.ndarray) -> np.ndarray:
+    """Signs flipped along the time axis (-2) so that consecutive quaternions have
+    q_k . q_{k-1} >= 0 (q and -q are one rotation; a sign jump would look like a huge error to
+    a network); (..., T, 4), the first step's sign kept. ``state.quat_continuous`` in torch."""
+    dots = (q[..., 1:, :] * q[..., :-1, :]).sum(-1)
+    flips = np.cumsum(dots < 0, axis=-1) % 2
+    sign = np.ones(q.shape[:-1])
+    sign[..., 1:] = 1.0 - 2.0 * flips
+    return q * sign[..., None]
+
+
 def world_vectors(v: np.ndarray, frame: str) -> np.ndarray:
     """(..., 3) positions or velocities in ``frame`` ("enu" or "ned") -> z-up world."""
     _check(frame, WORLD_FRAMES, "world")

@@ -28,6 +28,10 @@ onboard controller); ``state`` re-exports these names beside its torch helpers.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
+A = TypeVar("A")  # a numpy array or a torch tensor
+
 STATE_DIM = 13
 INPUT_DIM = 4
 AUX_DIM = 6
@@ -57,6 +61,13 @@ STATE_NAMES = (
     "px", "py", "pz", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "pLx", "pLy", "pLz",
 )  # fmt: skip
 INPUT_NAMES = ("T", "wx", "wy", "wz")
+
+
+def split_state(x: A) -> tuple[A, A, A, A]:
+    """(..., 13) -> p (..., 3), v (..., 3), q (..., 4) w-x-y-z, pL (..., 3): views of the
+    columns of a numpy array or a torch tensor."""
+    return x[..., POS], x[..., VEL], x[..., QUAT], x[..., LOAD_POS]
+
 
 # --- the file layout (quaternion x-y-z-w) ---------------------------------------------------
 

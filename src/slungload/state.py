@@ -34,6 +34,7 @@ from .layout import (
     STATE_NAMES,
     THRUST,
     VEL,
+    split_state,
 )
 
 __all__ = [  # the layout's names, re-exported, then this module's own
@@ -46,11 +47,6 @@ __all__ = [  # the layout's names, re-exported, then this module's own
     "heading_turn", "to_heading_frame", "from_heading_frame", "split_input", "split_state",
     "with_unit_quaternion",
 ]  # fmt: skip
-
-
-def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """(..., 13) -> p (..., 3), v (..., 3), q (..., 4) w-x-y-z, pL (..., 3)."""
-    return x[..., POS], x[..., VEL], x[..., QUAT], x[..., LOAD_POS]
 
 
 def join_state(p: Tensor, v: Tensor, q: Tensor, p_load: Tensor) -> Tensor:

@@ -36,7 +36,8 @@ class Flight:
 
     time (T,) s; states (T, 13) = p, v, q (w-x-y-z, unit, sign-continuous), pL;
     inputs (T, 4) = commanded thrust T_ref (N), commanded body rates w_ref (rad/s);
-    aux (T, 6) = estimated vL (m/s), Omega_L (rad/s), see ``estimate_load_state``.
+    aux (T, 6) = estimated vL (m/s), Omega_L (rad/s), see ``estimate_load_state``; None for a
+    flight read for its checks alone (``readers.load_flight(..., load_state=False)``: no torch).
     constants: the flight's own constants where its file records them (simulated varied loads,
     ``fileio.CONSTANT_KEYS``): the dataset's constants with the recorded ones in place; None
     for a flight of the dataset's constants. ``aux`` uses the dataset's constants either way.
@@ -47,7 +48,7 @@ class Flight:
     time: np.ndarray
     states: np.ndarray
     inputs: np.ndarray
-    aux: np.ndarray
+    aux: np.ndarray | None = None
     constants: VehicleParams | None = None
 
     def __len__(self) -> int:
@@ -57,6 +58,14 @@ class Flight:
     def duration(self) -> float:
         """Seconds from the first to the last sample."""
         return float(self.time[-1] - self.time[0])
+
+    def with_load_state(self, params: VehicleParams) -> Flight:
+        """This flight with ``aux``, the causal load-state estimate with the constants
+        ``params`` (``load_state.estimate_load_state``: torch, imported here, so a flight read
+        for its checks alone needs none)."""
+        from ..load_state import estimate_load_state
+
+        return replace(self, aux=estimate_load_state(self.states, params))
 
 
 def recorded_constants(

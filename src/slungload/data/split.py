@@ -124,7 +124,7 @@ def split_dataset(
     import numpy as np
 
     from ..fileio import SPLITS, write_splits
-    from .dataset import check_folder
+    from .folder import check_folder
 
     folder, files = check_folder(folder)
     names = sorted(files)
@@ -270,7 +270,7 @@ def split_blocks(folder: str | Path, *, gap: int = WINDOW_STEPS) -> dict[str, li
     nothing (``writer.DatasetWriter``). Returns the split lists."""
     from ..fileio import read_npz
     from ..vehicle_file import VEHICLE_FILE, load_vehicle
-    from .dataset import check_folder
+    from .folder import check_folder
     from .writer import DatasetWriter
 
     folder, files = check_folder(folder)

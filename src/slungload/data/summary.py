@@ -17,16 +17,12 @@ import numpy as np
 from ..config import VehicleParams, WindowConfig
 from ..fileio import SPLITS
 from ..frames import swing_angle
-from ..state import (
-    THRUST,
-    split_state,
-)
+from ..layout import THRUST, split_state
 from ..vehicle_file import VEHICLE_FILE
 from .consistency import Check, flight_checks
-from .dataset import check_folder, read_splits, resolve_params
 from .flight import DatasetError, DataWarning, Flight
+from .folder import check_folder, read_splits, resolve_params
 from .readers import load_flight
-from .windows import window_count
 
 
 @dataclass(frozen=True)
@@ -133,13 +129,13 @@ def summarize(
     own_cable = source != "paper defaults" and _cable_reference(folder) != "own median"
     found: list[tuple[str, Check]] = []
     for split, split_names in names.items():
-        flights = [load_flight(paths[n], params, notes) for n in split_names]
+        flights = [load_flight(paths[n], params, notes, load_state=False) for n in split_names]
         skipped += [f.name for f in flights if len(f) < window.length]
         splits[split] = SplitSummary(
             flights=len(flights),
             steps=sum(len(f) for f in flights),
             duration=sum(f.duration for f in flights),
-            windows=sum(window_count(len(f), window) for f in flights),
+            windows=sum(window.count(len(f)) for f in flights),
         )
         for f in flights:
             for key, fn in _RANGES.items():

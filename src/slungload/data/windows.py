@@ -140,13 +140,6 @@ class Windows:
         )
 
 
-def window_count(length: int, window: WindowConfig) -> int:
-    """Windows of ``window.length`` steps at ``window.stride`` in a flight of ``length`` steps."""
-    if length < window.length:
-        return 0
-    return (length - window.length) // window.stride + 1
-
-
 def make_windows(
     flights: Sequence[FlightSeries], window: WindowConfig, params: Any = None
 ) -> Windows:
@@ -162,9 +155,12 @@ def make_windows(
         "start": [],
     }
     for i, flight in enumerate(flights):
-        count = window_count(len(flight.states), window)
+        count = window.count(len(flight.states))
         if count == 0:
             continue
+        if flight.aux is None:
+            raise ValueError(f"{flight.name}: read without its load-state estimate; windows need "
+                             "it (readers.load_flight(..., load_state=True))")  # fmt: skip
         for key in ("states", "inputs", "aux"):
             series = torch.from_numpy(np.asarray(getattr(flight, key), dtype=np.float32))
             # unfold: (T, C) -> (W, C, L) views; one copy at the concatenation below.

@@ -5,7 +5,8 @@
 flights are its files with a claimed suffix (``flight_files``), each read by the reader of its
 suffix, or by the reader named by an explicit ``format``. The flights lie at the top of the
 folder or under ``data/`` (the authors' release layout). A new source is a module here with a
-``read(path, params, notes) -> Flight`` function and one entry below.
+``read(path, params, notes) -> Flight`` function (numpy; the flight's load state is left to
+``load_flight``, which estimates it for every format alike) and one entry below.
 
 ``LOG_READERS`` does the same for flight *logs* (``slungload import``: ROS bags, PX4 ULog,
 CSV), which are recordings to convert rather than dataset files: a format name -> the suffixes
@@ -92,10 +93,18 @@ def _claimed(folder: Path) -> dict[str, Path]:
 
 
 def load_flight(
-    path: Path, params: VehicleParams, notes: list[str], *, format: str | None = None
+    path: Path,
+    params: VehicleParams,
+    notes: list[str],
+    *,
+    format: str | None = None,
+    load_state: bool = True,
 ) -> Flight:
-    """Read and validate one flight; what was ignored is appended to ``notes``."""
-    return reader_for(path, format).read(path, params, notes)
+    """Read and validate one flight; what was ignored is appended to ``notes``. With
+    ``load_state`` its load state is estimated with ``params`` (``Flight.with_load_state``,
+    torch); without, ``aux`` is None and nothing imports torch (``inspect``)."""
+    flight = reader_for(path, format).read(path, params, notes)
+    return flight.with_load_state(params) if load_state else flight
 
 
 def read_flight(

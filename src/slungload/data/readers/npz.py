@@ -9,19 +9,11 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from ...config import VehicleParams
 from ...fileio import FLIGHT_KEYS, IGNORED_KEYS, OPTIONAL_KEYS, read_npz
-from ...load_state import estimate_load_state
-from ...state import (
-    INPUT_DIM,
-    RATES,
-    THRUST,
-    join_state,
-    quat_continuous,
-    quat_xyzw_to_wxyz,
-)
+from ...frames import quat_continuous
+from ...layout import INPUT_DIM, LOAD_POS, POS, QUAT, RATES, STATE_DIM, THRUST, VEL, XYZW_TO_WXYZ
 from ..flight import (
     Flight,
     FlightFormatError,
@@ -53,7 +45,8 @@ def read(path: Path, params: VehicleParams, notes: list[str]) -> Flight:
 def from_arrays(
     raw: dict[str, np.ndarray], path: Path, params: VehicleParams, name: str | None = None
 ) -> Flight:
-    """Validate arrays of the published schema (every key of ``FLIGHT_KEYS``) into a ``Flight``.
+    """Validate arrays of the published schema (every key of ``FLIGHT_KEYS``) into a ``Flight``
+    (numpy only; its load state is not estimated: ``readers.load_flight`` adds it).
 
     The checks of ``read`` (shapes, finite values, the time step against ``params.dt``, unit
     quaternions x-y-z-w) with ``path`` in every message; other sources (``data.importing``)
@@ -78,15 +71,11 @@ def from_arrays(
             raise FlightFormatError(f"{path}: {key} holds {value} at step {bad[0][0]}")
     _check_time(time, params.dt, path)
 
-    quat = torch.from_numpy(_unit_quaternions(arrays["attitude"], path))
-    states = join_state(
-        torch.from_numpy(arrays["p"]),
-        torch.from_numpy(arrays["v"]),
-        quat_continuous(quat_xyzw_to_wxyz(quat)),
-        torch.from_numpy(arrays["p_load"]),
-    ).numpy()
+    quat = _unit_quaternions(arrays["attitude"], path)[:, XYZW_TO_WXYZ]
+    states = np.empty((steps, STATE_DIM))
+    states[:, POS], states[:, VEL] = arrays["p"], arrays["v"]
+    states[:, QUAT], states[:, LOAD_POS] = quat_continuous(quat), arrays["p_load"]
     inputs = np.empty((steps, INPUT_DIM))
     inputs[:, THRUST] = arrays["T_ref"]
     inputs[:, RATES] = arrays["w_ref"]
-    aux = estimate_load_state(states, params)
-    return Flight(name or path.stem, path, time, states, inputs, aux)
+    return Flight(name or path.stem, path, time, states, inputs)

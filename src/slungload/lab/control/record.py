@@ -22,7 +22,7 @@ from ..._version import __version__
 from ...config import WindowConfig, to_dict
 from ...control.closed_loop import fly
 from ...control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
-from ...data.dataset import read_splits
+from ...data.folder import read_splits
 from ...data.readers import flight_files
 from ...data.writer import DatasetWriter
 from ...deploy.compiled.batched import load_model

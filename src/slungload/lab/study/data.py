@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ...config import ModelConfig
-from ...data.dataset import check_folder, read_splits
+from ...data.folder import check_folder, read_splits
 from ...data.split import SPLIT_FRACTIONS
 from ...evaluation.evaluator import evaluate
 from ...evaluation.metrics import COMBINED

@@ -29,7 +29,8 @@ import numpy as np
 
 from ...config import VehicleParams, WindowConfig
 from ...constants_estimate import ADAPT_PRIOR_WEIGHT
-from ...data.dataset import Dataset, load_dataset, resolve_params
+from ...data.dataset import Dataset, load_dataset
+from ...data.folder import resolve_params
 from ...data.windows import Windows, make_windows
 from ...evaluation.evaluator import Candidate, evaluate_predictors
 from ...evaluation.metrics import COMBINED, compute_metrics
