@@ -1,6 +1,6 @@
 """Time one oracle look-ahead: K plans of N steps from a plant's state, stepped together
-(``lab.control.plant_batch.PlantBatch``) against the loop over K twins it replaced (``Plant.fork`` /
-``advance``). Seconds per control step, one process, one thread.
+(``lab.control.plant_batch.PlantBatch``) against the loop over K twins it replaced
+(``Plant.fork`` / ``advance``). Seconds per control step, one process, one thread.
 
     python examples/time_oracle.py --samples 256 --horizon 15
 """

@@ -226,3 +226,35 @@ def test_a_new_vehicle_constant_is_a_new_option(monkeypatch):
     assert "cD 0.3 N s/m" in text and "cD = linear drag of the load, N s/m (default 0.3)" in text
     args = parser.parse_args(["--drag", "0.5", "--mass-load", "0.2"])
     assert vehicle_overrides(args) == {"mass_load": 0.2, "drag": 0.5}
+
+
+def test_the_option_helpers_keep_zero_refuse_empty_lists_and_write_ranges_as_typed():
+    from slungload.cli.common import comma_names, given, joined
+
+    assert given(steps=0, seeds=None, maneuvers=("a",)) == {"steps": 0, "maneuvers": ("a",)}
+    with pytest.raises(ValueError, match="--front-seeds: give at least one value"):
+        given(front_seeds=())
+    assert joined((100, 101, 102)) == "100..102" and joined((15, 25)) == "15,25"
+    assert joined((1, 2)) == "1,2" and joined((3, 5, 6)) == "3,5,6" and joined(32) == "32"
+    assert comma_names("nominal, wind x2,") == ["nominal", "wind x2"]
+
+
+def test_window_counts_follow_the_stride():
+    from slungload.config import WindowConfig
+
+    window = WindowConfig(history=3, horizon=2, stride=2)
+    assert [window.count(t) for t in (4, 5, 6, 7, 9)] == [0, 1, 1, 2, 3]
+
+
+def test_study_size_takes_none_for_no_further_seeds(monkeypatch, run_cli, tmp_path):
+    import slungload.lab.study as study
+
+    seen = {}
+    monkeypatch.setattr(study, "study_size", lambda **kw: seen.update(kw))
+    code, _, err = run_cli("study", "size", "--data", tmp_path, "--out", tmp_path / "x",
+                           "--front-seeds", "none", "--sizes", "small, tiny")  # fmt: skip
+    assert code == 0, err
+    assert seen["config"].front_seeds == () and seen["config"].sizes == ("small", "tiny")
+    code, _, err = run_cli("study", "size", "--data", tmp_path, "--out", tmp_path / "x",
+                           "--front-seeds", "3..4")  # fmt: skip
+    assert code == 0 and seen["config"].front_seeds == (3, 4)

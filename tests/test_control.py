@@ -369,7 +369,7 @@ def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):
         torch.save({**checkpoint, CKPT_KEY: meta}, run / "best.ckpt")
         notes = model_notes(run, 3)
         assert len(notes) == named and (not named or str(data) in notes[0])
-    # a dataset of the MPC's own flights (control --record), an old one without excitation
+    # a dataset of the MPC's own flights (record), an old one without excitation
     # settings, and a file that is no dict
     for found, named in (({"sim": {"excitation": None}, "recorded": {"model": "x"}}, False),
                          ({"sim": {}}, True), ([1, 2], False)):  # fmt: skip

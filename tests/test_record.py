@@ -1,4 +1,4 @@
-"""Training data from the MPC's own flights (``control --record``): the recorded flights are
+"""Training data from the MPC's own flights (``record``): the recorded flights are
 what ``simulate`` would write of the same flight, they join the base's train split only, and
 bad bases and seeds are refused before anything is written."""
 

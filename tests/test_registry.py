@@ -30,7 +30,6 @@ TINY = ModelConfig(embed_sizes=(8, 8, 8), hidden_size=4, num_layers=2, head_size
 
 def test_the_registry_reads_the_one_table_of_architectures():
     # The CLI lists ARCHITECTURES without loading torch; MODELS imports the classes it names.
-    assert list(MODELS) == list(ARCHITECTURES)
     assert MODELS[DEFAULT_ARCHITECTURE] is SlungLoadNet
     for name, cls in MODELS.items():
         assert cls.architecture == name
@@ -180,3 +179,10 @@ def test_train_config_holds_the_whole_schedule():
     assert {"warmup_epochs", "min_lr_ratio", "max_time", "val_windows", "augment_yaw"} <= names
     with pytest.raises(ValueError, match="max_time"):
         TrainConfig(max_time=0.0)
+
+
+def test_mpc_maker_refuses_no_model_when_built():
+    from slungload.control.mpc import InputLimits, MPCConfig, mpc_maker
+
+    with pytest.raises(ValueError, match="needs a prediction model or a factory"):
+        mpc_maker(None, InputLimits(4.0, 30.0, 4.0), MPCConfig(), VehicleParams())

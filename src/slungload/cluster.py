@@ -3,7 +3,7 @@ cluster address (``reproduce``, ``study data`` and ``study size`` take ``--clust
 
 Each job is one Ray task with declared resources (``cpus`` CPU threads, ``gpus`` GPUs), retried
 up to ``retries`` times when its worker or node dies (a training job then resumes from its
-``last.ckpt``: ``experiment.TrainingJob``). The jobs' inputs and outputs are paths: the package,
+``last.ckpt``: ``lab.reproduce.TrainingJob``). The jobs' inputs and outputs are paths: the package,
 the dataset and the output folder must be on every node at the same path (a shared
 filesystem); results come back as the small objects the jobs return. Ray is an optional
 dependency (``pip install slungload[cluster]``), imported only here and only when a cluster is

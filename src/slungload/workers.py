@@ -1,11 +1,11 @@
 """Jobs in parallel processes: the one process pool of the package.
 
-Simulated flights (``sim.dataset``), training runs (``experiment``, ``study``) and the control
-study's closed-loop flights (``control.study``) run through ``run_jobs``: ``fn(job)`` for every
-job, ``workers`` at a time, a progress bar, the results as they finish. Each worker watches
-the process that started it and stops when that one goes (a ``kill`` of ``reproduce`` reaches
-the parent only; its workers would otherwise train on as orphans, using the cores and writing
-into the output folder).
+Simulated flights (``sim.dataset``), training runs (``lab.reproduce``, ``lab.study``) and the
+control study's closed-loop flights (``lab.control.study``) run through ``run_jobs``:
+``fn(job)`` for every job, ``workers`` at a time, a progress bar, the results as they finish.
+Each worker watches the process that started it and stops when that one goes (a ``kill`` of
+``reproduce`` reaches the parent only; its workers would otherwise train on as orphans, using
+the cores and writing into the output folder).
 
 Workers are spawned by default: a forked child would inherit the parent's torch thread pools
 and locks. ``start="fork"`` (where the platform has it) starts in milliseconds and is for jobs

@@ -54,8 +54,16 @@ def preset_help(default: str) -> str:
 
 
 def comma_names(text: str) -> list[str]:
-    """'a,b,' -> ['a', 'b']: an option's comma-separated names (empty items dropped)."""
-    return [name for name in text.split(",") if name]
+    """'a, b,' -> ['a', 'b']: an option's comma-separated names (spaces around a name and
+    empty items dropped)."""
+    return [name.strip() for name in text.split(",") if name.strip()]
+
+
+def backends_help() -> str:
+    """Every prediction backend and what it runs (``config.PREDICTION_BACKENDS``), for help."""
+    from ..config import PREDICTION_BACKENDS
+
+    return "; ".join(f"{k}: {v}" for k, v in PREDICTION_BACKENDS.items())
 
 
 def comma_ints(text: str) -> list[int]:

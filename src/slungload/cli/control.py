@@ -10,9 +10,17 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..config import PREDICTION_BACKENDS
 from ..lab.control.config import ComparisonConfig, RecordConfig
-from .common import choices, comma_ints, comma_names, given, joined, new_command, seed_range
+from .common import (
+    backends_help,
+    choices,
+    comma_ints,
+    comma_names,
+    given,
+    joined,
+    new_command,
+    seed_range,
+)
 
 
 def add_model_option(p: argparse.ArgumentParser, what: str) -> None:
@@ -21,9 +29,12 @@ def add_model_option(p: argparse.ArgumentParser, what: str) -> None:
                    help=what)  # fmt: skip
 
 
-def add_flight_options(p: argparse.ArgumentParser, cfg: Any, *, samples_many: bool) -> None:
+def add_flight_options(
+    p: argparse.ArgumentParser, cfg: Any, *, samples_many: bool, cuda: str = ""
+) -> None:
     """The options every closed-loop command shares, their defaults read from ``cfg`` (a
-    config of ``lab.control.config``): samples, horizon, recorded steps, backend, threads."""
+    config of ``lab.control.config``): samples, horizon, recorded steps, backend, threads.
+    ``cuda``: what the help adds about the cuda backend."""
     if samples_many:
         p.add_argument("--samples", type=comma_ints, metavar="K,K",
                        help=f"MPC samples per step; each model flies once per K (default "
@@ -42,10 +53,9 @@ def add_flight_options(p: argparse.ArgumentParser, cfg: Any, *, samples_many: bo
     p.add_argument(
         "--backend",
         choices=choices("backends"),
-        help="what the prediction models run on: "
-        + "; ".join(f"{k}: {v}" for k, v in PREDICTION_BACKENDS.items())
-        + f" (equal to eager to float32 rounding; cuda needs a CUDA build of torch; "
-        f"docs/deployment.md) (default {cfg.backend})",
+        help=f"what the prediction models run on: {backends_help()} (equal to eager to float32 "
+        f"rounding; cuda needs a CUDA build of torch{cuda}; docs/deployment.md) (default "
+        f"{cfg.backend})",
     )
 
 

@@ -1,4 +1,4 @@
-"""Evaluation commands: evaluate runs, reproduce the paper's experiment, the studies."""
+"""Evaluation commands: evaluate runs, and reproduce the paper's experiment (the lab's)."""
 
 from __future__ import annotations
 

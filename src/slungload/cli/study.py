@@ -10,6 +10,7 @@ from typing import Any
 from ..lab.study.config import DataStudyConfig, LoadsStudyConfig, SizeStudyConfig
 from .common import (
     add_cluster_option,
+    backends_help,
     choices,
     comma_ints,
     comma_names,
@@ -139,9 +140,8 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument("--steps", type=int, metavar="N", help=f"plan steps (default {cfg.steps})")
     s.add_argument("--repeats", type=int, help=f"timed rollouts (default {cfg.repeats})")
     s.add_argument("--backend", choices=list(PREDICTION_BACKENDS),
-                   help="what the rollouts are timed on: "
-                   + "; ".join(f"{k}: {v}" for k, v in PREDICTION_BACKENDS.items())
-                   + f" (default {cfg.backend})")  # fmt: skip
+                   help=f"what the rollouts are timed on: {backends_help()} (default "
+                   f"{cfg.backend})")  # fmt: skip
     s.add_argument("--no-train", action="store_true",
                    help="train nothing: evaluate and time the finished runs (re-time on a quiet "
                    "machine, or report a study cut short)")  # fmt: skip
@@ -154,12 +154,13 @@ def cmd_study_size(args: argparse.Namespace) -> int:
 
     from ..lab.study import study_size
 
-    front = None if args.front_seeds is None else args.front_seeds
     changes = _training_changes(args) | given(
         sizes=args.sizes and tuple(args.sizes),
-        front_seeds=None if front is None else () if front == "none" else seed_range(front),
         samples=args.samples, steps=args.steps, repeats=args.repeats, backend=args.backend,
     )  # fmt: skip
+    if args.front_seeds is not None:  # "none": no further seeds, an empty tuple
+        none = args.front_seeds.strip() == "none"
+        changes["front_seeds"] = () if none else seed_range(args.front_seeds)
     config = replace(SizeStudyConfig(), **changes)
     study_size(data=args.data, out=args.out, config=config, workers=args.workers,
                cluster=args.cluster, train=not args.no_train, progress=not args.quiet)  # fmt: skip

@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..lab.control.config import CONTROLLERS, NOMINAL, SHIFTS, StudyConfig, UnseenLoadsConfig
+from ..lab.control.config import NOMINAL, SHIFTS, STUDY_KINDS, StudyConfig, UnseenLoadsConfig
 from .common import comma_ints, comma_names, given, joined
 from .control import (
     add_flight_options,
@@ -37,9 +37,9 @@ def add_study_control(kinds: Any) -> None:
                      "learned MPC)")  # fmt: skip
     add_plan_options(s, cfg)
     add_flight_options(s, cfg, samples_many=False)
-    s.add_argument("--controllers", type=comma_names, default=list(CONTROLLERS),
+    s.add_argument("--controllers", type=comma_names, default=list(STUDY_KINDS),
                    metavar="NAME,NAME", help=f"kinds to fly now, e.g. the slow oracle in its own "
-                   f"process (default {','.join(CONTROLLERS)})")  # fmt: skip
+                   f"process (default {','.join(STUDY_KINDS)})")  # fmt: skip
     s.add_argument("--plants", type=comma_names, metavar="NAME,NAME",
                    help=f"plants to fly now, e.g. one per process (default all: {NOMINAL},"
                    + ",".join(SHIFTS).replace("%", "%%") + ")")  # fmt: skip
@@ -107,7 +107,9 @@ def add_study_control_loads(kinds: Any) -> None:
                    help="a load mass (kg) and cable length (m) to fly; repeat for more (default "
                    + " ".join(f"{m},{length}" for m, length in cfg.loads) + ")")  # fmt: skip
     add_plan_options(s, cfg)
-    add_flight_options(s, cfg, samples_many=False)
+    add_flight_options(s, cfg, samples_many=False,
+                       cuda=", and refused here: the in-flight physics model reads its "
+                       "estimate on the host")  # fmt: skip
     s.add_argument("--temperature", type=float,
                    help=f"the MPC's temperature (default {cfg.temperature:g})")  # fmt: skip
     s.add_argument("--out", required=True, type=Path, help="output folder")

@@ -39,6 +39,7 @@ from .mppi import (
     MPCStats,
     MPPIController,
     ReferenceAhead,
+    knots_for,
     trajectory_cost,
 )
 
@@ -163,11 +164,6 @@ class SamplingMPC:
         return self.core.plan
 
 
-def knots_for(horizon: int) -> int:
-    """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
-    return min(MPCConfig().knots, horizon)
-
-
 def mpc_maker(
     model: PredictionModel | Callable[[], CandidateModel],
     limits: InputLimits,
@@ -178,6 +174,8 @@ def mpc_maker(
     samples its own noise. ``model``: a prediction model shared by the flights, or a factory
     of a fresh numpy ``CandidateModel`` per flight (one that holds the flight's plant, such as
     the lab's oracle)."""
+    if model is None:
+        raise ValueError("mpc_maker needs a prediction model or a factory of one per flight")
     fresh = isinstance(model, type) or not hasattr(model, "predict_candidates")
 
     def make(seed: int) -> SamplingMPC:

@@ -151,6 +151,11 @@ class MPCConfig:
             )
 
 
+def knots_for(horizon: int) -> int:
+    """The sampler's knots at ``horizon``: the default, or fewer on a shorter horizon."""
+    return min(MPCConfig().knots, horizon)
+
+
 @dataclass
 class MPCStats:
     """What happened over a flight: steps, fallbacks by reason, dropped samples, hover steps."""

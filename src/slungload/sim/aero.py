@@ -74,7 +74,7 @@ class Aero:
             return np.zeros(3)
         return -self.load_q * math.sqrt(rel @ rel) * rel
 
-    # --- the same forces for K states at once (``plant_batch``); tests check them equal ----
+    # --- the same forces for K states at once (``lab.control.plant_batch``); tests check them ---
     def wake_velocities(self, p, rot, thrust, p_load) -> np.ndarray:
         """``wake_velocity`` for K states: p, p_load (K, 3) m; rot (K, 3, 3); thrust (K,) N."""
         down = -rot[:, :, 2]

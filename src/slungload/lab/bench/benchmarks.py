@@ -21,7 +21,7 @@ Training is timed on a plain loop over the training module (``training.SlungLoad
 forward, its optimiser; the loss of ``loss.compute_loss``), then backward, clipping and the
 optimiser step, which Lightning's loop does in training: the work of a training step without
 Lightning's own per-step bookkeeping. The records and their Markdown are in
-``benchmark_report``; this module measures.
+``report``; this module measures.
 """
 
 from __future__ import annotations

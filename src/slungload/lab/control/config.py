@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 from ...control.controllers import REFERENCE
-from ...control.mppi import MPCConfig
+from ...control.mppi import MPCConfig, knots_for
 from ...sim.config import SimConfig
 from ...sim.maneuvers import MANEUVERS
 
@@ -29,10 +29,11 @@ SHIFTS: dict[str, Callable[[SimConfig], SimConfig]] = {
     "thrust lag x2": lambda c: replace(c, thrust_tau=2.0 * c.thrust_tau),
 }
 # The kinds ``run_study`` may fly: the reference controllers (``control.controllers``), the MPC
-# over the physics model, over the learned model and over the ``oracle``.
+# over the physics model, over the learned model and over the ``oracle`` (the registered
+# controllers themselves: ``control.controllers.CONTROLLERS``).
 LEARNED = "learned"
 ORACLE = "oracle"
-CONTROLLERS = (*REFERENCE, "physics", LEARNED, ORACLE)
+STUDY_KINDS = (*REFERENCE, "physics", LEARNED, ORACLE)
 PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may use
 # (temperature, noise scale) pairs ``tune_settings`` tries first, with the default cost
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
@@ -94,7 +95,7 @@ class ComparisonConfig:
     @property
     def mpc(self) -> MPCConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots)."""
-        return MPCConfig(horizon=self.horizon, knots=min(MPCConfig.knots, self.horizon))
+        return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon))
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ simulator applies from Python (drag, downwash, latency, thrust scale and sag, th
 the thrust lag) and the wind held at its latest value (the future gusts are the one thing it
 does not know). The MPC with this model shows how well a perfect model does in this controller
 (measured: no better than the learned one, docs/BENCHMARKS.md). Not real time: the K
-candidates step MuJoCo N x ``SimConfig.substeps`` times (``sim.plant_batch.PlantBatch``: one
+candidates step MuJoCo N x ``SimConfig.substeps`` times (``plant_batch.PlantBatch``: one
 ``mujoco.rollout`` call per substep, the Python-side forces batched in numpy between the calls;
 ``mujoco.rollout`` over whole plans would leave those forces out and simulate another plant).
 

@@ -1,4 +1,4 @@
-"""Training data on the states the MPC visits (``slungload control --record``).
+"""Training data on the states the MPC visits (``slungload record``).
 
 A network trained on excited PID flights has seen swings up to about 40 deg; the MPC over it,
 on a position step, swings the load past 60 deg and then predicts with a model that never saw

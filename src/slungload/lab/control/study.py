@@ -1,4 +1,4 @@
-"""``slungload control --study``: where the learned model pays in closed loop.
+"""``slungload study control``: where the learned model pays in closed loop.
 
 One command flies, on every maneuver x evaluation seed of a ``StudyConfig``:
 
@@ -54,13 +54,13 @@ from ...sim.config import SimConfig, tuples_from_json
 from ...sim.dataset import vehicle_params
 from ...workers import run_jobs
 from .config import (
-    CONTROLLERS,
     COST_GRID,
     NOMINAL,
     ORACLE,
     PHYSICS_SAMPLES,
     SETTINGS_FIELDS,
     SHIFTS,
+    STUDY_KINDS,
     TUNING_GRID,
     UNSAFE_SWING,
     StudyConfig,
@@ -83,7 +83,7 @@ def run_study(
     out: str | Path,
     config: StudyConfig | None = None,
     *,
-    controllers: Sequence[str] = CONTROLLERS,
+    controllers: Sequence[str] = STUDY_KINDS,
     plants: Sequence[str] | None = None,
     threads: int = 1,
     workers: int = 1,
@@ -92,7 +92,7 @@ def run_study(
     """Fly what is missing of the study into ``out`` and return every row flown so far.
 
     learned: a trained run folder (None: no learned model, nor its equal-compute matching).
-    controllers: the kinds to fly now (``CONTROLLERS``), e.g. ("oracle",) in its own process;
+    controllers: the kinds to fly now (``STUDY_KINDS``), e.g. ("oracle",) in its own process;
     plants: the plants to fly now (NOMINAL and the config's shifts; default all), likewise.
     threads: torch threads while flying (restored after): one per process, so that processes
     flying side by side do not oversubscribe the cores, and the compute times are one core's.
@@ -100,9 +100,9 @@ def run_study(
     settings are tuned and matched first, in this process.
     """
     cfg = config or StudyConfig()
-    unknown = set(controllers) - set(CONTROLLERS)
+    unknown = set(controllers) - set(STUDY_KINDS)
     if unknown:
-        raise ValueError(f"unknown controllers {sorted(unknown)}; known: {list(CONTROLLERS)}")
+        raise ValueError(f"unknown controllers {sorted(unknown)}; known: {list(STUDY_KINDS)}")
     every = (NOMINAL, *cfg.shifts)
     plants = every if plants is None else tuple(plants)
     if set(plants) - set(every):

@@ -42,7 +42,7 @@ from ...reporting import (
 from ...run_config import SMOKE_PRESET
 from ...sim.config import SimConfig, tuples_from_json, vehicle_params
 from ...sim.flight import flight_reference
-from .config import CONTROLLERS, NOMINAL, UNSAFE_SWING, StudyConfig
+from .config import NOMINAL, STUDY_KINDS, UNSAFE_SWING, StudyConfig
 from .report import plot_paths
 from .results import (
     Row,
@@ -68,7 +68,7 @@ GAP_COLUMNS = ("maneuver", "seeds", "physics", "learned", "oracle", "gap closed 
 
 def ordered_labels(labels) -> list[str]:
     """Controller labels in reading order: the PID, geometric, then each MPC model by N."""
-    order = CONTROLLERS
+    order = STUDY_KINDS
 
     def rank(label: str) -> tuple[int, str, int]:
         model = label_model(label)

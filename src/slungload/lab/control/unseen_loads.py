@@ -1,4 +1,4 @@
-"""``slungload control --loads``: the MPC flying loads its model never saw.
+"""``slungload study control-loads``: the MPC flying loads its model never saw.
 
 One command flies, on every load of ``UnseenLoadsConfig.loads`` (each a plant of its own, every
 unmodelled effect on) x maneuver x evaluation seed:

@@ -4,7 +4,7 @@ Every trial is one ``RunConfig`` drawn from ``SearchSpace`` (architecture, loss 
 weighting, training horizon, load estimate, learning rate, network size, batch size) on a
 search budget (``TuneSettings.preset`` with ``epochs``). Optuna's TPE (through Ray Tune's
 ``OptunaSearch``) proposes the trials, the first one being reproduce's hand-chosen
-configuration (``experiment.BEYOND_PAPER``), so the search can only match or beat it; ASHA
+configuration (``lab.reproduce.BEYOND_PAPER``), so the search can only match or beat it; ASHA
 stops poor trials early on the validation loss each epoch reports (``train(on_epoch=...)``).
 A trial that runs to the end trains the same configuration with the second seed and reports
 the objective: combined RMSE at N = 50 on the validation flights, mean of the seeds. The
