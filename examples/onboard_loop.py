@@ -1,10 +1,12 @@
 """A vehicle's own control loop around the MPC: PX4-style measurements in, commands out.
 
-    slungload export runs/ps-exc --for-mpc --out ps.mpc.onnx   # once, where torch is
-    python examples/onboard_loop.py ps.mpc.onnx [--samples 256] [--steps 200]
-    python examples/onboard_loop.py --physics                        # the physics model (torch)
+    slungload export runs/ps-exc --for-mpc --out ps.mpc.onnx                  # once, where
+    slungload export physics --for-mpc --horizon 2 --out vehicle.mpc.onnx     # torch is
+    python examples/onboard_loop.py ps.mpc.onnx --vehicle vehicle.mpc.onnx [--samples 256]
 
-Every control period h = 0.03 s (the data rate) the loop
+The MPC's model is any exported candidates graph: a trained network's, or the physics model's
+(``slungload export physics --for-mpc --horizon 15 --out physics.mpc.onnx``). Every control
+period h = 0.03 s (the data rate) the loop
 
 1. reads a measurement as PX4 reports it: position and velocity in NED, attitude body (FRD)
    -> NED, and the load's position (motion capture or an estimator) in NED;
@@ -15,10 +17,11 @@ Every control period h = 0.03 s (the data rate) the loop
    thrust (N) and body rates (rad/s, FLU);
 5. converts the rates back to FRD and sends them with the thrust.
 
-The controller part imports numpy, onnxruntime and the package's torch-free modules only. The
-stand-in vehicle below (``SimulatedVehicle``: the package's discrete model, torch) is what a
-real loop replaces with the autopilot link (MAVLink / uORB / ROS 2 telemetry in, an attitude-
-rate setpoint out).
+Everything here imports numpy, onnxruntime and the package's torch-free modules only: it runs
+in the onboard install (``pip install 'slungload[onboard]'``). The stand-in vehicle below
+(``SimulatedVehicle``: the package's discrete model, exported to ONNX and stepped one command
+at a time) is what a real loop replaces with the autopilot link (MAVLink / uORB /
+ROS 2 telemetry in, an attitude-rate setpoint out).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 from slungload import frames
 from slungload.config import VehicleParams
 from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+from slungload.deploy.onboard import OnnxCandidateModel
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 
 H = 0.03  # s, control period (the data rate)
@@ -59,22 +63,22 @@ def state_from_px4(p_ned, v_ned, q_ned_frd, p_load_ned) -> np.ndarray:
 
 
 class SimulatedVehicle:
-    """Stand-in for the autopilot link: the discrete model (torch) reporting in NED / FRD."""
+    """Stand-in for the autopilot link: the discrete model (an exported physics graph,
+    ``OnnxCandidateModel``) stepped one command at a time (the first step of a plan that holds
+    it), reporting in NED / FRD."""
 
-    def __init__(self, params: VehicleParams) -> None:
-        import torch
-
-        from slungload import physics
-
-        self.torch, self.physics, self.params = torch, physics, params
+    def __init__(self, path: str, params: VehicleParams) -> None:
+        self.model = OnnxCandidateModel(path)
         p = np.array([0.0, 0.0, 1.5])
         x = np.concatenate([p, np.zeros(3), [1.0, 0, 0, 0], p - [0, 0, params.cable_length]])
-        self.x = torch.from_numpy(x)
-        self.aux = torch.zeros(6, dtype=torch.float64)
+        hover = (params.mass_quad + params.mass_load) * params.gravity
+        m = self.model.history  # the states the model reads the load's motion from
+        self.x_hist = np.repeat(x[None], m, axis=0)
+        self.u_past = np.repeat([[hover, 0.0, 0.0, 0.0]], m - 1, axis=0)
 
     def measure(self):
         """(p NED, v NED, q FRD -> NED w-x-y-z, load position NED), as PX4 would report."""
-        x = self.x.numpy()
+        x = self.x_hist[-1]
         q_ned = frames.quat_multiply(frames.quat_conjugate(frames.Q_ENU_FROM_NED), x[QUAT])
         q_ned_frd = frames.quat_multiply(q_ned, frames.Q_FLU_FROM_FRD)
         to_ned = frames.world_vectors  # (x, y, z) -> (y, x, -z) is its own inverse
@@ -82,35 +86,31 @@ class SimulatedVehicle:
 
     def send(self, thrust: float, rates_frd: np.ndarray) -> None:
         rates = frames.body_vectors(rates_frd, "frd")  # FRD -> FLU is its own inverse too
-        u = self.torch.tensor([thrust, *rates], dtype=self.torch.float64)
-        self.x, self.aux = self.physics.step(self.x, u, self.aux, self.params)
-
-
-def controller(args: argparse.Namespace, limits: InputLimits) -> MPPIController:
-    config = MPCConfig(samples=args.samples, horizon=args.horizon, knots=min(5, args.horizon))
-    if args.model:
-        return MPPIController.from_onnx(args.model, limits, config)  # numpy + onnxruntime
-    from slungload.control.mpc import TorchCandidates  # the physics model runs in torch
-    from slungload.models.prediction import PhysicsModel
-
-    return MPPIController(TorchCandidates(PhysicsModel(VehicleParams())), limits, config)
+        u = np.array([thrust, *rates])
+        plan = np.repeat(u[None, None], self.model.horizon, axis=1)  # (1, N, 4)
+        x = self.model.predict_candidates(self.x_hist, self.u_past, plan)[0, 0]
+        self.x_hist = np.concatenate([self.x_hist[1:], x[None]])
+        self.u_past = np.concatenate([self.u_past[1:], u[None]])
 
 
 def main(argv: list[str] | None = None) -> float:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", nargs="?", help="an exported MPC model (.mpc.onnx)")
-    parser.add_argument("--physics", action="store_true", help="the physics model instead")
+    parser.add_argument("model", help="the MPC's exported model (.mpc.onnx)")
+    parser.add_argument(
+        "--vehicle",
+        required=True,
+        help="the stand-in vehicle: the physics model exported (slungload export physics "
+        "--for-mpc --horizon 2)",
+    )
     parser.add_argument("--samples", type=int, default=256, help="K (default 256)")
-    parser.add_argument("--horizon", type=int, default=15, help="N without a model file")
     parser.add_argument("--steps", type=int, default=200, help="control steps (default 200)")
     args = parser.parse_args(argv)
-    if bool(args.model) == args.physics:
-        parser.error("give an exported model file or --physics")
     params = VehicleParams()
     hover = (params.mass_quad + params.mass_load) * params.gravity
     limits = InputLimits(0.3 * hover, 2.0 * hover, 4.0)  # N, N, rad/s: the vehicle's box
-    mpc = controller(args, limits)
-    vehicle = SimulatedVehicle(params)
+    config = MPCConfig(samples=args.samples)  # N and the knots follow the model file
+    mpc = MPPIController.from_onnx(args.model, limits, config)  # numpy + onnxruntime
+    vehicle = SimulatedVehicle(args.vehicle, params)
     errors = []
     for k in range(args.steps):
         x = state_from_px4(*vehicle.measure())  # 1-2

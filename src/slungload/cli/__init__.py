@@ -32,6 +32,13 @@ USER_ERRORS = (
     KeyError,
 )
 
+# What ``slungload[full]`` adds to the onboard install (numpy, onnxruntime, pymavlink), by
+# import name: a command that needs one of them says so and how to install it.
+FULL_ONLY = frozenset({
+    "torch", "roma", "mujoco", "lightning", "tensorboard", "matplotlib", "tqdm", "onnx",
+    "numba", "rosbags", "pyulog", "tomli_w", "ray", "optuna",
+})  # fmt: skip
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -71,6 +78,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except USER_ERRORS as exc:
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
         print(f"slungload {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] not in FULL_ONLY:
+            raise
+        print(f"slungload {args.command}: error: needs {exc.name}, which this install leaves "
+              "out (the onboard extra); install it all: pip install 'slungload[full]'",
+              file=sys.stderr)  # fmt: skip
         return 2
     except KeyboardInterrupt as exc:  # train raises a subclass carrying the signal's number
         detail = f": {exc}" if str(exc) else ""

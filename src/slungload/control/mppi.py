@@ -346,11 +346,13 @@ class MPPIController:
     ) -> MPPIController:
         """The onboard controller: an exported network (``slungload export --for-mpc``) on ONNX
         Runtime (``deploy.onboard.OnnxCandidateModel``; threads, providers: its session's),
-        N set to the file's horizon, the vehicle constants from its sidecar."""
+        N set to the file's horizon (the knots to at most N), the vehicle constants from its
+        sidecar."""
         from ..deploy.onboard import OnnxCandidateModel  # onnxruntime, only when asked
 
         model = OnnxCandidateModel(path, threads=threads, providers=providers)
-        config = replace(config or MPCConfig(), horizon=model.horizon)
+        config = config or MPCConfig()
+        config = replace(config, horizon=model.horizon, knots=min(config.knots, model.horizon))
         return cls(model, limits, config, model.params)
 
     def step(
