@@ -31,9 +31,8 @@ import math
 
 import numpy as np
 
-from slungload import frames
+from slungload import InputLimits, MPCConfig, MPPIController, ReferenceAhead, frames
 from slungload.config import VehicleParams
-from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
 from slungload.deploy.onboard import OnnxCandidateModel
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 

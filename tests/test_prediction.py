@@ -12,7 +12,6 @@ import pytest
 import torch
 from flights import TINY
 
-import slungload
 from slungload import physics
 from slungload.config import VehicleParams, WindowConfig
 from slungload.data.windows import Windows, physics_rollout
@@ -174,16 +173,3 @@ def test_physics_rollout_in_batches_equals_one_batch_and_carries_gradients():
     out = physics_rollout(windows, constants, batch_size=None)
     out[..., 10:13].sum().backward()
     assert length.grad is not None and torch.isfinite(length.grad)
-
-
-def test_the_old_evaluation_names_still_work_and_warn():
-    gen = torch.Generator().manual_seed(3)
-    x_hist, u_past = random_history(M, gen)
-    windows = candidate_windows(x_hist, u_past, random_plans(K, N, gen))
-    with pytest.warns(DeprecationWarning, match="PhysicsModel"):
-        old = slungload.PhysicsPredictor(PARAMS)
-    torch.testing.assert_close(old(windows), PhysicsModel(PARAMS).predict_windows(windows))
-    net = network("lstm-attention")
-    with pytest.warns(DeprecationWarning, match="NetworkModel"):
-        old = slungload.NetworkPredictor(net, batch_size=2)
-    torch.testing.assert_close(old(windows), NetworkModel(net, M).predict_windows(windows))

@@ -31,12 +31,12 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "run_config": ("PRESETS", "Preset", "RunConfig", "read_toml"),
     "training.module": ("TrainingDiverged",),
     "training.trainer": ("Run", "TrainingInterrupted", "train"),
-    "evaluation.predictors": ("NetworkPredictor", "PhysicsPredictor"),  # deprecated
     "evaluation.results": ("Report",),
     "evaluation.evaluator": ("evaluate",),
     "evaluation.report": ("write_report",),
     "deploy.predictor": ("FlightWindow", "Predictor", "flight_window"),
     "deploy.compiled": ("CompiledPredictor",),
+    "control.mppi": ("Command", "InputLimits", "MPCConfig", "MPPIController", "ReferenceAhead"),
     "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
     "deploy.timing": ("evaluate_runs", "time_inference"),
 }  # fmt: skip
