@@ -259,8 +259,7 @@ def add_import(sub: Any) -> None:
         "Read motion-capture poses of vehicle and load, velocity and the offboard commands, "
         "resample them to the step dt (linear; slerp for the attitude; commands held), convert "
         "frames to z up / FLU, split at gaps, validate as .npz flights and write OUT/data/*.npz, "
-        "the split lists and vehicle.json, all or nothing (docs/data.md, 'Bring your own "
-        "flights').",
+        "the split lists and vehicle.json, all or nothing (docs/import.md).",
     )
     _add_import_sources(p)
     _add_import_second(p)
