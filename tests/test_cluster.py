@@ -93,3 +93,23 @@ def test_without_ray_a_cluster_is_a_clear_error_and_local_runs_never_import_it()
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_an_unreachable_cluster_is_refused_before_any_work(monkeypatch, run_cli, tmp_path):
+    # ``--cluster auto`` with no cluster running: one line and exit 2 before the simulator runs
+    # (it used to simulate for a minute, then die with Ray's ConnectionError). The connection
+    # attempt is replaced, so no Ray starts here.
+    import slungload.cluster as cluster
+
+    def unreachable(address: str) -> bool:
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(cluster, "connect", unreachable)
+    code, _, err = run_cli("reproduce", "--out", tmp_path / "o", "--cluster", "auto",
+                           "--preset", "quick", "--quiet")  # fmt: skip
+    assert code == 2 and "--cluster auto: no Ray cluster reachable" in err
+    assert not (tmp_path / "o" / "data").exists()
+    code, _, err = run_cli("study", "data", "--out", tmp_path / "d", "--cluster", "auto")
+    assert code == 2 and "no Ray cluster reachable" in err and not (tmp_path / "d").exists()
+    cluster.check_reachable(None)  # nothing asked: nothing checked
+    cluster.check_reachable(cluster.LOCAL)  # started by the command itself

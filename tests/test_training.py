@@ -101,6 +101,11 @@ def test_existing_run_is_not_overwritten_and_resume_needs_one(
     train_tiny(dataset, tmp_path / "run", max_epochs=1)
     with pytest.raises(FileExistsError, match="resume"):
         train_tiny(dataset, tmp_path / "run")
+    # a worker killed while writing last.ckpt left its temporary file: a resume removes it
+    stale = tmp_path / "run" / ".last.ckpt.abc123.tmp"
+    stale.write_bytes(b"half a checkpoint")
+    train_tiny(dataset, tmp_path / "run", resume=True, max_epochs=2)
+    assert not stale.exists() and (tmp_path / "run" / "last.ckpt").is_file()
 
 
 def test_bad_options_are_refused(dataset, tmp_path: Path, train_tiny) -> None:

@@ -57,6 +57,26 @@ def connect(address: str) -> bool:
     return True
 
 
+def check_reachable(address: str | None) -> None:
+    """Fail before any work when ``address`` names a cluster that cannot be reached (``auto``
+    with none running, a wrong ``ray://`` address): a ``ValueError`` naming it, so a command
+    does not simulate for a minute and then die. None and ``local`` need only Ray installed."""
+    if address is None:
+        return
+    ray = require_ray()
+    if address == LOCAL or ray.is_initialized():
+        return
+    try:
+        started = connect(address)
+    except ConnectionError as exc:
+        raise ValueError(
+            f"--cluster {address}: no Ray cluster reachable ({exc}); start one (docs/cluster.md), "
+            "or use --cluster local, or leave --cluster out"
+        ) from None
+    if started:
+        ray.shutdown()
+
+
 def run_on_ray(
     fn: Callable[[J], R],
     jobs: Sequence[J],

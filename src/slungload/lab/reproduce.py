@@ -13,6 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..cluster import check_reachable
 from ..config import LossWeights, ModelConfig, WindowConfig
 from ..deploy.timing import evaluate_runs
 from ..evaluation.results import Report
@@ -109,6 +110,7 @@ def reproduce(
     every node sees) instead of ``workers`` local processes.
     """
     out = Path(out)
+    check_reachable(cluster)
     unknown = [v for v in variants if v not in LOSS_VARIANTS]
     if unknown:
         raise ValueError(f"unknown variants {unknown}; known: {sorted(LOSS_VARIANTS)}")

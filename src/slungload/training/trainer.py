@@ -263,6 +263,9 @@ def _check_run_folder(out: Path, resume: bool) -> Path:
             f"{out} already holds a run ({LAST}): continue it with --resume (resume=True) or "
             "choose another --out (out=)"
         )
+    if resume:  # a process killed while writing a checkpoint leaves its temporary file
+        for stale in out.glob(".*.ckpt.*.tmp"):
+            stale.unlink(missing_ok=True)
     return last
 
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...cluster import check_reachable
 from ...config import ModelConfig
 from ...data.folder import check_folder, read_splits
 from ...data.split import SPLIT_FRACTIONS
@@ -64,6 +65,7 @@ def study_data(
     ``out/data``); writes the table and the figure into ``out`` and returns the rows.
     ``cluster``: train on a Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local
     processes."""
+    check_reachable(cluster)
     cfg = config or DataStudyConfig()
     preset, horizon, sim_seed = cfg.preset, cfg.horizon, cfg.sim_seed
     sizes = sorted({int(k) for k in cfg.flights})

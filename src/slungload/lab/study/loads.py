@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...cluster import check_reachable
 from ...config import VehicleParams, WindowConfig
 from ...constants_estimate import ADAPT_PRIOR_WEIGHT
 from ...data.dataset import Dataset, load_dataset
@@ -77,6 +78,7 @@ def study_loads(
     """Simulate, train and evaluate the loads study into ``out`` (see the module); returns the
     rows of ``loads.csv``. ``cluster`` trains on Ray."""
     out = Path(out)
+    check_reachable(cluster)
     data = _datasets(out / "data", config, config.sim_seed, workers, progress)
     runs = {label: _runs(config, constants, seeing, config.preset, config.seeds, config.epochs)
             for label, (_, constants, seeing) in NETWORK_ROWS.items()}  # fmt: skip

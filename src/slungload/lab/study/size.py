@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ...cluster import check_reachable
 from ...config import MODEL_SIZES, WindowConfig
 from ...data.dataset import load_dataset
 from ...deploy.compiled import with_backend
@@ -115,6 +116,7 @@ def study_size(
     are evaluated and timed (to re-time on a quiet machine, or to report a study cut short).
     ``cluster``: train on a Ray cluster (``cluster.run_on_ray``) instead of ``workers`` local
     processes."""
+    check_reachable(cluster)
     cfg = config or SizeStudyConfig()
     sizes, seeds, front_seeds, horizon = cfg.sizes, cfg.seeds, cfg.front_seeds, cfg.horizon
     out, data = Path(out), Path(data)
