@@ -7,6 +7,8 @@ import math
 import subprocess
 import sys
 
+import pytest
+
 from slungload.lab.reproduce import BEYOND_PAPER
 from slungload.lab.study.config import SearchSpace, TuneSettings
 from slungload.lab.study.tune import choice_run, hand_chosen, within
@@ -71,3 +73,11 @@ def test_trials_are_numbered_in_the_order_they_started(tmp_path):
     lines = (tmp_path / "trials.csv").read_text().splitlines()
     assert lines[0].startswith("trial,order,") and lines[1].startswith("f0,3,")
     assert (tmp_path / "tune.png").stat().st_size > 0 and (tmp_path / "best.toml").is_file()
+
+
+def test_a_budget_no_longer_than_the_grace_period_is_refused(run_cli, tmp_path):
+    with pytest.raises(ValueError, match="exceed ASHA's grace period of 2 epochs"):
+        TuneSettings(epochs=2)
+    assert TuneSettings(epochs=3).epochs == 3 and TuneSettings(epochs=None).epochs is None
+    code, _, err = run_cli("tune", "--data", tmp_path, "--out", tmp_path / "t", "--epochs", "2")
+    assert code == 2 and "--epochs 3 or more" in err and not (tmp_path / "t").exists()

@@ -144,3 +144,12 @@ class TuneSettings:
     grace_epochs: int = 2  # ASHA: epochs every trial gets before it may be stopped
     search_seed: int = 0  # TPE's random seed
     history: int = 50  # M of every trial
+
+    def __post_init__(self) -> None:
+        # ASHA may stop a trial only after its grace period: a budget no longer than that
+        # leaves it nothing to decide, and its report would call finished trials stopped.
+        if self.epochs is not None and self.epochs <= self.grace_epochs:
+            raise ValueError(
+                f"--epochs {self.epochs}: a trial's budget must exceed ASHA's grace period of "
+                f"{self.grace_epochs} epochs (give --epochs {self.grace_epochs + 1} or more)"
+            )

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import torch
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from ...cluster import connect, require_ray
 from ...config import LossWeights, ModelConfig, WindowConfig
@@ -328,5 +329,6 @@ def _plot(rows: Sequence[dict[str, Any]], path: Path) -> Path:
     asha.legend(fontsize=8)
     for a in (ax, asha):
         a.grid(alpha=0.3)
+        a.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials and epochs are counts
     fig.tight_layout()
     return save_figure(fig, path)
