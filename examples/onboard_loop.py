@@ -18,7 +18,7 @@ period h = 0.03 s (the data rate) the loop
 5. converts the rates back to FRD and sends them with the thrust.
 
 Everything here imports numpy, onnxruntime and the package's torch-free modules only: it runs
-in the onboard install (``pip install 'slungload[onboard]'``). The stand-in vehicle below
+in the onboard install (``pip install '.[onboard]'`` from a checkout). The stand-in vehicle below
 (``SimulatedVehicle``: the package's discrete model, exported to ONNX and stepped one command
 at a time) is what a real loop replaces with the autopilot link (MAVLink / uORB /
 ROS 2 telemetry in, an attitude-rate setpoint out).

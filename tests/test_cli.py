@@ -258,3 +258,22 @@ def test_study_size_takes_none_for_no_further_seeds(monkeypatch, run_cli, tmp_pa
     code, _, err = run_cli("study", "size", "--data", tmp_path, "--out", tmp_path / "x",
                            "--front-seeds", "3..4")  # fmt: skip
     assert code == 0 and seen["config"].front_seeds == (3, 4)
+
+
+def test_a_command_needing_what_the_install_left_out_says_which_extra(monkeypatch, run_cli):
+    import slungload.cli.train as train
+
+    def missing(args):
+        raise ModuleNotFoundError("No module named 'lightning'", name="lightning")
+
+    monkeypatch.setattr(train, "cmd_train", missing)
+    code, _, err = run_cli("train", "--data", "d", "--out", "r")
+    assert code == 2 and "needs lightning" in err and "'slungload[full]'" in err
+    assert "'.[full]'" in err and "Traceback" not in err
+
+    def other(args):
+        raise ModuleNotFoundError("No module named 'nonesuch'", name="nonesuch")
+
+    monkeypatch.setattr(train, "cmd_train", other)
+    with pytest.raises(ModuleNotFoundError):  # not an optional dependency: a bug, shown whole
+        run_cli("train", "--data", "d", "--out", "r")

@@ -99,6 +99,7 @@ def test_an_unreachable_cluster_is_refused_before_any_work(monkeypatch, run_cli,
     # ``--cluster auto`` with no cluster running: one line and exit 2 before the simulator runs
     # (it used to simulate for a minute, then die with Ray's ConnectionError). The connection
     # attempt is replaced, so no Ray starts here.
+    pytest.importorskip("ray")
     import slungload.cluster as cluster
 
     def unreachable(address: str) -> bool:

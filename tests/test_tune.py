@@ -81,3 +81,12 @@ def test_a_budget_no_longer_than_the_grace_period_is_refused(run_cli, tmp_path):
     assert TuneSettings(epochs=3).epochs == 3 and TuneSettings(epochs=None).epochs is None
     code, _, err = run_cli("tune", "--data", tmp_path, "--out", tmp_path / "t", "--epochs", "2")
     assert code == 2 and "--epochs 3 or more" in err and not (tmp_path / "t").exists()
+
+
+def test_a_preset_no_longer_than_the_grace_period_is_refused_before_anything(tmp_path):
+    pytest.importorskip("ray")
+    from slungload.lab.study.tune import run_tune
+
+    with pytest.raises(ValueError, match="preset 'quick' trains 2 epochs"):
+        run_tune(tmp_path, tmp_path / "t", TuneSettings(preset="quick", epochs=None))
+    assert not (tmp_path / "t").exists()

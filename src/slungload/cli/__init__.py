@@ -32,12 +32,13 @@ USER_ERRORS = (
     KeyError,
 )
 
-# What ``slungload[full]`` adds to the onboard install (numpy, onnxruntime, pymavlink), by
-# import name: a command that needs one of them says so and how to install it.
-FULL_ONLY = frozenset({
-    "torch", "roma", "mujoco", "lightning", "tensorboard", "matplotlib", "tqdm", "onnx",
-    "numba", "rosbags", "pyulog", "tomli_w", "ray", "optuna",
-})  # fmt: skip
+# The extra that brings each optional module, by import name (pyproject.toml): a command that
+# needs one an install left out says which and how to install it.
+EXTRAS = {
+    **dict.fromkeys(("torch", "roma", "mujoco", "lightning", "tensorboard", "matplotlib", "tqdm",
+                     "onnx", "numba", "rosbags", "pyulog", "tomli_w"), "full"),
+    "onnxruntime": "onboard", "pymavlink": "onboard", "ray": "cluster", "optuna": "cluster",
+}  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -80,11 +81,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"slungload {args.command}: error: {msg}", file=sys.stderr)
         return 2
     except ModuleNotFoundError as exc:
-        if (exc.name or "").split(".")[0] not in FULL_ONLY:
+        extra = EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
             raise
         print(f"slungload {args.command}: error: needs {exc.name}, which this install leaves "
-              "out (the onboard extra); install it all: pip install 'slungload[full]'",
-              file=sys.stderr)  # fmt: skip
+              f"out: pip install 'slungload[{extra}]' (from a checkout: pip install "
+              f"'.[{extra}]')", file=sys.stderr)  # fmt: skip
         return 2
     except KeyboardInterrupt as exc:  # train raises a subclass carrying the signal's number
         detail = f": {exc}" if str(exc) else ""

@@ -306,7 +306,7 @@ def _add_import_second(p: argparse.ArgumentParser) -> None:
         "a second log",
         "streams of every flight (the load by default) from a second log, e.g. a motion-capture "
         "bag or CSV beside a PX4 ULog: its clock and world frame are fitted to each LOG on the "
-        "vehicle track both hold, and the import refused when they disagree (docs/data.md)",
+        "vehicle track both hold, and the import refused when they disagree (docs/import.md)",
     )
     g.add_argument("--second", type=Path, metavar="LOG", help="the second log (any LOG format)")
     g.add_argument(

@@ -177,6 +177,11 @@ def run_tune(
         ) from exc
 
     settings, space = settings or TuneSettings(), space or SearchSpace()
+    max_epochs = settings.epochs or RunConfig.from_preset(settings.preset).train.max_epochs
+    if max_epochs <= settings.grace_epochs:  # as TuneSettings refuses for a given --epochs
+        raise ValueError(f"preset {settings.preset!r} trains {max_epochs} epochs, no more than "
+                         f"ASHA's grace period of {settings.grace_epochs}: give --epochs "
+                         f"{settings.grace_epochs + 1} or more")  # fmt: skip
     data, out = Path(data).resolve(), Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     params = {name: tune.choice(list(getattr(space, name))) for name in
@@ -191,7 +196,6 @@ def run_tune(
         ),  # fmt: skip
         max_concurrent=settings.concurrent,
     )
-    max_epochs = settings.epochs or RunConfig.from_preset(settings.preset).train.max_epochs
     # max_t one past the last epoch: ASHA stops a trial that reaches max_t, and a trial must
     # still train its other seeds after its last reported epoch.
     scheduler = ASHAScheduler(metric=VAL_LOSS, mode="min", time_attr="epoch",
