@@ -232,6 +232,17 @@ def test_gap_splits_the_flight_and_short_pieces_are_dropped(tmp_path):
     assert list(result.flights) == ["gappy"] and any("dropped" in n for n in result.notes)
 
 
+def test_a_clean_10_hz_stream_has_no_gap_at_the_default_max_gap(tmp_path):
+    # 0.1 s steps from nanosecond stamps round to a hair over 0.1 s: not a gap at --max-gap 0.1
+    t = np.arange(0, 5, 0.01)
+    store = typestore(False)
+    topics = mavros_topics(Msgs(store, False), {},
+                           {POSE: np.arange(0, 5, 0.1), LOAD: t, VEL: t, CMD: t[::2]})  # fmt: skip
+    bag = write_bag(tmp_path / "slow", topics, store, ros1=False)
+    result = import_to_train(bag, tmp_path / "ds")
+    assert list(result.flights) == ["slow"] and not any("gap" in n for n in result.notes)
+
+
 # --- bad logs: one clear line, exit status 2, nothing written ------------------------------------
 
 

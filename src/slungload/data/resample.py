@@ -31,8 +31,12 @@ from .consistency import Check, ConsistencyError, norm_check, refusal, step_chec
 from .import_options import ImportOptions
 from .readers.logs import ROLES, LogError, RawLog, Stream
 
-STAMP_EPS = 1e-6  # s: a sample stamped this close after a grid instant counts as at it
+# s: stamps' rounding: a sample stamped this close after a grid instant counts as at it, and a
+# time step this much over --max-gap is no gap (a clean 10 Hz stream's steps from nanosecond
+# stamps come out as 0.1000000001 s)
+STAMP_EPS = 1e-6
 AIRBORNE = 0.5  # a ULog's last thrust above this share of hover: it ends in the air
+
 
 
 @dataclass
@@ -173,7 +177,7 @@ def _ends_early(
     """A note for a stream that stops well before the others (the flight is cut there)."""
     last = max(float(s.time[-1]) for s in streams.values())
     for s in streams.values():
-        if float(s.time[-1]) == end and last - end > options.max_gap:
+        if float(s.time[-1]) == end and last - end > options.max_gap + STAMP_EPS:
             notes.append(
                 f"{path}: {s.source} ends {last - end:.2f} s before the log's other streams: "
                 "the flight ends there"
@@ -231,7 +235,7 @@ def _pieces(
     holes: list[tuple[float, float, str]] = []
     for s in streams.values():
         steps = np.diff(s.time)
-        for i in np.flatnonzero(steps > options.max_gap):
+        for i in np.flatnonzero(steps > options.max_gap + STAMP_EPS):
             a, b = float(s.time[i]), float(s.time[i + 1])
             if b <= start or a >= end:
                 continue
