@@ -59,12 +59,12 @@ def rewrite(path, out, change):
     return out
 
 
-def test_stock_px4_position_at_10_hz_names_the_topic_and_the_option(tmp_path):
-    log = ulog(tmp_path / "stock.ulg", rates={"position": 100_000})
+def test_stock_px4_position_at_5_hz_names_the_topic_and_the_option(tmp_path):
+    log = ulog(tmp_path / "stock.ulg", rates={"position": 200_000})
     with pytest.raises(LogError) as err:
         import_logs([log], tmp_path / "a", params=PARAMS, mapping=LOAD_TOPIC, progress=False)
     text = str(err.value)
-    for word in ("topic vehicle_local_position:0", "sampled every 0.100 s", "--max-gap 0.1",
+    for word in ("topic vehicle_local_position:0", "sampled every 0.200 s", "--max-gap 0.1",
                  "--min-duration", "--on-gap error", "h^2/8"):  # fmt: skip
         assert word in text, (word, text)
     options = ImportOptions(max_gap=0.25, split="train")
@@ -72,8 +72,19 @@ def test_stock_px4_position_at_10_hz_names_the_topic_and_the_option(tmp_path):
                 progress=False)  # fmt: skip
     got = imported(tmp_path / "b")["stock"]
     expected = truth(got["time"])  # every stream starts at 0
+    # linear interpolation over 0.2 s: h^2 / 8 max|a| = 0.04 / 8 * 0.25 m/s^2 = 1.25 mm
+    assert np.abs(got["p"] - expected["p"]).max() < 0.04 / 8 * 0.26
+
+
+def test_stock_px4_position_at_10_hz_imports_at_the_default_max_gap(tmp_path):
+    # its 0.1 s steps from microsecond stamps are no gap at --max-gap 0.1 (rounding aside)
+    log = ulog(tmp_path / "stock.ulg", rates={"position": 100_000})
+    options = ImportOptions(split="train")
+    import_logs([log], tmp_path / "b", params=PARAMS, mapping=LOAD_TOPIC, options=options,
+                progress=False)  # fmt: skip
+    got = imported(tmp_path / "b")["stock"]
     # linear interpolation over 0.1 s: h^2 / 8 max|a| = 0.01 / 8 * 0.25 m/s^2 = 0.3 mm
-    assert np.abs(got["p"] - expected["p"]).max() < 0.01 / 8 * 0.26
+    assert np.abs(got["p"] - truth(got["time"])["p"]).max() < 0.01 / 8 * 0.26
 
 
 def test_load_topic_error_lists_only_topics_with_a_position(tmp_path):

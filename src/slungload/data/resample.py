@@ -38,7 +38,6 @@ STAMP_EPS = 1e-6
 AIRBORNE = 0.5  # a ULog's last thrust above this share of hover: it ends in the air
 
 
-
 @dataclass
 class LogPieces:
     """What one log gives: pieces as (the log's stamp of the first sample, arrays in the
