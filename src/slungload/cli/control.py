@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import warnings
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -112,8 +113,6 @@ def add_control(sub: Any) -> None:
 
 
 def cmd_control(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.control.comparison import compare
 
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
@@ -177,8 +176,6 @@ def _flight_counts(text: str) -> tuple[tuple[str, int], ...]:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.control.record import record_flights
 
     if len(args.model) != 1:

@@ -4,6 +4,7 @@ lab's (``lab.study``, ``lab.control``); every default is read from its config.""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -95,8 +96,6 @@ def _add_study_data(kinds: Any) -> None:
 
 
 def cmd_study_data(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.study import study_data
 
     changes = _training_changes(args) | given(
@@ -112,7 +111,7 @@ def cmd_study_data(args: argparse.Namespace) -> int:
 
 
 def _add_study_size(kinds: Any) -> None:
-    from ..config import MODEL_SIZES, PREDICTION_BACKENDS
+    from ..config import MODEL_SIZES
 
     cfg = SizeStudyConfig()
     s = kinds.add_parser(
@@ -139,7 +138,7 @@ def _add_study_size(kinds: Any) -> None:
     s.add_argument("--samples", type=int, metavar="K", help=f"plans (default {cfg.samples})")
     s.add_argument("--steps", type=int, metavar="N", help=f"plan steps (default {cfg.steps})")
     s.add_argument("--repeats", type=int, help=f"timed rollouts (default {cfg.repeats})")
-    s.add_argument("--backend", choices=list(PREDICTION_BACKENDS),
+    s.add_argument("--backend", choices=choices("backends"),
                    help=f"what the rollouts are timed on: {backends_help()} (default "
                    f"{cfg.backend})")  # fmt: skip
     s.add_argument("--no-train", action="store_true",
@@ -150,8 +149,6 @@ def _add_study_size(kinds: Any) -> None:
 
 
 def cmd_study_size(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.study import study_size
 
     changes = _training_changes(args) | given(
@@ -210,8 +207,6 @@ def _add_study_loads(kinds: Any) -> None:
 
 
 def cmd_study_loads(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.study import study_loads
     from ..lab.study.config import RANGES
 
@@ -284,8 +279,6 @@ def add_tune(sub: Any) -> None:
 
 
 def cmd_tune(args: argparse.Namespace) -> int:
-    from dataclasses import replace
-
     from ..lab.study.config import TuneSettings
     from ..lab.study.tune import run_tune
 

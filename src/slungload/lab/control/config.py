@@ -6,7 +6,7 @@ read from these."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
 from ...control.controllers import REFERENCE
@@ -86,9 +86,7 @@ class ComparisonConfig:
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
-        unknown = sorted(set(self.maneuvers) - set(MANEUVERS))
-        if unknown:
-            raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
+        _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
             raise ValueError(f"ComparisonConfig.samples: K >= 2 each, got {list(self.samples)}")
 
@@ -165,6 +163,13 @@ class UnseenLoadsConfig:
         _check_steps("UnseenLoadsConfig", self.steps)
 
 
+def _check_maneuvers(names: Iterable[str]) -> None:
+    """Every name one of the simulator's maneuvers (``sim.maneuvers.MANEUVERS``)."""
+    unknown = sorted(set(names) - set(MANEUVERS))
+    if unknown:
+        raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
+
+
 def _check_steps(owner: str, steps: int | None) -> None:
     """Recorded steps per flight: None (the whole maneuver) or at least one."""
     if steps is not None and steps < 1:
@@ -205,9 +210,7 @@ class RecordConfig:
         if not names or min(n for _, n in self.flights) < 1 or len(set(names)) < len(names):
             raise ValueError(f"RecordConfig.flights: each maneuver once, with >= 1 flight; got "
                              f"{list(self.flights)}")  # fmt: skip
-        unknown = sorted(set(names) - set(MANEUVERS))
-        if unknown:
-            raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
+        _check_maneuvers(names)
         taken = sorted(BENCHMARK_SEEDS.intersection(self.seeds))
         if taken:
             raise ValueError(
