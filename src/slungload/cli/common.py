@@ -17,6 +17,13 @@ def new_command(sub: Any, name: str, summary: str, description: str) -> argparse
                           f"{description}")  # fmt: skip
 
 
+def plants_help() -> str:
+    """The named plants with what each is, for ``--plant``'s help (argparse's % escaped)."""
+    from ..sim.plants import PLANTS
+
+    return "; ".join(f"{name}: {text}" for name, (text, _) in PLANTS.items()).replace("%", "%%")
+
+
 def choices(kind: str) -> list[str]:
     # Registries' names from modules that load neither torch nor MuJoCo: --help stays fast
     # (sorted; the network sizes in the registry's order, largest first).
@@ -34,6 +41,10 @@ def choices(kind: str) -> list[str]:
         return list(NETWORK_CONSTANTS)
     elif kind == "sizes":
         from ..config import MODEL_SIZES as names
+
+        return list(names)
+    elif kind == "plants":  # the default first, then by family
+        from ..sim.plants import PLANTS as names
 
         return list(names)
     elif kind == "backends":  # the default first

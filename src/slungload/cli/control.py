@@ -20,6 +20,7 @@ from .common import (
     given,
     joined,
     new_command,
+    plants_help,
     seed_range,
 )
 
@@ -43,6 +44,10 @@ def add_flight_options(
     else:
         p.add_argument("--samples", type=int, metavar="K",
                        help=f"MPC samples per step (default {cfg.samples})")  # fmt: skip
+    if hasattr(cfg, "plant"):
+        p.add_argument("--plant", choices=choices("plants"),
+                       help=f"the simulated vehicle ({plants_help()}; docs/simulator.md) "
+                       f"(default {cfg.plant})")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -117,7 +122,7 @@ def cmd_control(args: argparse.Namespace) -> int:
 
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
-                                         backend=args.backend)  # fmt: skip
+                                         backend=args.backend, plant=args.plant)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     result = compare(args.model, args.out, config, threads=args.threads,
@@ -182,7 +187,7 @@ def cmd_record(args: argparse.Namespace) -> int:
         raise ValueError(f"record flies one --model (the MPC's), got {len(args.model)}")
     changes = given(flights=args.flights, first_seed=args.first_seed, samples=args.samples,
                     horizon=args.horizon, steps=args.steps, backend=args.backend,
-                    temperature=args.temperature)  # fmt: skip
+                    temperature=args.temperature, plant=args.plant)  # fmt: skip
     config = replace(RecordConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     done = record_flights(args.model[0], args.base, args.out, config, workers=args.workers,

@@ -9,8 +9,10 @@ from typing import Any
 from .common import (
     add_vehicle_options,
     add_window_options,
+    choices,
     comma_names,
     new_command,
+    plants_help,
     positive_int,
     resolve_params,
     value_or_range,
@@ -19,6 +21,8 @@ from .common import (
 
 
 def add_simulate(sub: Any) -> None:
+    from ..sim.plants import DEFAULT_PLANT
+
     p = new_command(
         sub,
         "simulate",
@@ -38,6 +42,9 @@ def add_simulate(sub: Any) -> None:
         help="fly only these families, in turn (default: all; see `slungload maneuvers`)",
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--plant", choices=choices("plants"), default=DEFAULT_PLANT,
+                   help=f"the simulated vehicle ({plants_help()}; docs/simulator.md; the vehicle "
+                   f"and load options below change it) (default {DEFAULT_PLANT})")  # fmt: skip
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing folder")
     p.add_argument(
@@ -113,9 +120,12 @@ def _effect_names() -> tuple[str, ...]:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from ..data.summary import summarize
-    from ..sim import Effects, Excitation, SimConfig, simulate_dataset
+    from ..sim import Effects, Excitation, simulate_dataset
     from ..sim.config import LoadRanges
+    from ..sim.plants import plant_config
 
     off = [name for name in Effects.names() if getattr(args, f"no_{name}")]
     excitation = Excitation()
@@ -126,9 +136,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         args.out,
         flights=args.flights,
         seed=args.seed,
-        config=SimConfig(effects=Effects().without(*off), excitation=excitation).with_loads(
-            **{name: getattr(args, name) for name in LoadRanges.names()}
-        ),
+        config=replace(
+            plant_config(args.plant), effects=Effects().without(*off), excitation=excitation
+        ).with_loads(**{name: getattr(args, name) for name in LoadRanges.names()}),
         workers=args.workers,
         overwrite=args.overwrite,
         progress=not args.quiet,

@@ -136,6 +136,39 @@ class LoadRanges:
         return any(getattr(self, name) is not None for name in self.names())
 
 
+# The plant families (``sim.families``): structurally different simulators of one vehicle.
+# ``tendon``: the thrust and an inner body-rate loop as MuJoCo actuators with first-order lags,
+# the cable one elastic tendon, rotor drag and downwash (``plant.Plant``). ``chain``: four
+# rotors with speed lags and saturation behind an explicit body-rate PI loop and a mixer, the
+# cable a chain of links with its own mass, quadratic drag only (``chain.ChainPlant``).
+FAMILIES = ("tendon", "chain")
+
+
+@dataclass(frozen=True)
+class Chain:
+    """Constants only the ``chain`` family uses (``sim/chain.py``); SI units."""
+
+    links: int = 5  # -, straight links of the cable; a point-mass bead joins each two
+    cable_density: float = 0.02  # kg/m, the cable's own mass per metre, carried by its beads
+    bead_damping: float = 0.003  # N s/m, air drag of each bead (damps the chain's fast modes)
+    arm: float = 0.16  # m, centre of mass to each of the four rotors (X configuration)
+    rotor_tau: float = 0.035  # s, lag of each rotor's speed behind its command (thrust ~ speed^2)
+    yaw_moment: float = 0.016  # m, rotor drag torque per newton of that rotor's thrust
+    # the rate loop: angular acceleration per rad/s of error (P) and per rad of its integral
+    # (I), body x, y, z; about 30 % overshoot on a step, a 5 mm thrust offset taken out in 1 s
+    rate_kp: tuple[float, float, float] = (25.0, 25.0, 8.0)  # 1/s
+    rate_ki: tuple[float, float, float] = (120.0, 120.0, 20.0)  # 1/s^2
+    rate_integral: float = 0.3  # rad, bound of each axis's integrated rate error (anti-windup)
+    load_drag_coef: float = 0.47  # -, drag coefficient of the spherical load
+
+    def __post_init__(self) -> None:
+        if self.links < 2:
+            raise ValueError(f"Chain.links must be >= 2, got {self.links}")
+        for name in ("arm", "rotor_tau", "rate_integral"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"Chain.{name} must be > 0, got {getattr(self, name)}")
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Constants of the simulated quadrotor, cable, load, air, actuators, sensors and controller.
@@ -143,6 +176,8 @@ class SimConfig:
     Sources for every magnitude are in ``docs/simulator.md``.
     """
 
+    family: str = "tendon"  # which simulator flies it (``FAMILIES``)
+    chain: Chain = field(default_factory=Chain)  # the ``chain`` family's own constants
     effects: Effects = field(default_factory=Effects)
     excitation: Excitation = field(default_factory=Excitation)  # of the commands; off
     loads: LoadRanges = field(default_factory=LoadRanges)  # per-flight vehicle and load; none
@@ -196,6 +231,8 @@ class SimConfig:
     gravity: float = 9.81  # m/s^2
 
     def __post_init__(self) -> None:
+        if self.family not in FAMILIES:
+            raise ValueError(f"SimConfig.family: one of {list(FAMILIES)}, got {self.family!r}")
         positive = (
             "control_dt", "mass_quad", "string_length", "load_mass", "load_size", "rotor_area",
             "max_thrust", "air_density", "thrust_tau", "motor_tau", "wind_tau", "velocity_tau",
@@ -293,13 +330,15 @@ class SimConfig:
         """Rebuild from ``config.to_dict`` output (e.g. ``vehicle.json["sim"]``)."""
         data = dict(data)
         effects = Effects(**data.pop("effects", {}))
+        chain = Chain(**tuples_from_json(data.pop("chain", {})))
         excitation = Excitation(**tuples_from_json(data.pop("excitation", {})))
         loads = LoadRanges(**tuples_from_json(data.pop("loads", None) or {}))
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ValueError(f"SimConfig: unknown keys {sorted(unknown)}")
-        return cls(effects=effects, excitation=excitation, loads=loads, **tuples_from_json(data))
+        return cls(effects=effects, chain=chain, excitation=excitation, loads=loads,
+                   **tuples_from_json(data))  # fmt: skip
 
     def with_effects(self, effects: Effects) -> SimConfig:
         """A copy with other effect switches."""

@@ -12,6 +12,7 @@ from ..frames import rotation_matrix
 from .aero import ou_wind
 from .config import SimConfig, vehicle_params
 from .controller import Controller, Measurement, PIDController, excitation_signal
+from .families import make_plant
 from .maneuvers import Maneuver, Reference, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
 from .sensors import Mocap
@@ -68,7 +69,7 @@ def _setup(maneuver: str | Maneuver, seed, cfg: SimConfig, steps: int | None) ->
     warm = round(cfg.warmup / cfg.control_dt)
     times = (np.arange(warm + n) - warm) * cfg.control_dt  # recording starts at t = 0
     flown = cfg.drawn(s_load)  # the vehicle and load of this flight (cfg when none vary)
-    plant = Plant(flown, PlantParams.draw(flown, s_plant))
+    plant = make_plant(flown, PlantParams.draw(flown, s_plant))
     ref = sample_reference(man, times, plant.p)  # from the start point, where it hovers
     for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
         a.flags.writeable = False  # every step sees the same reference: no controller edits it

@@ -31,6 +31,7 @@ from ...models.prediction import PHYSICS, PredictionModel
 from ...reporting import machine
 from ...sim.config import SimConfig
 from ...sim.dataset import vehicle_params
+from ...sim.plants import plant_config
 from .config import NOMINAL, ComparisonConfig
 from .report import write_report
 from .results import ControlComparison
@@ -46,11 +47,11 @@ def compare(
     progress: Callable[[str], None] | None = print,
 ) -> ControlComparison:
     """Fly the PID, MPC + physics and MPC + each network (run folders) as ``config`` says
-    (default ``ComparisonConfig()``) on the plant ``sim`` (default ``SimConfig()``) and write
-    the report into ``out`` (None: nothing written). threads: torch threads while flying
-    (restored after)."""
+    (default ``ComparisonConfig()``) on the plant ``sim`` (default: the named plant
+    ``config.plant``, ``sim.plants``) and write the report into ``out`` (None: nothing
+    written). threads: torch threads while flying (restored after)."""
     cfg = config or ComparisonConfig()
-    plant = sim or SimConfig()
+    plant = sim or plant_config(cfg.plant)
     params = vehicle_params(plant)
     limits = InputLimits.from_sim(plant)
     predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=cfg.backend)]

@@ -13,6 +13,7 @@ from ...control.controllers import REFERENCE
 from ...control.mppi import MPCConfig, knots_for
 from ...sim.config import SimConfig
 from ...sim.maneuvers import MANEUVERS
+from ...sim.plants import DEFAULT_PLANT, PLANTS
 
 # The simulator's three fastest maneuvers, what ``slungload control`` flies by default: back and
 # forth along a line at 2.8-3.6 s a cycle, roll doublets of 25-35 degrees, and figure eights
@@ -66,8 +67,8 @@ COST_GRID: tuple[dict[str, float], ...] = (
 # folder's settings.json and flights serve any config that agrees on these, so evaluation
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
-    "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps", "tune",
-    "backend",
+    "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
+    "tune", "backend",
 )  # fmt: skip
 
 
@@ -83,9 +84,11 @@ class ComparisonConfig:
     horizon: int = MPCConfig.horizon  # N, steps of 0.03 s
     steps: int | None = None  # recorded steps per flight (None: the maneuver's whole length)
     backend: str = "eager"  # what the prediction models run on (``config.PREDICTION_BACKENDS``)
+    plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
+        _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
             raise ValueError(f"ComparisonConfig.samples: K >= 2 each, got {list(self.samples)}")
@@ -115,6 +118,9 @@ class StudyConfig:
     steps: int | None = STEPS
     tune: bool = True  # choose each MPC's noise and temperature on the tuning seeds
     backend: str = BACKEND
+    # the simulated vehicle (``sim.plants.PLANTS``): its nominal constants are the physics
+    # model's, the shifts are of it
+    plant: str = DEFAULT_PLANT
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -123,6 +129,7 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         _check_steps("StudyConfig", self.steps)
+        _check_plant(self.plant)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
             raise ValueError(f"unknown plant shifts {sorted(unknown)}; known: {list(SHIFTS)}")
@@ -170,6 +177,12 @@ def _check_maneuvers(names: Iterable[str]) -> None:
         raise ValueError(f"unknown maneuvers {unknown}; known: {sorted(MANEUVERS)}")
 
 
+def _check_plant(name: str) -> None:
+    """One of the simulator's named plants (``sim.plants.PLANTS``)."""
+    if name not in PLANTS:
+        raise ValueError(f"unknown plant {name!r}; known: {list(PLANTS)}")
+
+
 def _check_steps(owner: str, steps: int | None) -> None:
     """Recorded steps per flight: None (the whole maneuver) or at least one."""
     if steps is not None and steps < 1:
@@ -203,9 +216,11 @@ class RecordConfig:
     max_swing: float = SWING_BOUND  # rad
     steps: int | None = STEPS
     backend: str = BACKEND
+    plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
 
     def __post_init__(self) -> None:
         _check_steps("RecordConfig", self.steps)
+        _check_plant(self.plant)
         names = [m for m, _ in self.flights]
         if not names or min(n for _, n in self.flights) < 1 or len(set(names)) < len(names):
             raise ValueError(f"RecordConfig.flights: each maneuver once, with >= 1 flight; got "

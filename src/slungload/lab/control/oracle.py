@@ -19,9 +19,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
+from ...sim.chain import ChainPlant
 from ...sim.plant import Plant
 from .config import ORACLE
-from .plant_batch import PlantBatch
+from .plant_batch import lookahead
 
 
 class PlantCandidates:
@@ -33,11 +34,11 @@ class PlantCandidates:
 
     def __init__(self, threads: int = 1) -> None:
         self.threads = threads  # MuJoCo threads stepping the candidates
-        self.batch: PlantBatch | None = None
+        self.batch = None
 
-    def attach(self, plant: Plant) -> None:
+    def attach(self, plant: Plant | ChainPlant) -> None:
         """The flight's plant, before its first step."""
-        self.batch = PlantBatch(plant, self.threads)
+        self.batch = lookahead(plant, self.threads)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray

@@ -19,6 +19,7 @@ import numpy as np
 from mujoco import rollout
 
 from ...frames import rotation_matrix
+from ...sim.chain import ChainPlant, RotorLoop
 from ...sim.mjcf import THRUST_ACTUATOR
 from ...sim.plant import Plant
 
@@ -116,3 +117,69 @@ class PlantBatch:
             record["v"][:, j] = state[:, qv : qv + 3]
             record["v_load"][:, j] = state[:, qv + 6 : qv + 9]
         return record
+
+
+class ChainBatch:
+    """Look-ahead of a ``sim.chain.ChainPlant``: K plans from its state now, stepped together
+    (as ``PlantBatch``; the rotors' loop and the drag are the plant's own ``RotorLoop`` and
+    ``ChainForces``, run for K states between the MuJoCo steps)."""
+
+    def __init__(self, plant: ChainPlant, threads: int = 1) -> None:
+        m = plant.model
+        if mujoco.mj_stateSize(m, _STATE) != 1 + m.nq + m.nv + m.na:
+            raise ValueError("ChainBatch expects a model whose state is time, qpos, qvel, act")
+        self.plant = plant
+        self.threads = threads
+        self._ncontrol = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+        self._datas = [mujoco.MjData(m) for _ in range(threads)]
+        self._pool = rollout.Rollout(nthread=threads) if threads > 1 else None
+
+    def advance(self, plans: np.ndarray, wind: np.ndarray) -> dict[str, np.ndarray]:
+        """As ``PlantBatch.advance``: K plans (K, N, 4) from the plant's state now in the wind
+        (3,) m/s -> p, v, p_load, v_load (K, N, 3), q (K, N, 4) w-x-y-z after each period."""
+        plant = self.plant
+        cfg, m = plant.cfg, plant.model
+        k_count, n_steps = plans.shape[:2]
+        qv, lq, lv = 1 + m.nq, 1 + plant.load_qpos, 1 + m.nq + plant.load_qvel
+        wind = np.asarray(wind, dtype=float)
+        state0 = np.empty(mujoco.mj_stateSize(m, _STATE))
+        mujoco.mj_getState(m, plant.data, state0, _STATE)
+        state = np.tile(state0, (k_count, 1))
+        out = np.empty((k_count, 1, state.shape[1]))
+        control = np.zeros((k_count, 1, self._ncontrol))
+        xfrc = control[:, 0].reshape(k_count, m.nbody, 6)
+        loop = RotorLoop(cfg, plant.params, k_count)
+        loop.take(plant.rotors, k_count)
+        thrust = np.full(k_count, plant.command[0])  # the command still held for the latency
+        rates = np.tile(plant.command[1], (k_count, 1))
+        models = [m] * k_count
+        runner = self._pool.rollout if self._pool is not None else rollout.rollout
+        dims = {"p": 3, "v": 3, "q": 4, "p_load": 3, "v_load": 3}
+        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in dims.items()}
+        for j in range(n_steps):
+            scale = plant.scale(plant.time + j * cfg.control_dt)
+            for s in range(cfg.substeps):
+                if s == plant.latency_steps:
+                    thrust, rates = plans[:, j, 0], plans[:, j, 1:4]
+                if loop.ideal:
+                    state[:, qv + 3 : qv + 6] = rates
+                force_b, torque_b = loop.wrench(thrust, rates, state[:, qv + 3 : qv + 6], scale)
+                rot = rotation_matrix(state[:, 4:8])
+                xfrc[:, plant.quad, 0:3], xfrc[:, plant.quad, 3:6] = plant.forces.vehicle(
+                    rot, state[:, qv : qv + 3], wind, force_b, torque_b
+                )
+                xfrc[:, plant.load, 0:3] = plant.forces.load(state[:, lv : lv + 3], wind)
+                runner(models, self._datas, state, control, skip_checks=True, nstep=1,
+                       control_spec=mujoco.mjtState.mjSTATE_XFRC_APPLIED, state=out)  # fmt: skip
+                state = out[:, 0].copy()
+            record["p"][:, j], record["q"][:, j] = state[:, 1:4], state[:, 4:8]
+            record["p_load"][:, j] = state[:, lq : lq + 3]
+            record["v"][:, j], record["v_load"][:, j] = state[:, qv : qv + 3], state[:, lv : lv + 3]
+        return record
+
+
+def lookahead(plant: Plant | ChainPlant, threads: int = 1) -> PlantBatch | ChainBatch:
+    """The look-ahead of a plant of either family."""
+    return (
+        ChainBatch(plant, threads) if isinstance(plant, ChainPlant) else PlantBatch(plant, threads)
+    )

@@ -30,6 +30,7 @@ from ...deploy.predictor import torch_threads
 from ...fileio import read_json, write_npz
 from ...models.prediction import PredictionModel
 from ...sim.config import SimConfig, vehicle_params
+from ...sim.plants import plant_config
 from ...vehicle_file import VEHICLE_FILE, load_vehicle
 from ...workers import run_jobs
 from .config import RecordConfig
@@ -71,7 +72,7 @@ def record_flights(
     ``config.flights``. Flights shorter than one training window (``WindowConfig().length``)
     are left out. Nothing is left at ``out`` if it fails."""
     base = Path(base)
-    sim = _base_sim(base)
+    sim = _base_sim(base, config.plant)
     splits = read_splits(base)
     files = flight_files(base)
     plan = [(maneuver, seed, f"mpc_{maneuver}_{seed}")
@@ -104,15 +105,15 @@ def record_flights(
         made = {"sim": sim, "base": str(base.resolve()), "version": __version__,
                 "recorded": {"model": str(model), **_jsonable(config)}}  # fmt: skip
         folder = writer.finish({**splits, "train": [*splits["train"], *kept]},
-                               vehicle_params(SimConfig()), made)  # fmt: skip
+                               vehicle_params(plant_config(config.plant)), made)  # fmt: skip
     return Recorded(folder, tuple(kept), tuple(n for n in kept if done[n][1]), tuple(short))
 
 
-def _base_sim(base: Path) -> dict:
+def _base_sim(base: Path, plant: str) -> dict:
     """The base's simulator config (its ``vehicle.json``), checked to be the nominal simulator
     the MPC flies, excitation aside; a ValueError naming the file otherwise."""
     path = base / VEHICLE_FILE
-    nominal = SimConfig()
+    nominal = plant_config(plant)
     sim = read_json(path).get("sim") if path.is_file() else None
     if sim is None or load_vehicle(base) != vehicle_params(nominal):
         raise ValueError(
@@ -137,18 +138,18 @@ def _jsonable(config: RecordConfig) -> dict:
 
 
 @lru_cache(maxsize=1)
-def _model(spec: str, backend: str) -> PredictionModel:
+def _model(spec: str, backend: str, plant: str) -> PredictionModel:
     """The MPC's model, loaded once per process (every flight of a recording flies the same)."""
-    return load_model(spec, vehicle_params(SimConfig()), backend=backend)
+    return load_model(spec, vehicle_params(plant_config(plant)), backend=backend)
 
 
 def _record(job: _Job) -> tuple[str, int, str | None]:
     """Fly one recorded flight and write it; (name, recorded steps, why it stopped or None)."""
     cfg = job.config
-    nominal = SimConfig()
+    nominal = plant_config(cfg.plant)
     params = vehicle_params(nominal)
     with torch_threads(job.threads):
-        model = _model(job.model, cfg.backend)
+        model = _model(job.model, cfg.backend, cfg.plant)
         mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, knots=knots_for(cfg.horizon),
                         temperature=cfg.temperature, max_swing=cfg.max_swing)  # fmt: skip
         controller = mpc_maker(model, InputLimits.from_sim(nominal), mpc, params)(job.seed)

@@ -52,6 +52,7 @@ from ...models.checkpoints import checkpoint_meta, checkpoint_path
 from ...models.prediction import PHYSICS, PredictionModel
 from ...sim.config import SimConfig, tuples_from_json
 from ...sim.dataset import vehicle_params
+from ...sim.plants import plant_config as named_plant
 from ...workers import run_jobs
 from .config import (
     COST_GRID,
@@ -111,7 +112,7 @@ def run_study(
     if (out / "results.json").exists():
         raise ValueError(f"{out} holds the flights of a `control` comparison (results.json), "
                          "which lie where the study's would land; use another --out")  # fmt: skip
-    nominal = SimConfig()
+    nominal = named_plant(cfg.plant)
     params = vehicle_params(nominal)
     limits = InputLimits.from_sim(nominal)
     models = _models(learned, params, cfg.backend)
@@ -138,7 +139,7 @@ def run_study(
         plans = _plan(cfg, settings, models, params, limits, nominal, controllers, plants)
         if workers <= 1:
             for flown in plans:
-                plant_cfg = plant_config(flown.plant)
+                plant_cfg = study_plant(cfg, flown.plant)
                 for maneuver in cfg.maneuvers:
                     for seed in cfg.seeds:
                         fly_once(out, flown, maneuver, seed, plant_cfg, limits, cfg.steps, progress)
@@ -176,7 +177,7 @@ def _worker_plans(
 ) -> dict[tuple[str, str], Flown]:
     """Every (plant, label) -> ``Flown`` of the study, built once per worker process from the
     settings its parent wrote."""
-    nominal = SimConfig()
+    nominal = named_plant(cfg.plant)
     params = vehicle_params(nominal)
     models = _models(learned, params, cfg.backend)
     path = Path(out) / "settings.json"
@@ -191,8 +192,9 @@ def _fly_job(job: _Job) -> str:
     flown = _worker_plans(job.out, job.learned, job.cfg, job.controllers)[(job.plant, job.label)]
     lines: list[str] = []
     with torch_threads(job.threads):
-        fly_once(Path(job.out), flown, job.maneuver, job.seed, plant_config(job.plant),
-                 InputLimits.from_sim(SimConfig()), job.cfg.steps, lines.append)  # fmt: skip
+        limits = InputLimits.from_sim(named_plant(job.cfg.plant))
+        fly_once(Path(job.out), flown, job.maneuver, job.seed, study_plant(job.cfg, job.plant),
+                 limits, job.cfg.steps, lines.append)  # fmt: skip
     return lines[0] if lines else ""
 
 
@@ -206,9 +208,10 @@ def _models(
     return models
 
 
-def plant_config(plant: str) -> SimConfig:
-    """The simulator's config of a study plant: NOMINAL or a ``SHIFTS`` name."""
-    nominal = SimConfig()
+def study_plant(cfg: StudyConfig, plant: str) -> SimConfig:
+    """The simulator's config of a study plant: NOMINAL (the study's named plant,
+    ``StudyConfig.plant``) or a ``SHIFTS`` name (a shift of it)."""
+    nominal = named_plant(cfg.plant)
     return nominal if plant == NOMINAL else SHIFTS[plant](nominal)
 
 
@@ -287,7 +290,9 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
     if path.exists():
         settings = read_json(path)
         mine = _jsonable(asdict(cfg))
-        differ = [k for k in SETTINGS_FIELDS if settings["config"].get(k) != mine[k]]
+        # a field the file lacks was added since, with the value its flights had
+        was = _jsonable(asdict(StudyConfig()))
+        differ = [k for k in SETTINGS_FIELDS if settings["config"].get(k, was[k]) != mine[k]]
         if differ:
             raise ValueError(
                 f"{path} was written for another study configuration ({', '.join(differ)} "
@@ -380,7 +385,7 @@ def _best(
     """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds, and
     its ``tuning_score``; ``start``: a (choice, score) already flown, kept
     unless one scores strictly better."""
-    nominal = SimConfig()
+    nominal = named_plant(cfg.plant)
     best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
         mpc = MPCConfig(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)

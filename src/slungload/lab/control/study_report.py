@@ -42,6 +42,7 @@ from ...reporting import (
 from ...run_config import SMOKE_PRESET
 from ...sim.config import SimConfig, tuples_from_json, vehicle_params
 from ...sim.flight import flight_reference
+from ...sim.plants import plant_config
 from .config import NOMINAL, STUDY_KINDS, UNSAFE_SWING, StudyConfig
 from .report import plot_paths
 from .results import (
@@ -199,7 +200,7 @@ def _share_cell(share: float, low: float, high: float) -> str:
     return cell(share) + bounds
 
 
-def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> str:
+def cost_table(out: Path, rows, n: int, mpc: MPCConfig, config: StudyConfig) -> str:
     """The MPC's own cost at N = ``n`` (``closed_loop.realized_cost`` under ``mpc``, the
     settings the learned MPC and the oracle fly) summed over each flight of the physics, learned
     and oracle MPCs that all three flew to the end: means per term, the learned MPC against the
@@ -211,8 +212,10 @@ def cost_table(out: Path, rows, n: int, mpc: MPCConfig, steps: int | None) -> st
     keys = [k for k in sets[0] if all(k in s and s[k]["completed"] for s in sets)]
     if not keys:
         return "(no flight all three finished)"
-    params = vehicle_params(SimConfig())
-    refs = {k: flight_reference(k[0], seed=k[1], steps=steps) for k in keys}
+    nominal = plant_config(config.plant)
+    params = vehicle_params(nominal)
+    refs = {k: flight_reference(k[0], seed=k[1], config=nominal, steps=config.steps)
+            for k in keys}  # fmt: skip
     costs = [{k: realized_cost(load_log(out, s[k]), refs[k], mpc, params) for k in keys}
              for s in sets]  # fmt: skip
     heads = ["total", *COST_TERMS]
@@ -398,7 +401,7 @@ def _oracle_gap_section(
             f"The MPC's own cost over each flight at N = {n} (the learned MPC's settings, "
             "which the oracle flies; terms by weight group, no terminal weight):",
             "",
-            cost_table(out, rows, n, mpc, config.steps),
+            cost_table(out, rows, n, mpc, config),
             "",
         ]
     return parts
