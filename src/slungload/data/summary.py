@@ -189,13 +189,15 @@ def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
 def _check_lines(checks: dict[str, CheckSummary]) -> list[str]:
     if not checks:
         return []
+    width = max(38, *(len(q) + 1 for q in checks))
     lines = [
         "",
-        f"{'consistency check':<38}{'min':>9}{'max':>9}  {'expected':<28}outside",
+        f"{'consistency check':<{width}}{'min':>9}{'max':>9}  {'expected':<28}outside",
     ]
     for quantity, c in checks.items():
         lines.append(
-            f"{quantity:<38}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}{len(c.outside) or '-'}"
+            f"{quantity:<{width}}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}"
+            f"{len(c.outside) or '-'}"
         )
     for quantity, c in checks.items():
         if c.outside:
