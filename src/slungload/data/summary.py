@@ -196,8 +196,7 @@ def _check_lines(checks: dict[str, CheckSummary]) -> list[str]:
     ]
     for quantity, c in checks.items():
         lines.append(
-            f"{quantity:<{width}}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}"
-            f"{len(c.outside) or '-'}"
+            f"{quantity:<{width}}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}{len(c.outside) or '-'}"
         )
     for quantity, c in checks.items():
         if c.outside:
