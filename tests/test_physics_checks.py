@@ -21,7 +21,7 @@ from log_files import PARAMS, default_columns, truth, write_csv
 
 from slungload import frames
 from slungload.cli import main
-from slungload.data.alignment import RESIDUAL, noise_floor
+from slungload.data.alignment import RESIDUAL, align_tracks, noise_floor
 from slungload.data.consistency import (
     CABLE_PULL,
     THRUST,
@@ -35,6 +35,7 @@ from slungload.data.consistency import (
     physics_checks,
 )
 from slungload.data.importing import ImportOptions, SecondLog, import_logs
+from slungload.data.readers.logs import LogError, Stream
 from slungload.data.summary import summarize
 
 TOTAL = PARAMS.mass_quad + PARAMS.mass_load
@@ -266,3 +267,12 @@ def test_physics_checks_skip_a_flight_too_short_to_differentiate():
     a = circling(t)
     q = a["attitude"][:, [3, 0, 1, 2]]
     assert physics_checks(a["p"], q, a["p_load"], a["T_ref"], PARAMS, dt=PARAMS.dt) == ()
+
+
+def test_a_track_sparser_than_max_gap_names_it():
+    slow, fast = np.arange(0.0, 20.0, 0.2), np.arange(0.0, 20.0, 0.01)  # 5 Hz and 100 Hz
+    first = Stream("topic pose", slow, truth(slow)["p"])
+    second = Stream("columns p_x, p_y, p_z", fast, truth(fast)["p"])
+    with pytest.raises(LogError, match=r"topic pose has a sample every 0\.2 s .*--max-gap 0\.1"):
+        align_tracks(first, second, max_gap=0.1)
+    assert align_tracks(first, second, max_gap=0.25).residual < 0.01

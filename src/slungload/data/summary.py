@@ -164,7 +164,8 @@ def _flight_checks(f: Flight, params: VehicleParams, own_cable: bool) -> tuple[C
     """The flight's figures, held to its own constants where its file records them."""
     p, _, q, p_load = split_state(f.states)
     thrust = f.inputs[:, THRUST][:, 0]
-    return flight_checks(p, q, p_load, thrust, f.constants or params, own_cable=own_cable)
+    dt = float(np.median(np.diff(f.time))) if len(f) > 1 else None  # the file's own step
+    return flight_checks(p, q, p_load, thrust, f.constants or params, own_cable=own_cable, dt=dt)
 
 
 def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
