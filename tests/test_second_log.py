@@ -240,12 +240,12 @@ def test_second_log_of_another_flight_is_refused_and_nothing_written(tmp_path, r
     assert code == 2 and len(lines) == 1, err
     line = lines[0]
     assert line.startswith(f"slungload import: error: {ulog} + {bag} (time offset "), line
-    tolerance = ConsistencyLimits().align_residual
-    for word in (RESIDUAL, f"(expected <= {tolerance:g})", "different flights",
+    tolerance = ConsistencyLimits().align_floor  # 0.5 mm of noise: the floor rules
+    for word in (RESIDUAL, f"(expected <= {tolerance:g}: ", "different flights",
                  "--align-tolerance", "--force"):  # fmt: skip
         assert word in line, (word, line)
     residual = float(line.split(f"{RESIDUAL} = ")[1].split(" ")[0])
-    assert residual > 4 * tolerance, line  # measured: 0.43 m (other flight), 1.07 m (scrambled)
+    assert residual > 40 * tolerance, line  # measured: 0.43 m (other flight), 1.07 m (scrambled)
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == [
         "flight.ulg",
         "mocap.bag",

@@ -349,8 +349,9 @@ def _add_import_second(p: argparse.ArgumentParser) -> None:
         "--align-tolerance",
         type=float,
         metavar="M",
-        help="largest RMS vehicle position mismatch after alignment, m (default "
-        f"{ConsistencyLimits().align_residual:g})",
+        help="largest RMS vehicle position mismatch after alignment, m (default: "
+        f"{ConsistencyLimits().align_noise:g} times the noise the two tracks show, at least "
+        f"{ConsistencyLimits().align_floor:g} and at most {ConsistencyLimits().align_residual:g})",
     )
 
 
@@ -472,7 +473,11 @@ def cmd_import(args: argparse.Namespace) -> int:
         seed=args.seed,
         force=args.force,
         limits=ConsistencyLimits(
-            **({} if args.align_tolerance is None else {"align_residual": args.align_tolerance})
+            **(
+                {}
+                if args.align_tolerance is None
+                else {"align_residual": args.align_tolerance, "align_floor": args.align_tolerance}
+            )
         ),
     )
     given = {"roles": args.from_second, "time_offset": args.time_offset, "rotation": args.align}

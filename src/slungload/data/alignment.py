@@ -18,10 +18,15 @@ vehicle positions both logs hold, ``align_tracks`` estimates
   rotation (``"full"``, Kabsch), and a translation;
 - the residual: the RMS of |p_first - (R p_second(t - tau) + c)| over the first log's samples
   in the overlap (in m), and the RMS spread of the vehicle's path there (the rotation is only
-  as good as the path is wide).
+  as good as the path is wide);
+- the tracks' noise floor (``noise_floor``): what the residual of two logs of the same flight
+  comes to, from each track's own sample-to-sample scatter. The residual must stay within
+  ``ConsistencyLimits.align_noise`` times it (or ``align_floor``, whichever is larger, and
+  ``align_residual`` at most): a true second log matches to about 1 mm, a repeat of the same
+  mission to 20-50 mm, which only this relative limit tells apart.
 
-The candidate with the smallest residual wins. Another offset that also fits within
-``align_residual`` means the track cannot tell them apart (a repeated maneuver, a vehicle that
+The candidate with the smallest residual wins. Another offset that also fits within that
+limit means the track cannot tell them apart (a repeated maneuver, a vehicle that
 hardly moves): an error naming both, which ``time_offset`` (``--time-offset``) settles; a
 given offset is used as it is, and the frame is still fitted.
 
@@ -94,6 +99,7 @@ class Alignment:
     samples: int  # samples of the first log in the fit
     estimated: bool  # the offset was estimated (False: given)
     others: tuple[tuple[float, float], ...] = ()  # (offset s, residual m) of other candidates
+    noise: float = 0.0  # m, the residual two noisy logs of one flight show (``noise_floor``)
 
     @property
     def yaw(self) -> float:
@@ -130,6 +136,7 @@ class Alignment:
             "spread_m": self.spread,
             "overlap_s": self.overlap,
             "samples": self.samples,
+            "noise_floor_m": self.noise,
             "other_offsets_s_residual_m": [list(o) for o in self.others],
         }
 
@@ -159,7 +166,18 @@ def align_tracks(
             f"{limits.align_duration:g} s an alignment needs (ConsistencyLimits.align_duration)"
         )
     need = max(limits.align_overlap * shorter, limits.align_duration)
+    sparse = [(s.source, _median_step(t)) for s, t in ((first, t1), (second, t2))]
+    sparse = [(source, step) for source, step in sparse if step > max_gap]
+    if sparse:
+        source, step = sparse[0]
+        raise LogError(
+            f"{what}: the vehicle track {source} has a sample every {step:.3g} s (median), "
+            f"further apart than --max-gap {max_gap:g} s: every step is a gap and nothing can "
+            "be aligned; raise --max-gap above its step (ImportOptions.max_gap)"
+        )
     track = _Tracks(t1, p1, t2, p2, np.gradient(p2, t2, axis=0), rotation, max_gap, need)
+    noise = math.hypot(noise_floor(t1, p1, max_gap), noise_floor(t2, p2, max_gap))
+    tolerance = residual_limit(noise, limits)
     if time_offset is not None:
         fit = _fit(track, time_offset)
         if fit is None:
@@ -172,7 +190,7 @@ def align_tracks(
                 f"clock; at least {need:.2f} s are needed); leave --time-offset out to "
                 "estimate it"
             )
-        return _alignment(fit, track, estimated=False)
+        return _alignment(fit, track, estimated=False, noise=noise)
     step = max(GRID_STEP, _median_step(t1), _median_step(t2))
     # a repeated maneuver gives many equal peaks: screen them by the fit, refine the best
     screened = [_fit(track, tau) for tau in _peaks(track, step, limits, what)]
@@ -189,18 +207,41 @@ def align_tracks(
         if all(abs(f.offset - g.offset) > 0.5 * PEAK_SEPARATION for g in distinct):
             distinct.append(f)
     best, others = distinct[0], distinct[1:]
-    rivals = [f for f in others if f.residual <= limits.align_residual]
+    rivals = [f for f in others if f.residual <= tolerance]
     if rivals:
         fit_list = "; ".join(
             f"{f.offset:.3f} s: {1000 * f.residual:.1f} mm RMS" for f in [best, *rivals]
         )
         raise LogError(
             f"{what}: the vehicle tracks fit at several time offsets ({fit_list}; tolerance "
-            f"{limits.align_residual:g} m): a repeated maneuver or a vehicle that hardly moves "
+            f"{tolerance:.3g} m): a repeated maneuver or a vehicle that hardly moves "
             "cannot tell them apart; give the offset, s added to the second log's stamps, with "
             "--time-offset SECONDS (SecondLog.time_offset)"
         )
-    return _alignment(best, track, estimated=True, others=[(f.offset, f.residual) for f in others])
+    return _alignment(best, track, estimated=True, noise=noise,
+                      others=[(f.offset, f.residual) for f in others])  # fmt: skip
+
+
+def noise_floor(t: np.ndarray, p: np.ndarray, max_gap: float) -> float:
+    """m, the RMS 3-D scatter of a position track (n, 3) at stamps t (n,) s about its smooth
+    path: per axis 1.4826 MAD / sqrt 6 of the second differences (white noise of standard
+    deviation s gives them 6 s^2; the median ignores the few that a manoeuvre or a dropout
+    makes large), over samples whose both steps are within ``max_gap`` and alike. A sparse
+    track's differences hold some of its motion: its floor errs high (a looser limit)."""
+    steps = np.diff(t)
+    even = (steps[1:] <= max_gap) & (steps[:-1] <= max_gap)
+    even &= np.abs(steps[1:] - steps[:-1]) <= 0.25 * np.maximum(steps[1:], steps[:-1])
+    d2 = (p[2:] - 2.0 * p[1:-1] + p[:-2])[even]
+    if len(d2) < 10:
+        return 0.0
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(np.sqrt(np.sum((1.4826 * mad) ** 2 / 6.0)))
+
+
+def residual_limit(noise: float, limits: ConsistencyLimits) -> float:
+    """m, the largest alignment residual accepted for tracks of the noise floor ``noise`` m:
+    ``align_noise`` times it, at least ``align_floor``, at most ``align_residual``."""
+    return min(limits.align_residual, max(limits.align_floor, limits.align_noise * noise))
 
 
 def fit_rigid(a: np.ndarray, b: np.ndarray, rotation: str = "yaw") -> tuple[np.ndarray, np.ndarray]:
@@ -303,18 +344,23 @@ def _within(stream: Stream, start: float, end: float) -> Stream:
 
 
 def alignment_checks(alignment: Alignment, limits: ConsistencyLimits) -> tuple[Check, Check]:
-    """The residual and the path's spread against their limits."""
+    """The residual (against ``residual_limit`` of the tracks' noise floor) and the path's
+    spread against their limits."""
     how = "the estimated" if alignment.estimated else "the given"
+    tolerance = residual_limit(alignment.noise, limits)
     return (
         Check(
             RESIDUAL,
             alignment.residual,
-            f"<= {limits.align_residual:g}",
-            alignment.residual <= limits.align_residual,
-            "the two logs hold different flights, or vehicle positions that differ by more "
-            "than a rigid transform (an EKF position without motion capture, a frame mapping "
-            f"such as 'world'), or {how} time offset is wrong; --align-tolerance M "
-            "(ConsistencyLimits.align_residual) accepts a larger mismatch",
+            f"<= {tolerance:.3g}: {limits.align_noise:g} x the tracks' noise "
+            f"{1000 * alignment.noise:.2f} mm, at least {limits.align_floor:g}, at most "
+            f"{limits.align_residual:g}",
+            alignment.residual <= tolerance,
+            "the two logs hold different flights (a repeat of the same mission fits to "
+            "centimetres, the same flight to its noise), or vehicle positions that differ by "
+            "more than a rigid transform (an EKF position without motion capture, a frame "
+            f"mapping such as 'world'), or {how} time offset is wrong; --align-tolerance M "
+            "(ConsistencyLimits.align_residual and align_floor) accepts a mismatch up to M",
         ),
         Check(
             SPREAD,
@@ -473,8 +519,9 @@ def _alignment(
     track: _Tracks,
     *,
     estimated: bool,
+    noise: float,
     others: list[tuple[float, float]] | None = None,
 ) -> Alignment:
     overlap = _overlap(track, fit.offset)
     return Alignment(fit.offset, fit.rotation, fit.translation, fit.residual, fit.spread, overlap,
-                     fit.samples, estimated, tuple(others or ()))  # fmt: skip
+                     fit.samples, estimated, tuple(others or ()), noise)  # fmt: skip

@@ -164,7 +164,8 @@ def _flight_checks(f: Flight, params: VehicleParams, own_cable: bool) -> tuple[C
     """The flight's figures, held to its own constants where its file records them."""
     p, _, q, p_load = split_state(f.states)
     thrust = f.inputs[:, THRUST][:, 0]
-    return flight_checks(p, q, p_load, thrust, f.constants or params, own_cable=own_cable)
+    dt = float(np.median(np.diff(f.time))) if len(f) > 1 else None  # the file's own step
+    return flight_checks(p, q, p_load, thrust, f.constants or params, own_cable=own_cable, dt=dt)
 
 
 def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
@@ -189,13 +190,14 @@ def _gather(found: list[tuple[str, Check]]) -> dict[str, CheckSummary]:
 def _check_lines(checks: dict[str, CheckSummary]) -> list[str]:
     if not checks:
         return []
+    width = max(38, *(len(q) + 1 for q in checks))
     lines = [
         "",
-        f"{'consistency check':<38}{'min':>9}{'max':>9}  {'expected':<28}outside",
+        f"{'consistency check':<{width}}{'min':>9}{'max':>9}  {'expected':<28}outside",
     ]
     for quantity, c in checks.items():
         lines.append(
-            f"{quantity:<38}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}{len(c.outside) or '-'}"
+            f"{quantity:<{width}}{c.low:>9.3f}{c.high:>9.3f}  {c.limit:<28}{len(c.outside) or '-'}"
         )
     for quantity, c in checks.items():
         if c.outside:
