@@ -180,3 +180,25 @@ def test_simulate_plant_option_writes_its_vehicle(tmp_path):
     assert params.cable_length == pytest.approx(cfg.cable_length)
     sim = json.loads((tmp_path / "d" / "vehicle.json").read_text())["sim"]
     assert sim["family"] == "chain"
+
+
+def test_plan_errors_are_zero_for_the_plant_itself_and_not_for_physics():
+    from slungload.control.mpc import MPCConfig
+    from slungload.deploy.compiled.batched import load_model
+    from slungload.lab.control.config import PlanErrorConfig
+    from slungload.lab.control.oracle import PlantCandidates
+    from slungload.lab.control.plan_errors import plan_errors
+    from slungload.sim.config import vehicle_params
+
+    cfg = plant_config("chain-light")
+    params = vehicle_params(cfg)
+    models = {"physics": load_model("physics", params, backend="compiled"),
+              "oracle": PlantCandidates()}  # fmt: skip
+    probe = PlanErrorConfig(maneuvers=("baf_very_fast",), seeds=(100,), horizon=6, samples=16,
+                            candidates=6, every=10, steps=31, plant="chain-light")  # fmt: skip
+    out = plan_errors(models, "physics", cfg, params, MPCConfig(), probe)
+    assert out["oracle"]["probes"] == out["physics"]["probes"] == 4  # steps 0, 10, 20, 30
+    assert out["oracle"]["load"].max() < 1e-9 and out["oracle"]["response"].max() < 1e-9
+    assert out["oracle"]["spearman"] == pytest.approx(1.0) and out["oracle"]["regret"] == 0.0
+    assert out["physics"]["load"].shape == (6,)
+    assert out["physics"]["load"][-1] > 1e-3 and out["physics"]["spearman"] < 1.0

@@ -21,7 +21,7 @@ from .common import (
     new_command,
     seed_range,
 )
-from .study_control import add_study_control, add_study_control_loads
+from .study_control import add_study_control, add_study_control_loads, add_study_plan_errors
 
 
 def add_study(sub: Any) -> None:
@@ -44,6 +44,7 @@ def add_study(sub: Any) -> None:
     _add_study_loads(kinds)
     add_study_control(kinds)
     add_study_control_loads(kinds)
+    add_study_plan_errors(kinds)
 
 
 def _add_training_options(p: argparse.ArgumentParser, cfg: Any, seeds_help: str) -> None:

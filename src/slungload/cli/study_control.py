@@ -9,7 +9,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from ..lab.control.config import NOMINAL, SHIFTS, STUDY_KINDS, StudyConfig, UnseenLoadsConfig
+from ..lab.control.config import (
+    NOMINAL,
+    SHIFTS,
+    STUDY_KINDS,
+    PlanErrorConfig,
+    StudyConfig,
+    UnseenLoadsConfig,
+)
 from .common import comma_ints, comma_names, given, joined
 from .control import (
     add_flight_options,
@@ -144,4 +151,48 @@ def cmd_study_control_loads(args: argparse.Namespace) -> int:
     rows = fly_loads(args.model[0], args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
     print(write_loads_report(rows, config, args.out))
+    return 0
+
+
+def add_study_plan_errors(kinds: Any) -> None:
+    cfg = PlanErrorConfig()
+    s = kinds.add_parser(
+        "plan-errors",
+        help="each model's errors along the plans the MPC weighs, against the plant's own",
+        description="Fly the MPC over the physics model and over --model on --plant and, "
+        "every few steps, fly the first candidate plans it weighs on copies of the plant: "
+        "each model's load error along them, the error of their responses to the input "
+        "changes, and how each model ranks them in the MPC's cost (rank correlation, regret); "
+        "plan-errors.md, .csv and .png in OUT (docs/control.md).",
+    )
+    add_model_option(s, "the learned model's run folder or .ckpt (one; none: physics alone)")
+    add_plan_options(s, cfg)
+    add_flight_options(s, cfg, samples_many=False)
+    s.add_argument("--candidates", type=int, metavar="C",
+                   help=f"plans probed per probed step (default {cfg.candidates})")  # fmt: skip
+    s.add_argument("--every", type=int, metavar="STEPS",
+                   help=f"control steps between probes (default {cfg.every})")  # fmt: skip
+    s.add_argument("--flying", type=comma_names, metavar="NAME,NAME",
+                   help=f"whose MPC flies and is probed (default "
+                   f"{','.join(cfg.flying)})")  # fmt: skip
+    s.add_argument("--out", required=True, type=Path, help="output folder")
+    s.add_argument("--quiet", action="store_true", help="no line per flight")
+    s.set_defaults(func=cmd_study_plan_errors)
+
+
+def cmd_study_plan_errors(args: argparse.Namespace) -> int:
+    from ..lab.control.plan_errors import run_plan_errors
+
+    if len(args.model) > 1:
+        raise ValueError(f"study plan-errors takes one --model, got {len(args.model)}")
+    learned = args.model[0] if args.model else None
+    changes = plan_changes(args) | given(
+        samples=args.samples, horizon=args.horizon, steps=args.steps, backend=args.backend,
+        plant=args.plant, candidates=args.candidates, every=args.every,
+        flying=args.flying and tuple(args.flying),
+    )  # fmt: skip
+    if learned is None and "flying" not in changes:
+        changes["flying"] = ("physics",)
+    config = replace(PlanErrorConfig(), **changes)
+    print(run_plan_errors(learned, args.out, config, progress=None if args.quiet else print))
     return 0

@@ -189,6 +189,36 @@ def _check_steps(owner: str, steps: int | None) -> None:
         raise ValueError(f"{owner}.steps: None (the whole maneuver) or >= 1, got {steps}")
 
 
+@dataclass(frozen=True)
+class PlanErrorConfig:
+    """What ``study plan-errors`` flies and probes (``plan_errors.plan_errors``; defaults: the
+    study's maneuvers, three of its evaluation seeds, the real-time MPC's K at N = 15, the
+    default MPC settings)."""
+
+    maneuvers: tuple[str, ...] = STUDY_MANEUVERS
+    seeds: tuple[int, ...] = (100, 101, 102)
+    horizon: int = 15  # N, steps of 0.03 s
+    samples: int = SAMPLES  # K of the flying MPC
+    candidates: int = 32  # plans probed per probed step (the first of the K; the plan first)
+    every: int = 10  # control steps between probes
+    steps: int | None = STEPS  # recorded steps per flight
+    flying: tuple[str, ...] = ("physics", LEARNED)  # whose MPC's plans are probed
+    backend: str = BACKEND
+    plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
+
+    def __post_init__(self) -> None:
+        _check_steps("PlanErrorConfig", self.steps)
+        _check_maneuvers(self.maneuvers)
+        _check_plant(self.plant)
+        if not 2 <= self.candidates <= self.samples:
+            raise ValueError(f"PlanErrorConfig.candidates: 2..samples, got {self.candidates}")
+        if self.every < 1:
+            raise ValueError(f"PlanErrorConfig.every: >= 1, got {self.every}")
+        if not self.flying or set(self.flying) - {"physics", LEARNED}:
+            raise ValueError(f"PlanErrorConfig.flying: physics and/or {LEARNED}, got "
+                             f"{list(self.flying)}")  # fmt: skip
+
+
 # Sim seeds the closed-loop benchmarks fly: recorded training flights must not use them (the
 # cost changes of docs/BENCHMARKS.md were also flown by hand on tuning seeds 200-209).
 BENCHMARK_SEEDS = frozenset(

@@ -35,28 +35,8 @@ from ...control.mppi import CandidateModel, knots_for, trajectory_cost
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from ...sim.controller import Measurement
 from ...sim.maneuvers import Reference
-from .config import SAMPLES, STEPS, STUDY_MANEUVERS
+from .config import LEARNED, PlanErrorConfig
 from .plant_batch import lookahead
-
-
-@dataclass(frozen=True)
-class PlanErrorConfig:
-    """What ``plan_errors`` flies and probes (defaults: the study's maneuvers, three of its
-    evaluation seeds, the real-time MPC's K at N = 15)."""
-
-    maneuvers: tuple[str, ...] = STUDY_MANEUVERS
-    seeds: tuple[int, ...] = (100, 101, 102)
-    horizon: int = 15  # N, steps of 0.03 s
-    samples: int = SAMPLES  # K of the flying MPC
-    candidates: int = 32  # plans probed per probed step (the first of the K)
-    every: int = 10  # control steps between probes
-    steps: int | None = STEPS  # recorded steps per flight
-
-    def __post_init__(self) -> None:
-        if not 2 <= self.candidates <= self.samples:
-            raise ValueError(f"PlanErrorConfig.candidates: 2..samples, got {self.candidates}")
-        if self.every < 1:
-            raise ValueError(f"PlanErrorConfig.every: >= 1, got {self.every}")
 
 
 @dataclass
@@ -108,6 +88,10 @@ class Probe:
 
     def attach(self, plant) -> None:
         self.batch = lookahead(plant)
+        for model in self.models.values():  # a model that predicts with the plant (the oracle)
+            attach = getattr(model, "attach", None)
+            if attach is not None:
+                attach(plant)
 
     def _predict(self, name: str, x_hist, u_past, plans) -> np.ndarray:
         m = self.models[name].history
@@ -219,12 +203,45 @@ def plan_errors(
     }
 
 
+def run_plan_errors(
+    learned: str | Path | None,
+    out: str | Path,
+    config: PlanErrorConfig | None = None,
+    *,
+    progress: Callable[[str], None] | None = print,
+) -> Path:
+    """``plan_errors`` of the physics model and the ``learned`` run (None: physics alone)
+    along the plans of each MPC of ``config.flying``, on ``config.plant``; the report in
+    ``out`` (``write_plan_errors``)."""
+    from ...deploy.compiled.batched import load_model
+    from ...models.prediction import PHYSICS
+    from ...sim.config import vehicle_params
+    from ...sim.plants import plant_config
+
+    cfg = config or PlanErrorConfig()
+    nominal = plant_config(cfg.plant)
+    params = vehicle_params(nominal)
+    models = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
+    if learned is not None:
+        models[LEARNED] = load_model(learned, backend=cfg.backend)
+    missing = [f for f in cfg.flying if f not in models]
+    if missing:
+        raise ValueError(f"the {', '.join(missing)} MPC needs a learned model (--model)")
+    results = {flying: plan_errors(models, flying, nominal, params, MPCConfig(), cfg,
+                                   progress=progress)
+               for flying in cfg.flying}  # fmt: skip
+    title = (f"Plan-wise errors on the {cfg.plant} plant, N = {cfg.horizon}, K = {cfg.samples}, "
+             f"{len(cfg.maneuvers)} maneuvers x {len(cfg.seeds)} seeds")  # fmt: skip
+    return write_plan_errors(results, out, title)
+
+
 def write_plan_errors(
     results: Mapping[str, Mapping[str, dict[str, Any]]], out: str | Path, title: str
 ) -> Path:
     """``plan-errors.md``, ``.csv`` and ``.png`` in ``out``: per flying MPC and model, the
     errors at steps 1, 5, 10 and N, the rank correlation and the regret. ``results``: flying
     model -> ``plan_errors`` output."""
+    from ...fileio import write_text
     from ...reporting import write_csv
 
     out = Path(out)
@@ -238,8 +255,8 @@ def write_plan_errors(
                          **{f"load_{s}": r["load"][s - 1] for s in picks},
                          **{f"response_{s}": r["response"][s - 1] for s in picks},
                          "spearman": r["spearman"], "regret": r["regret"]})  # fmt: skip
-    write_csv(out / "plan-errors.csv", rows)
     heads = list(rows[0])
+    write_csv(out / "plan-errors.csv", heads, [list(row.values()) for row in rows])
     lines = [f"# {title}", "", "Load position errors along the plans the MPC weighs (m, RMS "
              "over the probed candidates), the error of each plan's response to its input "
              "change against the nominal plan's (m), the Spearman correlation of predicted and "
@@ -249,7 +266,7 @@ def write_plan_errors(
     for row in rows:
         cells = [f"{v:.3f}" if isinstance(v, float) else str(v) for v in row.values()]
         lines.append("| " + " | ".join(cells) + " |")
-    (out / "plan-errors.md").write_text("\n".join(lines) + "\n")
+    write_text(out / "plan-errors.md", "\n".join(lines) + "\n")
     _plot(results, out / "plan-errors.png", title)
     return out / "plan-errors.md"
 
