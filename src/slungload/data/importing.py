@@ -217,7 +217,8 @@ def _import_flights(
             raw, record = attach_second(raw, other, second, options, notes)
         got = resample_log(raw, params, options)
         notes += raw.notes + got.notes
-        settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map}
+        settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map,
+                               "median_step_s": got.steps}  # fmt: skip
         if got.forced:
             settings[str(path)]["forced"] = got.forced
         if record is not None:
@@ -334,6 +335,7 @@ def _about(
                     "force",
                 )
             },
+            "max_gap_by_stream": options.gaps_record(),
             "logs": settings,
             "flights": {
                 f.name: {"log": str(f.log), "start": f.start, "steps": f.steps} for f in flights
