@@ -9,8 +9,19 @@ import shutil
 
 import numpy as np
 import pytest
-from log_files import CMD, LOAD, POSE, VEL, Msgs, imported, mavros_topics, truth, typestore
-from log_files import import_to_train, write_bag
+from log_files import (
+    CMD,
+    LOAD,
+    POSE,
+    VEL,
+    Msgs,
+    import_to_train,
+    imported,
+    mavros_topics,
+    truth,
+    typestore,
+    write_bag,
+)
 
 from slungload.cli import main
 from slungload.data.readers import mcap_salvage

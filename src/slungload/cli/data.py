@@ -302,6 +302,17 @@ def _add_import_sources(p: argparse.ArgumentParser) -> None:
         choices=("mavros", "px4"),
         help="default topics of a bag: MAVROS (default) or PX4 over ROS 2",
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="one mapping key over --map's (repeat it; SECTION.KEY=VALUE for a mapping in "
+        "sections ros, ulog, csv; commas make a list of columns; an empty VALUE turns a key "
+        "off), e.g. --set load=vehicle_mocap_odometry:1 (ULog), --set "
+        "attitude=qx,qy,qz,qw (CSV quaternion columns, in x-y-z-w order), --set T_ref=throttle "
+        "--set thrust=normalized (CSV), --set load_pose=/vrpn/cube/pose (bag)",
+    )
 
 
 def _add_import_second(p: argparse.ArgumentParser) -> None:
@@ -481,7 +492,8 @@ def cmd_import(args: argparse.Namespace) -> int:
     from ..config import VehicleParams
     from ..data.consistency import ConsistencyLimits
     from ..data.importing import ImportOptions, SecondLog, import_logs
-    from ..data.readers.logs import load_mapping
+    from ..data.readers import LOG_READERS
+    from ..data.readers.logs import load_mapping, override
     from ..vehicle_file import read_vehicle
 
     overrides = vehicle_overrides(args)
@@ -508,6 +520,10 @@ def cmd_import(args: argparse.Namespace) -> int:
             )
         ),
     )
+    mapping = load_mapping(args.map) if args.map is not None else None
+    if args.set:
+        sections = tuple(dict.fromkeys(r.section for r in LOG_READERS.values()))
+        mapping = override(mapping, args.set, sections)
     given = {"roles": args.from_second, "time_offset": args.time_offset, "rotation": args.align}
     given = {k: v for k, v in given.items() if v is not None}
     second = None
@@ -520,7 +536,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         args.logs,
         args.out,
         params=params,
-        mapping=load_mapping(args.map) if args.map is not None else None,
+        mapping=mapping,
         preset=args.preset,
         options=options,
         second=second,

@@ -37,6 +37,7 @@ class ImportOptions:
     commands: str = "hold"  # "hold" the last set-point, or "linear"
     split: str = "seeded"  # "seeded" draw by recording, "train" (all), or "blocks" in time
     block_gap: int = WINDOW_STEPS  # steps left out between time blocks, at least M + N
+    split_tolerance: float = 0.1  # share of the windows a seeded split may miss by, unnoted
     seed: int = 0
     force: bool = False  # import flights outside the consistency limits (noted, recorded)
     limits: ConsistencyLimits = field(default_factory=ConsistencyLimits)

@@ -133,6 +133,10 @@ def _cut_chunk(content: bytes) -> tuple[bytes, int, int, int | None, str]:
             last = t if last is None else max(last, t)
         kept.append(inner[pos:end])
         pos = end
-    return b"".join(kept), start + pos, messages, last, (
-        f" (a chunk cut short: {messages} of its messages kept, the rest lost)"
+    return (
+        b"".join(kept),
+        start + pos,
+        messages,
+        last,
+        (f" (a chunk cut short: {messages} of its messages kept, the rest lost)"),
     )

@@ -300,7 +300,9 @@ def _collect(reader: Any, conns: dict[str, list], path: Path, progress: bool) ->
     out: dict[str, tuple[str, list]] = {key: (cs[0].msgtype, []) for key, cs in conns.items()}
     chosen = list({c.id: c for cs in conns.values() for c in cs}.values())
     total = sum(c.msgcount for c in chosen)
-    bar = tqdm(total=total, desc=path.name, unit="msg", disable=not progress, leave=False)
+    bar = tqdm(
+        total=total, desc=path.name, unit="msg", disable=None if progress else True, leave=False
+    )
     try:
         for conn, timestamp, raw in reader.messages(connections=chosen):
             try:

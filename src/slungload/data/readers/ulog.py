@@ -118,11 +118,17 @@ def _check_load(
 ) -> None:
     """The load's topic is named, and is not the vehicle's own position topic."""
     if not settings["load"]:
-        carriers = sorted(name for name, data in topics.items() if _carries_position(data))
+        own = _instance(settings["position"])
+        carriers = sorted(
+            name
+            for name, data in topics.items()
+            if _carries_position(data) and name != own and "setpoint" not in name
+        )
         raise LogError(
             f"{path}: the log holds no load position: name the topic that carries it with the "
             f"mapping key 'load' (name or name:instance), or take it from a second log "
-            f"(--second); topics with a position: {', '.join(carriers) or 'none'}"
+            f"(--second); topics with a position (not the vehicle's own, {own}, nor "
+            f"set-points): {', '.join(carriers) or 'none'}"
         )
     if _instance(settings["load"]) == _instance(settings["position"]):
         raise LogError(
