@@ -98,8 +98,11 @@ def test_load_topic_error_lists_only_topics_with_a_position(tmp_path):
         ("vehicle_magnetometer", 0): {"timestamp": t,
                                       **{f"magnetometer_ga[{i}]": np.zeros(n) for i in range(3)}},
     }  # fmt: skip
+    pos = {"timestamp": t, **xyz, **{f"v{a}": np.zeros(n) for a in "xyz"}}
+    extra[("vehicle_local_position_setpoint", 0)] = pos  # a set-point, not a body
     log = ulog(tmp_path / "px4.ulg", extra=extra)
-    with pytest.raises(LogError, match=r"topics with a position: vehicle_local_position:0, "
+    with pytest.raises(LogError, match=r"topics with a position \(not the vehicle's own, "
+                       r"vehicle_local_position:0, nor set-points\): "
                        r"vehicle_mocap_odometry:1$"):  # fmt: skip
         import_logs([log], tmp_path / "x", params=PARAMS, progress=False)
 

@@ -128,7 +128,8 @@ def test_ulog_round_trip(tmp_path):
            ("thrust", 20_000, 700), ("load", 8_333, 300)]}  # fmt: skip
     log = write_ulog(tmp_path / "px4.ulg", px4_topics(us), {"MPC_THR_HOVER": HOVER})
     with pytest.raises(LogError, match=r"px4.ulg: the log holds no load position.*"
-                       r"vehicle_local_position:0, vehicle_mocap_odometry:1"):  # fmt: skip
+                       r"\(not the vehicle's own, vehicle_local_position:0, nor set-points\): "
+                       r"vehicle_mocap_odometry:1"):  # fmt: skip
         import_logs([log], tmp_path / "x", params=PARAMS, progress=False)
     result = import_logs(
         [log],

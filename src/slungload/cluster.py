@@ -93,7 +93,9 @@ def run_on_ray(
     finishes; a job that fails raises here (after ``retries`` retries of a dead worker)."""
     ray = require_ray()
     started = connect(address)
-    bar = tqdm(total=len(jobs), desc=f"{desc} on Ray", unit=unit, disable=not progress)
+    bar = tqdm(
+        total=len(jobs), desc=f"{desc} on Ray", unit=unit, disable=None if progress else True
+    )
     try:
         task = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=retries)(fn)
         pending = [task.remote(job) for job in jobs]

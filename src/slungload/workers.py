@@ -51,7 +51,7 @@ def run_jobs(
 
         yield from run_on_ray(fn, jobs, address=cluster, progress=progress, desc=desc, unit=unit)
         return
-    bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress)
+    bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=None if progress else True)
     try:
         if workers <= 1 or len(jobs) <= 1:
             for job in jobs:

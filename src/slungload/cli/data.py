@@ -302,6 +302,17 @@ def _add_import_sources(p: argparse.ArgumentParser) -> None:
         choices=("mavros", "px4"),
         help="default topics of a bag: MAVROS (default) or PX4 over ROS 2",
     )
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="one mapping key over --map's (repeat it; SECTION.KEY=VALUE for a mapping in "
+        "sections ros, ulog, csv; commas make a list of columns; an empty VALUE turns a key "
+        "off), e.g. --set load=vehicle_mocap_odometry:1 (ULog), --set "
+        "attitude=qx,qy,qz,qw (CSV quaternion columns, in x-y-z-w order), --set T_ref=throttle "
+        "--set thrust=normalized (CSV), --set load_pose=/vrpn/cube/pose (bag)",
+    )
 
 
 def _add_import_second(p: argparse.ArgumentParser) -> None:
@@ -358,6 +369,9 @@ def _add_import_second(p: argparse.ArgumentParser) -> None:
 def _add_import_resampling(p: argparse.ArgumentParser) -> None:
     """How the thrust becomes newtons, where flights split at gaps and how the streams are
     resampled."""
+    from ..data.import_options import GAP_STREAMS, ImportOptions, groups_text  # light
+
+    default = ImportOptions()
     thrust = p.add_mutually_exclusive_group()
     thrust.add_argument(
         "--hover-throttle",
@@ -377,30 +391,44 @@ def _add_import_resampling(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--max-gap",
-        type=float,
-        default=0.1,
-        metavar="S",
-        help="longest time a stream may go without a sample (default 0.1 s)",
+        type=_gap,
+        action="append",
+        metavar="S|STREAM=S",
+        help="longest time a stream may go without a sample, s; STREAM=S for one stream "
+        f"(streams: {', '.join(GAP_STREAMS)}; groups: {groups_text()}; e.g. --max-gap "
+        "position,velocity=0.3 for a 5 Hz EKF position beside 100 Hz motion capture; repeat "
+        "the option) (default {default.max_gap:g} s for every stream)",
     )
     p.add_argument(
         "--on-gap",
         choices=("split", "error"),
-        default="split",
-        help="split the flight at a longer gap (default) or stop with an error",
+        default=default.on_gap,
+        help=f"split the flight at a longer gap or stop with an error (default {default.on_gap})",
     )
     p.add_argument(
         "--min-duration",
         type=float,
-        default=1.0,
+        default=default.min_duration,
         metavar="S",
-        help="drop pieces shorter than this (default 1 s)",
+        help=f"drop pieces shorter than this (default {default.min_duration:g} s)",
     )
     p.add_argument(
         "--commands",
         choices=("hold", "linear"),
-        default="hold",
-        help="resample set-points by holding the last one (default) or linearly",
+        default=default.commands,
+        help="resample set-points by holding the last one or linearly (default "
+        f"{default.commands})",
     )
+
+
+def _gap(text: str) -> list[tuple[str, float]]:
+    """``--max-gap S`` or ``STREAM=S`` (``import_options.parse_gap``)."""
+    from ..data.import_options import parse_gap
+
+    try:
+        return parse_gap(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _add_import_output(p: argparse.ArgumentParser) -> None:
@@ -447,13 +475,25 @@ def _limits_text() -> str:
     return ConsistencyLimits().describe().replace("%", "%%")
 
 
+def _gaps(given: list[list[tuple[str, float]]] | None) -> dict[str, Any]:
+    """``--max-gap`` values -> ``ImportOptions`` keywords: the last plain S is ``max_gap``,
+    each STREAM=S an entry of ``max_gaps``."""
+    pairs = [pair for value in given or [] for pair in value]
+    plain = [gap for role, gap in pairs if not role]
+    out: dict[str, Any] = {"max_gaps": tuple((r, g) for r, g in pairs if r)}
+    if plain:
+        out["max_gap"] = plain[-1]
+    return out
+
+
 def cmd_import(args: argparse.Namespace) -> int:
     import dataclasses
 
     from ..config import VehicleParams
     from ..data.consistency import ConsistencyLimits
     from ..data.importing import ImportOptions, SecondLog, import_logs
-    from ..data.readers.logs import load_mapping
+    from ..data.readers import LOG_READERS
+    from ..data.readers.logs import load_mapping, override
     from ..vehicle_file import read_vehicle
 
     overrides = vehicle_overrides(args)
@@ -464,7 +504,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     options = ImportOptions(
         hover_throttle=args.hover_throttle,
         newtons_per_throttle=args.newtons_per_throttle,
-        max_gap=args.max_gap,
+        **_gaps(args.max_gap),
         on_gap=args.on_gap,
         min_duration=args.min_duration,
         commands=args.commands,
@@ -480,6 +520,10 @@ def cmd_import(args: argparse.Namespace) -> int:
             )
         ),
     )
+    mapping = load_mapping(args.map) if args.map is not None else None
+    if args.set:
+        sections = tuple(dict.fromkeys(r.section for r in LOG_READERS.values()))
+        mapping = override(mapping, args.set, sections)
     given = {"roles": args.from_second, "time_offset": args.time_offset, "rotation": args.align}
     given = {k: v for k, v in given.items() if v is not None}
     second = None
@@ -492,7 +536,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         args.logs,
         args.out,
         params=params,
-        mapping=load_mapping(args.map) if args.map is not None else None,
+        mapping=mapping,
         preset=args.preset,
         options=options,
         second=second,

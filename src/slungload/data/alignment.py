@@ -47,7 +47,7 @@ import numpy as np
 
 from .. import frames
 from .consistency import Check, ConsistencyLimits, refuse_unless_forced
-from .import_options import ImportOptions, SecondLog
+from .import_options import STAMP_EPS, ImportOptions, SecondLog
 from .readers.logs import LogError, RawLog, Stream
 
 GRID_STEP = 0.02  # s, finest grid of the speed cross-correlation (least squares refine it)
@@ -167,14 +167,17 @@ def align_tracks(
         )
     need = max(limits.align_overlap * shorter, limits.align_duration)
     sparse = [(s.source, _median_step(t)) for s, t in ((first, t1), (second, t2))]
-    sparse = [(source, step) for source, step in sparse if step > max_gap]
+    sparse = [(source, step) for source, step in sparse if step > max_gap + STAMP_EPS]
     if sparse:
         source, step = sparse[0]
+        above = math.ceil(1.5 * step / 0.05) * 0.05
         raise LogError(
             f"{what}: the vehicle track {source} has a sample every {step:.3g} s (median), "
             f"further apart than --max-gap {max_gap:g} s: every step is a gap and nothing can "
-            "be aligned; raise --max-gap above its step (ImportOptions.max_gap)"
+            f"be aligned; raise the position's --max-gap above its step (--max-gap "
+            f"position={above:g}; ImportOptions.max_gaps)"
         )
+    max_gap += STAMP_EPS  # a step over it by the stamps' rounding is no gap
     track = _Tracks(t1, p1, t2, p2, np.gradient(p2, t2, axis=0), rotation, max_gap, need)
     noise = math.hypot(noise_floor(t1, p1, max_gap), noise_floor(t2, p2, max_gap))
     tolerance = residual_limit(noise, limits)
@@ -294,7 +297,7 @@ def attach_second(
         rotation=spec.rotation,
         time_offset=spec.time_offset,
         limits=options.limits,
-        max_gap=options.max_gap,
+        max_gap=options.gap("position"),
         what=f"{first.path} and {second.path}",
     )
     checks = alignment_checks(alignment, options.limits)

@@ -46,7 +46,7 @@ from .readers import DATA_SUBFOLDER, LOG_READERS, log_format, log_suffixes
 from .readers.logs import ROLES, LogError, RawLog
 from .readers.npz import from_arrays
 from .resample import backward_velocity, resample_log
-from .split import split_flights, time_blocks
+from .split import SPLIT_FRACTIONS, shares_text, split_flights, time_blocks, windows_of
 from .writer import DatasetWriter
 
 __all__ = ["ImportOptions", "ImportResult", "SecondLog", "backward_velocity", "find_logs",
@@ -209,7 +209,12 @@ def _import_flights(
     if second is not None:
         logs, other = _read_second(logs, second, mapping, preset, progress, notes)
         roles = [r for r in ROLES if r not in second.roles or r == "position"]  # p aligns
-    bar = tqdm(logs, desc="importing logs", unit="log", disable=not progress or len(logs) < 2)
+    bar = tqdm(
+        logs,
+        desc="importing logs",
+        unit="log",
+        disable=None if progress and len(logs) > 1 else True,
+    )
     for path, kind in bar:
         raw = read_log(path, kind, mapping, preset=preset, progress=progress, roles=roles)
         record = None
@@ -217,7 +222,8 @@ def _import_flights(
             raw, record = attach_second(raw, other, second, options, notes)
         got = resample_log(raw, params, options)
         notes += raw.notes + got.notes
-        settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map}
+        settings[str(path)] = {"format": raw.format, **raw.settings, **got.thrust_map,
+                               "median_step_s": got.steps}  # fmt: skip
         if got.forced:
             settings[str(path)]["forced"] = got.forced
         if record is not None:
@@ -334,6 +340,7 @@ def _about(
                     "force",
                 )
             },
+            "max_gap_by_stream": options.gaps_record(),
             "logs": settings,
             "flights": {
                 f.name: {"log": str(f.log), "start": f.start, "steps": f.steps} for f in flights
@@ -370,7 +377,32 @@ def split_by_recording(
     steps = [f.steps for f in flights]
     rng = np.random.default_rng(options.seed)
     splits = split_flights(names, steps, rng, recordings=logs)
+    _uneven_split(splits, dict(zip(names, steps, strict=True)), count, options, notes)
     return flights, {s: list(v) for s, v in splits.items()}
+
+
+def _uneven_split(
+    splits: dict[str, tuple[str, ...]],
+    steps: dict[str, int],
+    count: int,
+    options: ImportOptions,
+    notes: list[str],
+) -> None:
+    """A note when whole recordings cannot come near the shares of the windows
+    (``SPLIT_FRACTIONS``): three equal recordings give a third each."""
+    windows = {s: sum(windows_of(steps[n]) for n in names) for s, names in splits.items()}
+    total = sum(windows.values())
+    if not total:
+        return
+    shares = {s: windows[s] / total for s in SPLIT_FRACTIONS}
+    if max(abs(shares[s] - f) for s, f in SPLIT_FRACTIONS.items()) <= options.split_tolerance:
+        return
+    got = "/".join(f"{round(100 * shares[s])}" for s in SPLIT_FRACTIONS)
+    notes.append(
+        f"{count} recordings split whole give {got} % of the windows to train/val/test, not "
+        f"{shares_text()} %: too few recordings to come nearer; --split blocks cuts each "
+        "recording in time into the shares instead"
+    )
 
 
 def _time_blocks(

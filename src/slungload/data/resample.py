@@ -9,9 +9,11 @@
    (the hover throttle holds the vehicle *with its load*; PX4's ``MPC_THR_HOVER``), or
    ``T = throttle * newtons_per_throttle`` when that slope is given;
 4. keeps the time where every stream has samples, and splits it where any stream has no sample
-   for longer than ``max_gap`` (or stops with an error, ``on_gap="error"``); pieces shorter
-   than ``min_duration`` are dropped with a note; messages name the stream, the gap and the
-   option;
+   for longer than its max gap (``ImportOptions.gap``: its own ``max_gaps`` entry, else
+   ``max_gap``; a step over it by less than ``STAMP_EPS`` is no gap) or stops with an error
+   (``on_gap="error"``); pieces shorter than ``min_duration`` are dropped with a note; messages
+   name the stream, its median step, the gap and the option; a dropout interpolated within a
+   raised max gap (``dropout_steps`` times the stream's median step) is noted;
 5. resamples each piece on a grid of step ``params.dt`` from its first instant: positions and
    velocities linearly, the attitude by slerp, the commands by holding the last set-point
    (``commands="hold"``) or linearly; without a velocity stream, v is the causal second-order
@@ -20,6 +22,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,13 +31,10 @@ import numpy as np
 from .. import frames
 from ..config import VehicleParams
 from .consistency import Check, ConsistencyError, norm_check, refusal, step_check
-from .import_options import ImportOptions
+from .import_options import STAMP_EPS, ImportOptions
 from .readers.logs import ROLES, LogError, RawLog, Stream
 
-# s: stamps' rounding: a sample stamped this close after a grid instant counts as at it, and a
-# time step this much over --max-gap is no gap (a clean 10 Hz stream's steps from nanosecond
-# stamps come out as 0.1000000001 s)
-STAMP_EPS = 1e-6
+__all__ = ["STAMP_EPS", "LogPieces", "backward_velocity", "resample_log", "stream_steps"]
 AIRBORNE = 0.5  # a ULog's last thrust above this share of hover: it ends in the air
 
 
@@ -47,6 +47,7 @@ class LogPieces:
     notes: list[str]
     thrust_map: dict[str, float] = field(default_factory=dict)
     forced: list[str] = field(default_factory=list)
+    steps: dict[str, float] = field(default_factory=dict)  # s, each stream's median step
 
 
 def resample_log(raw: RawLog, params: VehicleParams, options: ImportOptions) -> LogPieces:
@@ -77,8 +78,9 @@ def resample_log(raw: RawLog, params: VehicleParams, options: ImportOptions) -> 
     if len(pieces) > 1:
         notes.append(
             f"{path}: split at {len(pieces) - 1} gap(s) longer than --max-gap {options.max_gap} "
-            f"s ({_worst_gaps(holes)}) into {len(pieces)} pieces"
+            f"s ({_worst_gaps(holes, options)}) into {len(pieces)} pieces"
         )
+    _dropouts(streams, kept, params, options, path, notes)
     if dropped:
         notes.append(
             f"{path}: {dropped} piece(s) shorter than --min-duration {options.min_duration} s "
@@ -87,7 +89,8 @@ def resample_log(raw: RawLog, params: VehicleParams, options: ImportOptions) -> 
     if not kept:
         raise LogError(_no_piece(path, streams, holes, options))
     arrays = [(a, _resample(streams, a, b, params.dt, options)) for a, b in kept]
-    return LogPieces(arrays, notes, thrust_map, forced)
+    steps = {role: round(step, 9) for role, step in stream_steps(streams).items()}
+    return LogPieces(arrays, notes, thrust_map, forced, steps)
 
 
 def _stream_checks(raw: RawLog, options: ImportOptions, notes: list[str]) -> list[str]:
@@ -175,8 +178,8 @@ def _ends_early(
 ) -> None:
     """A note for a stream that stops well before the others (the flight is cut there)."""
     last = max(float(s.time[-1]) for s in streams.values())
-    for s in streams.values():
-        if float(s.time[-1]) == end and last - end > options.max_gap + STAMP_EPS:
+    for role, s in streams.items():
+        if float(s.time[-1]) == end and last - end > options.gap(role) + STAMP_EPS:
             notes.append(
                 f"{path}: {s.source} ends {last - end:.2f} s before the log's other streams: "
                 "the flight ends there"
@@ -221,6 +224,9 @@ def _clean(role: str, stream: Stream, path: Path, notes: list[str]) -> Stream:
     return Stream(stream.source, t, v)
 
 
+Hole = tuple[float, float, str, float]  # s from, s to, the stream's source, its max gap in s
+
+
 def _pieces(
     streams: dict[str, Stream],
     start: float,
@@ -228,26 +234,27 @@ def _pieces(
     options: ImportOptions,
     path: Path,
     t0: float,
-) -> tuple[list[tuple[float, float]], list[tuple[float, float, str]]]:
-    """[start, end] without the gaps (longer than max_gap) of any stream, and the gaps as
-    (from, to, stream)."""
-    holes: list[tuple[float, float, str]] = []
-    for s in streams.values():
+) -> tuple[list[tuple[float, float]], list[Hole]]:
+    """[start, end] without the gaps (longer than the stream's max gap) of any stream, and
+    the gaps as (from, to, stream, its max gap)."""
+    holes: list[Hole] = []
+    for role, s in streams.items():
+        gap = options.gap(role)
         steps = np.diff(s.time)
-        for i in np.flatnonzero(steps > options.max_gap + STAMP_EPS):
+        for i in np.flatnonzero(steps > gap + STAMP_EPS):
             a, b = float(s.time[i]), float(s.time[i + 1])
             if b <= start or a >= end:
                 continue
             if options.on_gap == "error":
                 raise LogError(
                     f"{path}: {s.source}: no sample for {b - a:.3f} s from t = {a - t0:.3f} s "
-                    f"(longer than --max-gap {options.max_gap} s; --on-gap split cuts the "
+                    f"(longer than {_gap_option(role, options)} s; --on-gap split cuts the "
                     "flight there instead)"
                 )
-            holes.append((a, b, s.source))
+            holes.append((a, b, s.source, gap))
     holes = sorted(set(holes))  # a topic that feeds two streams has its gaps twice
     pieces, cursor = [], start
-    for a, b, _ in holes:
+    for a, b, *_ in holes:
         if a > cursor:
             pieces.append((cursor, a))
         cursor = max(cursor, b)
@@ -256,39 +263,97 @@ def _pieces(
     return pieces, holes
 
 
-def _worst_gaps(holes: list[tuple[float, float, str]]) -> str:
-    """Per stream: how many gaps and the longest."""
+def _worst_gaps(holes: list[Hole], options: ImportOptions) -> str:
+    """Per stream: how many gaps and the longest (and its own --max-gap, where it has one)."""
     by: dict[str, list[float]] = {}
-    for a, b, source in holes:
+    limit: dict[str, float] = {}
+    for a, b, source, gap in holes:
         by.setdefault(source, []).append(b - a)
+        limit[source] = gap
     return "; ".join(
-        f"{source}: {len(g)} gap(s), the longest {max(g):.3f} s" for source, g in by.items()
+        f"{source}: {len(g)} gap(s), the longest {max(g):.3f} s"
+        + ("" if limit[source] == options.max_gap else f" (its --max-gap {limit[source]:g} s)")
+        for source, g in by.items()
     )
+
+
+def _gap_option(role: str, options: ImportOptions) -> str:
+    """``--max-gap 0.1`` or, for a stream with its own, ``--max-gap load=0.3``."""
+    gap = options.gap(role)
+    return f"--max-gap {gap:g}" if gap == options.max_gap else f"--max-gap {role}={gap:g}"
+
+
+def stream_steps(streams: dict[str, Stream]) -> dict[str, float]:
+    """s, each stream's median time step (its rate detected: 0.1 for a 10 Hz position), by
+    role."""
+    return {
+        role: float(np.median(np.diff(s.time))) if len(s.time) > 1 else 0.0
+        for role, s in streams.items()
+    }
+
+
+def _dropouts(
+    streams: dict[str, Stream],
+    pieces: list[tuple[float, float]],
+    params: VehicleParams,
+    options: ImportOptions,
+    path: Path,
+    notes: list[str],
+) -> None:
+    """A note for each stream whose steps inside the kept pieces reach ``dropout_steps`` times
+    its own median step and a dataset step (a dropout within its --max-gap, interpolated):
+    raising --max-gap for a sparse stream does not hide another stream's dropout."""
+    steps = stream_steps(streams)
+    seen: set[str] = set()
+    for role, s in streams.items():
+        if s.source in seen or len(s.time) < 2:
+            continue
+        seen.add(s.source)
+        limit = max(options.dropout_steps * steps[role], params.dt)
+        dt = np.diff(s.time)
+        inside = np.zeros(len(dt), dtype=bool)
+        for a, b in pieces:
+            inside |= (s.time[1:] > a) & (s.time[:-1] < b)
+        long = dt[inside & (dt > limit + STAMP_EPS)]
+        if len(long):
+            notes.append(
+                f"{path}: {s.source}: {len(long)} dropout(s) up to {long.max():.3f} s "
+                f"interpolated (sampled every {steps[role]:.3g} s; within "
+                f"{_gap_option(role, options)} s; --max-gap {role}=S below it splits there)"
+            )
 
 
 def _no_piece(
     path: Path,
     streams: dict[str, Stream],
-    holes: list[tuple[float, float, str]],
+    holes: list[Hole],
     options: ImportOptions,
 ) -> str:
-    """Why no piece is left: the streams with gaps, each with its median step, and the options."""
-    rates = []
-    for s in {s.source: s for s in streams.values()}.values():  # position and velocity share one
-        if any(source == s.source for _, _, source in holes):
-            step = float(np.median(np.diff(s.time))) if len(s.time) > 1 else 0.0
-            rates.append(f"{s.source} is sampled every {step:.3f} s (median)")
+    """Why no piece is left: the streams with gaps, each with its median step, and the
+    per-stream options that would take it."""
+    rates, fixes = [], []
+    steps = stream_steps(streams)
+    by_source: dict[str, list[str]] = {}
+    for role, s in streams.items():  # a bag's pose topic gives position and attitude
+        by_source.setdefault(s.source, []).append(role)
+    for source, roles in by_source.items():
+        if any(hole[2] == source for hole in holes):
+            step = steps[roles[0]]
+            rates.append(f"{source} is sampled every {step:.3f} s (median)")
+            above = math.ceil(1.5 * step / 0.05) * 0.05  # a step and a half, in 0.05 s
+            fixes.append(f"--max-gap {','.join(roles)}={above:g}")
     hint = ""
     if rates:
         hint = (
-            f" ({'; '.join(rates)}). A slower stream imports with --max-gap above its step "
-            "(linear interpolation across a step h errs by up to h^2/8 |a|: 1.25 mm at 0.1 s "
-            "and 1 m/s^2)"
+            f" ({'; '.join(rates)}). A slower stream imports with its own --max-gap above its "
+            f"step ({' '.join(fixes)}; the other streams keep --max-gap {options.max_gap:g}); "
+            "linear interpolation across a step h errs by up to h^2/8 |a|: 1.25 mm at 0.1 s "
+            "and 1 m/s^2"
         )
     return (
         f"{path}: no piece of at least --min-duration {options.min_duration} s without a gap "
-        f"longer than --max-gap {options.max_gap} s: {_worst_gaps(holes) or 'no overlap'}"
-        f"{hint}; --on-gap error names the first gap"
+        f"longer than --max-gap {options.max_gap} s: "
+        f"{_worst_gaps(holes, options) or 'no overlap'}{hint}; --on-gap error names the first gap"
     )
 
 

@@ -63,6 +63,7 @@ class DatasetSummary:
     # extrapolation to new kinds of motion, not prediction of known ones
     unseen: dict[str, tuple[str, ...]] = field(default_factory=dict)
     checks: dict[str, CheckSummary] = field(default_factory=dict)  # quantity -> over flights
+    imported: bool = False  # recordings of `slungload import` (vehicle.json), not maneuvers
 
     def to_table(self) -> str:
         p, w = self.params, self.window
@@ -87,7 +88,9 @@ class DatasetSummary:
         for name, (lo, mid, hi) in self.ranges.items():
             lines.append(f"{name:<28}{lo:>9.3f}{mid:>9.3f}{hi:>9.3f}")
         lines += _check_lines(self.checks)
-        if "train" in self.splits:
+        if "train" in self.splits and self.imported:
+            lines += ["", "imported recordings (vehicle.json): split by recording, not maneuvers"]
+        elif "train" in self.splits:
             lines.append("")
             unseen = [f"{k}: {', '.join(v)}" for k, v in self.unseen.items() if v]
             if unseen:
@@ -126,7 +129,10 @@ def summarize(
     splits: dict[str, SplitSummary] = {}
     skipped: list[str] = []
     samples: dict[str, list[np.ndarray]] = {k: [] for k in _RANGES}
-    own_cable = source != "paper defaults" and _cable_reference(folder) != "own median"
+    record = _import_record(folder)
+    checked = record.get("checks", {}) if isinstance(record, dict) else {}
+    cable = checked.get("cable_reference") if isinstance(checked, dict) else None
+    own_cable = source != "paper defaults" and cable != "own median"
     found: list[tuple[str, Check]] = []
     for split, split_names in names.items():
         flights = [load_flight(paths[n], params, notes, load_state=False) for n in split_names]
@@ -152,11 +158,11 @@ def summarize(
     unseen = {
         split: tuple(sorted({maneuver_of(n) for n in split_names} - trained))
         for split, split_names in names.items()
-        if split != "train" and "train" in names
+        if split != "train" and "train" in names and record is None  # recordings: no families
     }
     return DatasetSummary(
         folder, params, source, window, splits, ranges, tuple(skipped), tuple(notes), unseen,
-        _gather(found),
+        _gather(found), imported=record is not None,
     )  # fmt: skip
 
 
@@ -206,16 +212,17 @@ def _check_lines(checks: dict[str, CheckSummary]) -> list[str]:
     return lines
 
 
-def _cable_reference(folder: Path) -> str | None:
-    """How ``slungload import`` checked the cable length ("vehicle constants" or "own
-    median", the latter when no constants were given), from ``vehicle.json``."""
+def _import_record(folder: Path) -> dict | None:
+    """How ``slungload import`` made the dataset (``vehicle.json``'s "import": how it checked
+    the cable length, ...), or None for a dataset not imported (simulated maneuvers)."""
     import json
 
     try:
         data = json.loads((folder / VEHICLE_FILE).read_text(encoding="utf-8"))
-        return data["import"]["checks"]["cable_reference"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError):
         return None
+    record = data.get("import") if isinstance(data, dict) else None
+    return record if isinstance(record, dict) else None
 
 
 def maneuver_of(flight: str) -> str:

@@ -125,7 +125,7 @@ def time_models(
     does not support is timed eager only (``compiled.unsupported`` says why)."""
     horizons = sorted(windows)
     bar = tqdm(total=len(models) * len(horizons), desc=f"timing ({repeats} calls each)",
-               disable=not progress)  # fmt: skip
+               disable=None if progress else True)  # fmt: skip
     out = []
     for label, seed, model in models:
         compiled = None

@@ -183,7 +183,7 @@ def _run_candidates(
     """Every candidate at every horizon: its metrics, its error norms pooled per (label, N)
     over seeds, and its predictions per (id(candidate), N), (W, N, 13)."""
     jobs = [(c, n) for n in sorted(windows) for c in candidates]
-    bar = tqdm(total=len(jobs), unit="run", leave=False, disable=not progress)
+    bar = tqdm(total=len(jobs), unit="run", leave=False, disable=None if progress else True)
     results: list[RunResult] = []
     pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
     predictions: dict[tuple[int, int], Tensor] = {}

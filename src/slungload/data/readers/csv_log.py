@@ -151,7 +151,23 @@ def _read_rows(path: Path) -> tuple[list[str], list[list[str]]]:
         raise LogError(f"{path}: cannot be read as CSV text ({exc})") from None
     if not rows:
         raise LogError(f"{path}: empty file, expected a header row of column names")
-    return [h.strip() for h in rows[0]], rows[1:]
+    header = [h.strip() for h in rows[0]]
+    if header and all(_is_number(h) for h in header if h) and any(header):
+        raise LogError(
+            f"{path}: has no header row: its first row holds {len(header)} numbers "
+            f"({', '.join(header[:4])}{', ...' if len(header) > 4 else ''}), not column names; "
+            "add a first row naming the columns (the defaults: time, p_x, p_y, p_z, ..., T_ref; "
+            "or any names, mapped with --map)"
+        )
+    return header, rows[1:]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _columns(settings: dict[str, Any], key: str, path: Path) -> list[str] | None:
@@ -171,8 +187,16 @@ def _numbers(
 ) -> np.ndarray:
     """Column ``name`` as (rows,) floats, NaN where a cell is blank (not sampled in that row)."""
     if name not in header:
+        why = ""
+        if key in ("w_ref", "T_ref"):
+            why = (
+                ". The commanded thrust and body rates are required: the model predicts the "
+                "flight from them (its inputs u = (T, omega)); a log without the commands cannot "
+                "train it. Map their columns with 'T_ref' (and 'thrust': \"N\" or "
+                "\"normalized\") and 'w_ref'"
+            )
         raise LogError(
-            f"{path}: no column {name!r} (mapping key {key!r}); columns: {', '.join(header)}"
+            f"{path}: no column {name!r} (mapping key {key!r}); columns: {', '.join(header)}{why}"
         )
     j = header.index(name)
     out = np.full(len(rows), np.nan)

@@ -81,6 +81,41 @@ def load_mapping(path: str | Path) -> dict[str, Any]:
     return data
 
 
+def override(mapping: dict[str, Any] | None, given: list[str], sections: tuple[str, ...]) -> dict:
+    """``mapping`` with one-key changes from the command line (``import --set``): ``KEY=VALUE``,
+    or ``SECTION.KEY=VALUE`` for a mapping in sections (``sections``: "ros", "ulog", "csv");
+    a VALUE with commas is a list (CSV columns: ``attitude=qx,qy,qz,qw``), an empty one turns
+    the key off (``velocity=``). The keys are checked by each reader, as a file's are."""
+    out = {k: dict(v) if isinstance(v, dict) else v for k, v in (mapping or {}).items()}
+    sectioned = any(isinstance(out.get(s), dict) for s in sections)
+    for text in given:
+        key, sep, value = text.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise LogError(
+                f"--set {text!r}: expected KEY=VALUE (e.g. load=vehicle_mocap_odometry:1)"
+            )
+        parsed: Any = [v.strip() for v in value.split(",")] if "," in value else value.strip()
+        section, dot, name = key.partition(".")
+        if dot and section not in sections:
+            raise LogError(f"--set {text!r}: unknown section {section!r}; sections: {sections}")
+        if dot:
+            if out and not sectioned:
+                raise LogError(
+                    f"--set {text!r}: the mapping has no sections; give --set {name}=..."
+                )
+            out.setdefault(section, {})[name] = parsed
+            sectioned = True
+        elif sectioned:
+            raise LogError(
+                f"--set {text!r}: the mapping is in sections ({', '.join(sections)}); name "
+                f"one: --set SECTION.{key}=..."
+            )
+        else:
+            out[key] = parsed
+    return out
+
+
 def merge_settings(
     defaults: dict[str, Any], given: dict[str, Any] | None, what: str
 ) -> dict[str, Any]:

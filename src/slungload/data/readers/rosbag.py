@@ -28,6 +28,7 @@ definitions in ``MSG_DEFINITIONS`` (MAVROS 2.x, PX4 v1.14) are registered.
 
 from __future__ import annotations
 
+import tempfile
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any
@@ -180,17 +181,19 @@ def read_bag(
             "load_pose to the load's motion-capture topic"
         )
     notes: list[str] = []
-    try:
-        reader = AnyReader([path], default_typestore=_fallback_typestore())
-        reader.open()
-    except (AnyReaderError, FileNotFoundError, OSError, KeyError, ValueError) as exc:
-        raise LogError(f"{path}: cannot be read as a ROS bag ({exc})") from None
-    try:
-        conns = _connections(reader, topics, path)
-        _register_missing(reader, {c.msgtype for cs in conns.values() for c in cs})
-        samples = _collect(reader, conns, path, progress)
-    finally:
-        reader.close()
+    with tempfile.TemporaryDirectory(prefix="slungload-mcap-") as tmp:
+        source = _salvaged(path, Path(tmp), notes)
+        try:
+            reader = AnyReader([source], default_typestore=_fallback_typestore())
+            reader.open()
+        except (AnyReaderError, FileNotFoundError, OSError, KeyError, ValueError) as exc:
+            raise LogError(_unreadable(path, exc)) from None
+        try:
+            conns = _connections(reader, topics, path)
+            _register_missing(reader, {c.msgtype for cs in conns.values() for c in cs})
+            samples = _collect(reader, conns, path, progress)
+        finally:
+            reader.close()
     kind = "ros2" if reader.is2 else "ros1"
 
     streams: dict[str, Stream] = {}
@@ -205,6 +208,33 @@ def read_bag(
 
 
 # --- reading ---------------------------------------------------------------------------
+
+
+def _salvaged(path: Path, tmp: Path, notes: list[str]) -> Path:
+    """``path``, or for an MCAP file cut short (a killed recorder) a copy of its whole records
+    in ``tmp`` that reads up to the damage (``mcap_salvage``), with a note of what was lost."""
+    from . import mcap_salvage
+
+    if not (path.is_file() and path.suffix.lower() == ".mcap" and mcap_salvage.is_cut(path)):
+        return path
+    out = tmp / path.name
+    kept = mcap_salvage.salvage(path, out)
+    notes.append(kept.describe(path))
+    return out
+
+
+def _unreadable(path: Path, exc: Exception) -> str:
+    """Why a bag cannot be read; for a ROS 1 bag without its index (a killed ``rosbag
+    record``, a truncated copy) the command that repairs it."""
+    text = str(exc)
+    if "not indexed" in text or "index looks damaged" in text:
+        return (
+            f"{path}: the ROS 1 bag has no readable index (a recorder killed before closing "
+            "it leaves none, and a truncated copy loses it): repair it with `rosbag reindex "
+            f"{path}` (ROS 1; the original is kept as .orig.bag), then import it again "
+            f"({text})"
+        )
+    return f"{path}: cannot be read as a ROS bag ({text})"
 
 
 def _fallback_typestore():
@@ -270,7 +300,9 @@ def _collect(reader: Any, conns: dict[str, list], path: Path, progress: bool) ->
     out: dict[str, tuple[str, list]] = {key: (cs[0].msgtype, []) for key, cs in conns.items()}
     chosen = list({c.id: c for cs in conns.values() for c in cs}.values())
     total = sum(c.msgcount for c in chosen)
-    bar = tqdm(total=total, desc=path.name, unit="msg", disable=not progress, leave=False)
+    bar = tqdm(
+        total=total, desc=path.name, unit="msg", disable=None if progress else True, leave=False
+    )
     try:
         for conn, timestamp, raw in reader.messages(connections=chosen):
             try:

@@ -7,7 +7,9 @@ Topics (the mapping keys, defaults in ``ULOG_DEFAULTS``; ``name`` or ``name:inst
 - ``attitude``: ``vehicle_attitude`` (``q[0..3]`` w-x-y-z, FRD body -> NED);
 - ``rates``: ``vehicle_rates_setpoint`` (``roll pitch yaw``, FRD);
 - ``thrust``: ``vehicle_thrust_setpoint`` (``xyz[2]``, normalised, negative up); when the log
-  has no such topic, ``thrust_body[2]`` of the rates set-point (older PX4), with a note;
+  has no such topic (PX4 before 1.13), the rates set-point's ``thrust_body[2]`` or scalar
+  ``thrust`` (positive up), else ``control[3]`` of ``actuator_controls_0`` (the mixer's input),
+  with a note; a mapping may name any of these topics;
 - ``load``: the load's position, from a logged motion-capture topic (``x y z`` or
   ``position[0..2]``, NED), e.g. ``vehicle_mocap_odometry:1`` when a second rigid body is
   streamed to PX4. PX4 logs no load by itself: without ``load`` the import stops with an
@@ -47,7 +49,12 @@ _POSITION_FIELDS = (("x", "y", "z"), ("position[0]", "position[1]", "position[2]
 _VELOCITY_FIELDS = (("vx", "vy", "vz"), ("velocity[0]", "velocity[1]", "velocity[2]"))
 _QUAT_FIELDS = (("q[0]", "q[1]", "q[2]", "q[3]"),)
 _RATE_FIELDS = (("roll", "pitch", "yaw"),)
-_THRUST_FIELDS = (("xyz[2]",), ("thrust_body[2]",))
+# thrust: the set-point's body z (FRD, negative up); PX4 before 1.13: a scalar ``thrust`` of
+# the rates set-point, or only the mixer's input ``control[3]`` of ``actuator_controls_0``
+# (both positive up)
+_THRUST_FIELDS = (("xyz[2]",), ("thrust_body[2]",), ("thrust",), ("control[3]",))
+_THRUST_UP = ("thrust", "control[3]")
+ACTUATOR_CONTROLS = "actuator_controls_0"
 
 
 def read_ulog(
@@ -111,11 +118,17 @@ def _check_load(
 ) -> None:
     """The load's topic is named, and is not the vehicle's own position topic."""
     if not settings["load"]:
-        carriers = sorted(name for name, data in topics.items() if _carries_position(data))
+        own = _instance(settings["position"])
+        carriers = sorted(
+            name
+            for name, data in topics.items()
+            if _carries_position(data) and name != own and "setpoint" not in name
+        )
         raise LogError(
             f"{path}: the log holds no load position: name the topic that carries it with the "
             f"mapping key 'load' (name or name:instance), or take it from a second log "
-            f"(--second); topics with a position: {', '.join(carriers) or 'none'}"
+            f"(--second); topics with a position (not the vehicle's own, {own}, nor "
+            f"set-points): {', '.join(carriers) or 'none'}"
         )
     if _instance(settings["load"]) == _instance(settings["position"]):
         raise LogError(
@@ -197,21 +210,43 @@ def _motion_streams(log: _Topics, wanted: set[str], notes: list[str]) -> dict[st
 
 def _thrust(log: _Topics, notes: list[str]) -> tuple[str, np.ndarray, np.ndarray]:
     """(topic name, (n,) times in s, (n, 1) normalised thrust, FRD: negative up) from the
-    thrust set-point topic, or from the rates set-point's ``thrust_body[2]`` (older PX4)."""
+    topic mapped to ``thrust``; when the log has no such topic (older PX4), from the rates
+    set-point's ``thrust_body[2]`` or scalar ``thrust``, else from ``control[3]`` of
+    ``actuator_controls_0``, with a note."""
     path = log.path
     rates_data = log.topics.get(_instance(log.settings["rates"]), {})
     thrust_spec = str(log.settings["thrust"])
-    thrust_name = thrust_spec if ":" in thrust_spec else f"{thrust_spec}:0"
-    if thrust_spec and thrust_name in log.topics:
-        name, t, thrust, _ = log.series("thrust", _THRUST_FIELDS, "thrust")
+    if thrust_spec and _instance(thrust_spec) in log.topics:
+        key = "thrust"
     elif _fields(rates_data, _THRUST_FIELDS) is not None:
-        name, t, thrust, _ = log.series("rates", _THRUST_FIELDS, "thrust")
-        notes.append(f"{path}: thrust from thrust_body[2] of topic {name}")
+        key = "rates"
+    elif _fields(log.topics.get(f"{ACTUATOR_CONTROLS}:0", {}), _THRUST_FIELDS[3:]) is not None:
+        key = ""
     elif thrust_spec:
         log.topic("thrust")  # raises: names the missing topic
         raise AssertionError  # pragma: no cover
     else:
         raise LogError(f"{path}: no thrust: set the mapping key 'thrust' to a set-point topic")
+    if key:
+        name, t, thrust, data = log.series(key, _THRUST_FIELDS, "thrust")
+    else:  # only the mixer's input holds it
+        spec = {**log.settings, "thrust": ACTUATOR_CONTROLS}
+        name, t, thrust, data = _Topics(log.topics, spec, path).series(
+            "thrust", _THRUST_FIELDS[3:], "thrust"
+        )
+    field = _fields(data, _THRUST_FIELDS)[0]  # type: ignore[index]
+    if key != "thrust":
+        notes.append(
+            f"{path}: no topic {thrust_spec or '(thrust)'}: thrust from {field} of topic {name}"
+            + (
+                " (the rate controller's output to the mixer, a normalised throttle: PX4 "
+                "before 1.13 logs no thrust set-point)"
+                if not key
+                else ""
+            )
+        )
+    if field in _THRUST_UP:
+        thrust = -thrust
     return name, t, thrust
 
 
