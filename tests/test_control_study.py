@@ -28,7 +28,7 @@ from slungload.lab.control.config import (
 )
 from slungload.lab.control.oracle import PlantCandidates
 from slungload.lab.control.results import label_model
-from slungload.lab.control.study import run_study, tune_settings, tuning_score
+from slungload.lab.control.study import load_log, run_study, tune_settings, tuning_score
 from slungload.lab.control.study_report import gap_closed, paired_table, write_study_report
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 from slungload.reporting import gap_interval, gap_share, paired_interval, t975
@@ -400,6 +400,29 @@ def test_the_study_flies_resumes_and_reports(tmp_path):
         run_study(None, out, replace(TINY, oracle_samples=5), progress=None)
     with pytest.raises(ValueError, match="steps differ"):  # whatever flies
         run_study(None, out, replace(TINY, steps=7), controllers=("pid",), progress=None)
+
+
+def test_a_study_flies_its_named_plant_and_keeps_to_it(tmp_path):
+    from slungload.sim.plants import plant_config
+
+    chain = replace(TINY, plant="chain-light", shifts=("load +50%",))
+    out = tmp_path / "study"
+    rows = run_study(None, out, chain, controllers=("physics", "oracle"), progress=None)
+    assert {(r["plant"], r["controller"]) for r in rows} >= {
+        ("nominal", "mpc-physics N=3"), ("nominal", "mpc-oracle N=3"),
+        ("load +50%", "mpc-physics N=3")}  # fmt: skip
+    # the flights are the named plant's: its hover height, not the default's
+    row = next(r for r in rows if r["controller"] == "mpc-physics N=3" and r["plant"] == "nominal")
+    log = load_log(out, row)
+    assert log.states[0, 2] == pytest.approx(plant_config("chain-light").hover_z, abs=0.05)
+    with pytest.raises(ValueError, match="plant differ"):
+        run_study(None, out, replace(chain, plant="default"), controllers=("pid",), progress=None)
+    # a folder written before studies named their plant is the default plant's
+    settings = json.loads((out / "settings.json").read_text())
+    del settings["config"]["plant"]
+    (out / "settings.json").write_text(json.dumps(settings))
+    with pytest.raises(ValueError, match="plant differ"):
+        run_study(None, out, chain, controllers=("pid",), progress=None)
 
 
 def test_a_study_and_a_comparison_never_share_a_folder(tmp_path):
