@@ -36,7 +36,7 @@ USER_ERRORS = (
 # needs one an install left out says which and how to install it.
 EXTRAS = {
     **dict.fromkeys(("torch", "roma", "mujoco", "lightning", "tensorboard", "matplotlib", "tqdm",
-                     "onnx", "numba", "rosbags", "pyulog", "tomli_w"), "full"),
+                     "onnx", "numba", "rosbags", "mcap", "pyulog", "tomli_w"), "full"),
     "onnxruntime": "onboard", "pymavlink": "onboard", "ray": "cluster", "optuna": "cluster",
 }  # fmt: skip
 
