@@ -308,13 +308,14 @@ def test_imported_flight_reads_like_any_npz(tmp_path):
 
 
 def test_log_libraries_load_only_when_a_log_is_read():
-    """``slungload --help`` and the import pipeline's module do not import rosbags / pyulog."""
+    """``slungload --help`` and the import pipeline's module do not import rosbags / pyulog /
+    mcap."""
     import subprocess
     import sys
 
     code = (
         "import sys, slungload.cli as c, slungload.data.importing; c.build_parser(); "
-        "print(sorted({m.split('.')[0] for m in sys.modules} & {'rosbags', 'pyulog'}))"
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'rosbags', 'pyulog', 'mcap'}))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
