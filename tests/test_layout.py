@@ -1,11 +1,11 @@
 """The package's layout: every import points down the data flow, and no import circle.
 
 config/state/fileio/reporting -> physics -> data -> sim -> models, loss -> training ->
-evaluation -> deploy -> control (the product) -> lab (reproduce, studies, benchmarks) -> cli
-(docs/design.md): the product imports nothing from the lab. The simulator is a data
-source above ``data/``: it writes its datasets with ``data``'s writer and split policy, and
-nothing in ``data`` knows it. Read from the source's import statements, so a function-level
-import counts as much as a top-level one.
+evaluation -> deploy -> control -> autopilot (the product) -> lab (reproduce, studies,
+benchmarks) -> cli (docs/design.md): the product imports nothing from the lab. The simulator
+is a data source above ``data/``: it writes its datasets with ``data``'s writer and split
+policy, and nothing in ``data`` knows it. Read from the source's import statements, so a
+function-level import counts as much as a top-level one.
 """
 
 from __future__ import annotations
@@ -27,8 +27,9 @@ ORDER = {  # wing -> floor; a module may import its own floor and those below
     "evaluation": 6,
     "deploy": 7,
     "control": 8,
-    "lab": 9,
-    "cli": 10,
+    "autopilot": 9,
+    "lab": 10,
+    "cli": 11,
 }  # fmt: skip
 
 

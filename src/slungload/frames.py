@@ -149,6 +149,19 @@ def attitudes(q: np.ndarray, world: str, body: str) -> np.ndarray:
     return q
 
 
+def attitudes_to(q: np.ndarray, world: str, body: str) -> np.ndarray:
+    """(..., 4) w-x-y-z attitudes in the package's frames -> the ``world`` and ``body``
+    frames: the inverse of ``attitudes`` (what a simulated autopilot reports in NED / FRD)."""
+    _check(world, WORLD_FRAMES, "world")
+    _check(body, BODY_FRAMES, "body")
+    q = np.asarray(q, float)
+    if world == "ned":
+        q = quat_multiply(quat_conjugate(Q_ENU_FROM_NED), q)
+    if body == "frd":
+        q = quat_multiply(q, Q_FLU_FROM_FRD)
+    return q
+
+
 def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors (..., 3) by unit quaternions (..., 4) w-x-y-z: R(q) v."""
     q = np.asarray(q, float)

@@ -38,8 +38,8 @@ from .mppi import (
     MPCConfig,
     MPCStats,
     MPPIController,
-    ReferenceAhead,
     knots_for,
+    reference_ahead,
     trajectory_cost,
 )
 
@@ -76,13 +76,6 @@ class TorchCandidates:
             torch.from_numpy(x_hist), torch.from_numpy(u_past), torch.from_numpy(plans)
         )
         return states.detach().to("cpu", torch.float64).numpy()
-
-
-def reference_ahead(ref: Reference, k: int, n: int) -> ReferenceAhead:
-    """Rows k+1 .. k+n of the reference (held at its last row past the end): position (n, 3) m,
-    velocity (n, 3) m/s, yaw (n,) rad, float64."""
-    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(), ref.yaw[idx].copy())
 
 
 def window_estimate(params: VehicleParams) -> ConstantsEstimate:

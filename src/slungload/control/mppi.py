@@ -179,6 +179,14 @@ class ReferenceAhead(NamedTuple):
     yaw: np.ndarray  # (N,) rad
 
 
+def reference_ahead(ref, k: int, n: int) -> ReferenceAhead:
+    """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
+    velocity (T, 3), yaw (T,)), held at its last row past the end: position (n, 3) m,
+    velocity (n, 3) m/s, yaw (n,) rad, float64."""
+    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
+    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(), ref.yaw[idx].copy())
+
+
 class Command(NamedTuple):
     """What the controller sends: collective thrust and body rates (FLU body frame)."""
 

@@ -232,17 +232,25 @@ def make_maneuver(name: str, rng: np.random.Generator) -> Maneuver:
 
 
 def sample_reference(
-    maneuver: Maneuver, times: np.ndarray, hover: np.ndarray, eps: float = 1e-3
+    maneuver: Maneuver,
+    times: np.ndarray,
+    hover: np.ndarray,
+    eps: float = 1e-3,
+    *,
+    arena: bool = True,
 ) -> Reference:
     """Reference at ``times`` (T,) s: position hover + offset, derivatives by central differences.
 
-    Times before 0 (the warm-up hover) hold the start point. Positions are clipped to the arena.
+    Times before 0 (the warm-up hover) hold the start point. Positions are clipped to the
+    simulator's arena (centred on the origin) unless ``arena`` is False (a real vehicle's
+    flight, offsets from wherever it starts).
     """
     t = np.maximum(times, 0.0)
     pos = hover + maneuver.offset(t)
-    lo = np.array([-ARENA_XY, -ARENA_XY, ARENA_Z[0]])
-    hi = np.array([ARENA_XY, ARENA_XY, ARENA_Z[1]])
-    pos = np.clip(pos, lo, hi)
+    if arena:
+        lo = np.array([-ARENA_XY, -ARENA_XY, ARENA_Z[0]])
+        hi = np.array([ARENA_XY, ARENA_XY, ARENA_Z[1]])
+        pos = np.clip(pos, lo, hi)
     if maneuver.feedforward:
         p_plus, p_minus = maneuver.offset(t + eps), maneuver.offset(np.maximum(t - eps, 0.0))
         vel = (p_plus - p_minus) / (2.0 * eps)

@@ -1,0 +1,37 @@
+"""What the bridge flies: a maneuver's offsets (``sim.maneuvers``, numpy only) from where
+OFFBOARD started, or that point held, sampled every control period."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..sim.maneuvers import Reference, make_maneuver, sample_reference
+
+HOLD_DURATION = 10.0  # s, a hold flown when no duration is given
+
+
+def flight_reference(
+    start: np.ndarray, yaw: float, h: float, maneuver: str | None, seed: int,
+    duration: float | None,
+) -> Reference:  # fmt: skip
+    """The reference (T + 1 rows, h s apart) from ``start`` (3,) m, world z up, at heading
+    ``yaw`` rad: ``maneuver``'s offsets (drawn as ``sim.flight.simulate_flight`` draws that
+    maneuver for ``seed``: the first stream of the seed's sequence), turned with the heading,
+    or ``start`` held. T: ``duration`` / h, else the maneuver's length, else ``HOLD_DURATION``."""
+    if maneuver is None:
+        steps = round((duration or HOLD_DURATION) / h)
+        pos = np.tile(np.asarray(start, float), (steps + 1, 1))
+        zero = np.zeros_like(pos)
+        return Reference(pos, zero, zero.copy(), np.full(steps + 1, float(yaw)))
+    stream = np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[0])
+    man = make_maneuver(maneuver, stream)
+    steps = round(duration / h) if duration is not None else man.steps
+    ref = sample_reference(man, h * np.arange(steps + 1), np.zeros(3), arena=False)
+    c, s = math.cos(yaw), math.sin(yaw)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # the maneuver's x: heading
+    return Reference(
+        start + ref.position @ turn.T, ref.velocity @ turn.T, ref.acceleration @ turn.T,
+        ref.yaw + yaw,
+    )  # fmt: skip
