@@ -9,9 +9,10 @@ folder or under ``data/`` (the authors' release layout). A new source is a modul
 ``load_flight``, which estimates it for every format alike) and one entry below.
 
 ``LOG_READERS`` does the same for flight *logs* (``slungload import``: ROS bags, PX4 ULog,
-CSV), which are recordings to convert rather than dataset files: a format name -> the suffixes
-it claims, its section of a mapping file and its reader, named as ``module:function`` and
-imported on first use (so rosbags and pyulog load only when such a log is read). A new log
+CSV, MAVLink .tlog), which are recordings to convert rather than dataset files: a format
+name -> the suffixes it claims, its section of a mapping file and its reader, named as
+``module:function`` and imported on first use (so rosbags, pyulog and pymavlink load only
+when such a log is read). A new log
 format is a module here with ``read(path, mapping, *, progress, roles) -> logs.RawLog`` (``roles``:
 the streams wanted, ``logs.ROLES``, None for all; a second log is read for a few) and one entry.
 """
@@ -166,6 +167,7 @@ LOG_READERS: dict[str, LogReader] = {
     "ros2": LogReader((".mcap", ".db3"), "ros", "rosbag:read_bag", "metadata.yaml", True),
     "ulog": LogReader((".ulg",), "ulog", "ulog:read_ulog"),
     "csv": LogReader((".csv",), "csv", "csv_log:read_csv"),
+    "tlog": LogReader((".tlog",), "tlog", "tlog:read_tlog"),  # MAVLink, as `fly` writes it
 }
 
 
