@@ -3,8 +3,8 @@
 A user error (bad path, bad file, bad option) prints one line and exits with status 2;
 ``--debug`` shows the traceback instead. The commands live by stage: ``data`` (simulate,
 maneuvers, inspect, split, import), ``train`` (train, identify), ``evaluate`` (evaluate,
-reproduce, study), ``deploy`` (export, benchmark) and ``control``, each with its parser beside
-it; ``common`` holds what they share.
+reproduce, study), ``deploy`` (export, benchmark), ``control`` and ``autopilot`` (fly, sil),
+each with its parser beside it; ``common`` holds what they share.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import warnings
 from collections.abc import Callable, Sequence
 
 from .._version import __version__
+from .autopilot import add_fly, add_sil
 from .control import add_control, add_record
 from .data import add_import, add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
@@ -30,6 +31,7 @@ USER_ERRORS = (
     IsADirectoryError,
     PermissionError,
     KeyError,
+    TimeoutError,  # nothing answered on the link (fly)
 )
 
 # The extra that brings each optional module, by import name (pyproject.toml): a command that
@@ -64,6 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_tune(sub)
     add_control(sub)
     add_record(sub)
+    add_fly(sub)
+    add_sil(sub)
     return parser
 
 
