@@ -102,6 +102,8 @@ class SilEndpoint:
         self.next_heartbeat = 0.0
         self.log = SilLog()
         self.stopped = threading.Event()
+        # the fault spans, simulated s (a test may move them while it runs)
+        self.state_gap, self.load_gap = cfg.state_gap, cfg.load_gap
 
     # --- the loop -----------------------------------------------------------------------------
     def run(self) -> SilLog:
@@ -159,9 +161,9 @@ class SilEndpoint:
             self.next_heartbeat = self.t + cfg.heartbeat_period
             self._heartbeat()
         usec = round((BOOT + self.t) * 1e6)
-        if not _within(self.t, cfg.state_gap):
+        if not _within(self.t, self.state_gap):
             self._send(px4.odometry_message(usec, p, v, q, plant.rates), lossy=True)
-        if not _within(self.t, cfg.load_gap):
+        if not _within(self.t, self.load_gap):
             zero = np.zeros(3)
             msg = px4.odometry_message(usec, p_load, zero, np.array([1.0, 0, 0, 0]), zero)
             self._send(msg, lossy=True, component=cfg.load_component)

@@ -1,0 +1,254 @@
+"""The MPC on an autopilot, flown through the simulated PX4 on 127.0.0.1 (lockstep): the
+handshake, the faults and the failsafes, each ending in a stated state with nothing
+non-finite sent; the flight's .tlog imports. The MPC's model is the physics model exported
+for the onboard MPC (ONNX, N = 10): the bridge runs on numpy + onnxruntime + pymavlink."""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slungload.autopilot import px4
+from slungload.autopilot.bridge import Bridge
+from slungload.autopilot.config import BridgeConfig, SilConfig
+from slungload.autopilot.sil import SilEndpoint
+from slungload.control.mppi import MPCConfig
+from slungload.deploy.candidates import export_for_mpc
+from slungload.deploy.onboard import OnnxCandidateModel
+
+mavlink = px4.mavlink
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("autopilot")
+    return export_for_mpc("physics", folder / "physics.mpc.onnx", horizon=10).model
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def configs(port: int, **bridge) -> tuple[SilConfig, BridgeConfig]:
+    sil = SilConfig(connection=f"udpout:127.0.0.1:{port}", lockstep_wait=0.05,
+                    heartbeat_period=0.1, duration=60.0)  # fmt: skip
+    fly = BridgeConfig(connection=f"udpin:127.0.0.1:{port}", arm=True, offboard=True,
+                       stream_before_switch=0.2, duration=1.0, hover_time=0.3,
+                       mpc=MPCConfig(samples=16), connect_timeout=5.0)  # fmt: skip
+    return sil, replace(fly, **bridge)
+
+
+def fly_through(model_file: Path, sil_cfg: SilConfig, fly_cfg: BridgeConfig, on_log=None):
+    """One flight: the endpoint in a thread, the bridge here; (bridge result, endpoint, log)."""
+    endpoint = SilEndpoint(sil_cfg)
+    thread = threading.Thread(target=endpoint.run, daemon=True)
+    thread.start()
+    model = OnnxCandidateModel(model_file)
+    lines: list[str] = []
+
+    def log(line: str) -> None:
+        lines.append(line)
+        if on_log is not None:
+            on_log(line, endpoint)
+
+    try:
+        result = Bridge(fly_cfg, model, model.params, log=log).run()
+        time.sleep(0.2)  # the endpoint takes the last messages
+    finally:
+        endpoint.stop()
+        thread.join(5.0)
+    return result, endpoint, lines
+
+
+def assert_finite_on_the_wire(endpoint: SilEndpoint) -> None:
+    assert endpoint.log.setpoints
+    for _, throttle, rates in endpoint.log.setpoints:
+        assert math.isfinite(throttle) and np.isfinite(rates).all()
+    assert not endpoint.log.ignored  # nothing non-finite or unusable arrived either
+
+
+@pytest.fixture(scope="module")
+def flown(model_file, tmp_path_factory):
+    """A short lockstep flight, holding where OFFBOARD started, recorded."""
+    tlog = tmp_path_factory.mktemp("tlog") / "flight.tlog"
+    sil, fly = configs(free_port(), tlog=tlog, duration=1.5)  # import keeps >= 1 s pieces
+    return (*fly_through(model_file, sil, fly), tlog)
+
+
+def test_a_lockstep_flight_ends_handed_back_with_nothing_non_finite_sent(flown):
+    result, endpoint, _, _ = flown
+    assert result.end == "flight complete" and result.steps == round(1.5 / 0.03)
+    assert not result.safety.counts and result.mpc.fallback_steps == 0
+    assert_finite_on_the_wire(endpoint)
+    modes = [(mode, why) for _, mode, why in endpoint.log.modes]
+    assert modes == [("offboard", "commanded"), ("position", "commanded")]  # handed back
+    start = next(t for t, mode, _ in endpoint.log.modes if mode == "offboard")
+    track = np.array([p for t, p, _ in endpoint.log.track if t >= start])
+    assert np.abs(track - track[0]).max() < 0.3  # m: it held its point
+    acks = dict(endpoint.log.acks)  # already armed (airborne in position mode): no arming
+    assert acks == {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: mavlink.MAV_RESULT_ACCEPTED,
+                    mavlink.MAV_CMD_DO_SET_MODE: mavlink.MAV_RESULT_ACCEPTED}  # fmt: skip
+
+
+def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():
+    port = free_port()
+    endpoint = SilEndpoint(configs(port)[0])
+    thread = threading.Thread(target=endpoint.run, daemon=True)
+    thread.start()
+    conn = px4.connect(f"udpin:127.0.0.1:{port}", system=1, component=191)
+    try:
+        conn.wait_heartbeat(timeout=5)
+
+        def ask_offboard() -> int:
+            flag = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            conn.mav.command_long_send(1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, flag, px4.OFFBOARD,
+                                       0, 0, 0, 0, 0)  # fmt: skip
+            ack = conn.recv_match(type="COMMAND_ACK", blocking=True, timeout=5)
+            return ack.result
+
+        assert ask_offboard() == mavlink.MAV_RESULT_TEMPORARILY_REJECTED
+        for _ in range(10):  # a stream of hover set-points
+            conn.mav.send(px4.attitude_target(0, 1, 0.5, np.zeros(3)))
+            conn.recv_match(type="ODOMETRY", blocking=True, timeout=2)
+        assert ask_offboard() == mavlink.MAV_RESULT_ACCEPTED
+        assert endpoint.mode == px4.OFFBOARD
+    finally:
+        endpoint.stop()
+        thread.join(5.0)
+        conn.close()
+
+
+def test_a_stopped_state_stream_hovers_then_hands_back(model_file):
+    sil, fly = configs(free_port(), duration=3.0)
+
+    def stop_the_state(line: str, endpoint: SilEndpoint) -> None:
+        if "the MPC flies" in line:  # 0.15 s of flight, then 1 s without the vehicle's state
+            endpoint.state_gap = (endpoint.t + 0.15, endpoint.t + 1.15)
+
+    result, endpoint, _ = fly_through(model_file, sil, fly, stop_the_state)
+    assert result.end == "handed back: stale state"
+    assert result.safety.counts == {"stale state": 1}
+    assert_finite_on_the_wire(endpoint)
+    assert endpoint.log.modes[-1][1:] == ("position", "commanded")
+
+
+def test_leaving_offboard_mid_flight_stops_the_commands(model_file):
+    sil, fly = configs(free_port(), duration=3.0)
+    switched = []
+
+    def pilot(line: str, endpoint: SilEndpoint) -> None:
+        if "the MPC flies" in line:
+
+            def switch() -> None:
+                endpoint.switch_mode("position")
+                switched.append(endpoint.t)
+
+            threading.Timer(0.3, switch).start()
+
+    result, endpoint, _ = fly_through(model_file, sil, fly, pilot)
+    assert result.end == "left offboard" and 0 < result.steps < 3.0 / 0.03
+    last = endpoint.log.setpoints[-1][0]
+    assert last <= switched[0] + sil.heartbeat_period + 2 * 0.03  # s: within a heartbeat
+    assert endpoint.log.modes[-1][1:] == ("position", "pilot")
+    assert_finite_on_the_wire(endpoint)
+
+
+def test_malformed_and_unknown_messages_are_ignored(model_file):
+    sil, fly = configs(free_port())
+    junk = [b"\xfd\x05\x00\x00\x01\x01\x01\x60\xea\x00hello\x00\x00",  # unknown id 60000
+            b"\xfe\x09garbage that is not mavlink", bytes(range(40))]  # fmt: skip
+
+    def spray(line: str, endpoint: SilEndpoint) -> None:
+        if "the MPC flies" in line:
+            for data in junk:
+                endpoint.conn.write(data)  # to the bridge
+                socket.socket(socket.AF_INET, socket.SOCK_DGRAM).sendto(
+                    data, endpoint.conn.port.getsockname()
+                )  # to the endpoint
+
+    result, endpoint, _ = fly_through(model_file, sil, fly, spray)
+    assert result.end == "flight complete" and sum(result.ignored.values()) > 0
+    assert sum(endpoint.log.ignored.values()) > 0
+    for _, throttle, rates in endpoint.log.setpoints:
+        assert math.isfinite(throttle) and np.isfinite(rates).all()
+
+
+def test_shadow_mode_computes_and_sends_nothing(model_file):
+    sil, fly = configs(free_port(), dry_run=True, arm=False, offboard=False, duration=0.5)
+    sil = replace(sil, lockstep=False)  # nothing sent: nothing would pace a lockstep
+    result, endpoint, _ = fly_through(model_file, sil, fly)
+    assert result.end == "flight complete" and result.steps > 0 and result.sent == 0
+    assert not endpoint.log.setpoints and np.isfinite(result.commands).all()
+
+
+# What the onboard install leaves out: the bridge must run without any of it.
+BLOCK = """
+import importlib.abc, sys
+class Blocked(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("torch", "lightning", "mujoco", "roma", "numba", "matplotlib"):
+            raise ImportError(f"{name} is not in the onboard install")
+sys.meta_path.insert(0, Blocked())
+"""
+
+
+def test_the_bridge_runs_without_torch_and_a_killed_bridge_meets_the_failsafe(model_file):
+    """The bridge in its own process (torch and MuJoCo blocked) flies until killed; the
+    endpoint then switches to position mode after COM_OF_LOSS_T without set-points."""
+    port = free_port()
+    sil, _ = configs(port)
+    code = BLOCK + (
+        "from slungload.autopilot.bridge import fly\n"
+        "from slungload.autopilot.config import BridgeConfig\n"
+        f"cfg = BridgeConfig(connection='udpin:127.0.0.1:{port}', arm=True, offboard=True, "
+        "stream_before_switch=0.2, duration=60.0)\n"
+        "fly(" + repr(str(model_file)) + ", cfg, log=lambda line: print(line, 'torch' in "
+        "sys.modules, 'mujoco' in sys.modules, flush=True))\n"
+    )
+    endpoint = SilEndpoint(sil)
+    thread = threading.Thread(target=endpoint.run, daemon=True)
+    thread.start()
+    bridge = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        line = ""
+        while "the MPC flies" not in line:
+            line = bridge.stdout.readline()
+            assert line, "the bridge ended before it flew"
+        assert line.split()[-2:] == ["False", "False"]  # neither torch nor MuJoCo loaded
+        time.sleep(0.3)
+        bridge.kill()
+        bridge.wait(5)
+        deadline = time.monotonic() + 10.0
+        while endpoint.mode == px4.OFFBOARD and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        bridge.kill()
+        endpoint.stop()
+        thread.join(5.0)
+    t, mode, why = endpoint.log.modes[-1]
+    assert (mode, why) == ("position", "offboard loss (COM_OF_LOSS_T)")
+    last = endpoint.log.setpoints[-1][0]
+    assert sil.of_loss_timeout < t - last <= sil.of_loss_timeout + 0.1
+    for _, throttle, rates in endpoint.log.setpoints:
+        assert math.isfinite(throttle) and np.isfinite(rates).all()
+
+
+def test_a_recorded_flight_imports(flown, tmp_path):
+    from slungload.data.importing import import_logs
+
+    tlog = flown[3]
+    assert tlog.stat().st_size > 0
+    done = import_logs([tlog], tmp_path / "data", progress=False)
+    assert len(done.flights) == 1 and 1.0 / 0.03 <= sum(done.flights.values()) <= 1.7 / 0.03
+    assert done.params.mass_load > 0
