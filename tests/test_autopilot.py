@@ -143,6 +143,30 @@ def test_a_stopped_state_stream_hovers_then_hands_back(model_file):
     assert endpoint.log.modes[-1][1:] == ("position", "commanded")
 
 
+def test_a_stopped_load_stream_hovers_then_hands_back(model_file):
+    sil, fly = configs(free_port(), duration=3.0)
+
+    def stop_the_load(line: str, endpoint: SilEndpoint) -> None:
+        if "the MPC flies" in line:
+            endpoint.load_gap = (endpoint.t + 0.15, endpoint.t + 1.15)
+
+    result, endpoint, _ = fly_through(model_file, sil, fly, stop_the_load)
+    assert result.end == "handed back: stale load"
+    assert result.safety.counts == {"stale load": 1}
+    assert_finite_on_the_wire(endpoint)
+    assert endpoint.log.modes[-1][1:] == ("position", "commanded")
+
+
+def test_a_tenth_of_the_telemetry_dropped(model_file):
+    """Lost ODOMETRY: the flight completes, or a run of losses is a stale measurement; either
+    way it ends handed back to position mode with nothing non-finite sent."""
+    sil, fly = configs(free_port())
+    result, endpoint, _ = fly_through(model_file, replace(sil, drop=0.1), fly)
+    assert result.end in ("flight complete", "handed back: stale state", "handed back: stale load")
+    assert endpoint.log.modes[-1][1:] == ("position", "commanded")
+    assert_finite_on_the_wire(endpoint)
+
+
 def test_leaving_offboard_mid_flight_stops_the_commands(model_file):
     sil, fly = configs(free_port(), duration=3.0)
     switched = []
@@ -252,3 +276,10 @@ def test_a_recorded_flight_imports(flown, tmp_path):
     done = import_logs([tlog], tmp_path / "data", progress=False)
     assert len(done.flights) == 1 and 1.0 / 0.03 <= sum(done.flights.values()) <= 1.7 / 0.03
     assert done.params.mass_load > 0
+
+
+def test_fly_says_when_nothing_answers(run_cli, model_file):
+    port = free_port()
+    code, _, err = run_cli("fly", model_file, "--connection", f"udpin:127.0.0.1:{port}",
+                           "--connect-timeout", "0.3")  # fmt: skip
+    assert code == 2 and "no heartbeat from system 1" in err and "Traceback" not in err

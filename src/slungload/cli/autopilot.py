@@ -18,7 +18,7 @@ FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_
                "hover_throttle", "newtons_per_throttle", "rate_max", "maneuver", "seed",
                "duration", "arm", "offboard", "stream_before_switch", "wait_offboard", "dry_run",
                "max_state_age", "max_load_age", "max_tilt", "fence_radius", "fence_height",
-               "hover_time", "handback", "tlog")  # fmt: skip
+               "hover_time", "handback", "tlog", "connect_timeout")  # fmt: skip
 SIL_OPTIONS = ("seed", "connection", "system", "load_component", "lockstep_wait",
                "hover_throttle", "of_loss_timeout", "heartbeat_period", "duration")  # fmt: skip
 # the options whose default is None: their type
