@@ -288,6 +288,7 @@ class Bridge:
         elif kind == "ODOMETRY":
             pose = px4.odometry_pose(msg)
             if pose is not None:
+                self.attitude_at = now  # ODOMETRY carries its own attitude
                 self._new_vehicle(pose, msg.time_usec * 1e-6, now)
         elif kind == "LOCAL_POSITION_NED":
             p = frames.world_vectors([msg.x, msg.y, msg.z], "ned")
@@ -304,7 +305,6 @@ class Bridge:
 
     def _new_vehicle(self, pose, autopilot_time: float, now: float) -> None:
         self.vehicle, self.vehicle_at, self.vehicle_time = pose, now, autopilot_time
-        self.attitude_at = max(self.attitude_at, now) if len(pose) == 3 else self.attitude_at
         if self.epoch is None:
             self.epoch = time.time() - autopilot_time
 
