@@ -41,11 +41,16 @@ def free_port() -> int:
 
 
 def configs(port: int, **bridge) -> tuple[SilConfig, BridgeConfig]:
-    sil = SilConfig(connection=f"udpout:127.0.0.1:{port}", lockstep_wait=0.05,
+    # a lockstep period waits up to 0.5 s (wall) for its set-point: on a busy machine a
+    # shorter wait lets the simulation run ahead of a bridge it should wait for
+    sil = SilConfig(connection=f"udpout:127.0.0.1:{port}", lockstep_wait=0.5,
                     heartbeat_period=0.1, duration=60.0)  # fmt: skip
+    # the ages: a busy machine (CI's two workers) can take longer than the default 0.1 s of
+    # wall clock between two lockstep periods; the stale-stream tests stop a stream for 1 s
     fly = BridgeConfig(connection=f"udpin:127.0.0.1:{port}", arm=True, offboard=True,
                        stream_before_switch=0.2, duration=1.0, hover_time=0.3,
-                       mpc=MPCConfig(samples=16), connect_timeout=5.0)  # fmt: skip
+                       mpc=MPCConfig(samples=16), connect_timeout=5.0, max_state_age=0.4,
+                       max_load_age=0.4)  # fmt: skip
     return sil, replace(fly, **bridge)
 
 
@@ -232,6 +237,7 @@ def test_the_bridge_runs_without_torch_and_a_killed_bridge_meets_the_failsafe(mo
     endpoint then switches to position mode after COM_OF_LOSS_T without set-points."""
     port = free_port()
     sil, _ = configs(port)
+    sil = replace(sil, lockstep_wait=0.05)  # without set-points COM_OF_LOSS_T passes quickly
     code = BLOCK + (
         "from slungload.autopilot.bridge import fly\n"
         "from slungload.autopilot.config import BridgeConfig\n"
