@@ -182,12 +182,12 @@ def test_simulate_plant_option_writes_its_vehicle(tmp_path):
     assert sim["family"] == "chain"
 
 
-def test_plan_errors_are_zero_for_the_plant_itself_and_not_for_physics():
+def test_plan_errors_are_zero_for_the_plant_itself_and_not_for_physics(tmp_path):
     from slungload.control.mpc import MPCConfig
     from slungload.deploy.compiled.batched import load_model
     from slungload.lab.control.config import PlanErrorConfig
     from slungload.lab.control.oracle import PlantCandidates
-    from slungload.lab.control.plan_errors import plan_errors
+    from slungload.lab.control.plan_errors import plan_errors, write_plan_errors
     from slungload.sim.config import vehicle_params
 
     cfg = plant_config("chain-light")
@@ -202,3 +202,7 @@ def test_plan_errors_are_zero_for_the_plant_itself_and_not_for_physics():
     assert out["oracle"]["spearman"] == pytest.approx(1.0) and out["oracle"]["regret"] == 0.0
     assert out["physics"]["load"].shape == (6,)
     assert out["physics"]["load"][-1] > 1e-3 and out["physics"]["spearman"] < 1.0
+    report = write_plan_errors({"physics": out}, tmp_path, "test").read_text()
+    assert "| physics | oracle | 4 | 0.000 |" in report
+    assert (tmp_path / "plan-errors.png").stat().st_size > 0
+    assert (tmp_path / "plan-errors.csv").read_text().startswith("mpc,model,probes,load_1,")

@@ -278,13 +278,16 @@ def _plot(results, path: Path, title: str) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharex=True)
+    names = list(dict.fromkeys(n for per_model in results.values() for n in per_model))
+    colors = {n: f"C{i}" for i, n in enumerate(names)}  # a colour per model
+    styles = {f: s for f, s in zip(results, ("-", "--", ":"), strict=False)}  # a line per MPC
     for flying, per_model in results.items():
         for name, r in per_model.items():
             steps = np.arange(1, len(r["load"]) + 1)
-            style = "-" if name == flying else "--"
+            look = dict(color=colors[name], linestyle=styles.get(flying, "-"))
             label = f"{name} (along the {flying} MPC's plans)"
-            axes[0].plot(steps, r["load"], style, label=label)
-            axes[1].plot(steps, r["response"], style, label=label)
+            axes[0].plot(steps, r["load"], label=label, **look)
+            axes[1].plot(steps, r["response"], label=label, **look)
     axes[0].set_title("load position error along the plans")
     axes[1].set_title("error of the response to the input change")
     for ax in axes:
