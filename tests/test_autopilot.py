@@ -135,7 +135,9 @@ def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():
 
 
 def test_a_stopped_state_stream_hovers_then_hands_back(model_file):
-    sil, fly = configs(free_port(), duration=3.0)
+    # the state's age on the bridge's clock (wall): the default 0.1 s, so that the gap shows
+    # however fast the lockstep simulation runs (a stalled bridge stalls it too)
+    sil, fly = configs(free_port(), duration=3.0, max_state_age=0.1)
 
     def stop_the_state(line: str, endpoint: SilEndpoint) -> None:
         if "the MPC flies" in line:  # 0.15 s of flight, then 1 s without the vehicle's state
@@ -149,7 +151,9 @@ def test_a_stopped_state_stream_hovers_then_hands_back(model_file):
 
 
 def test_a_stopped_load_stream_hovers_then_hands_back(model_file):
-    sil, fly = configs(free_port(), duration=3.0)
+    # the load's age: the default 0.1 s; the lockstep simulation runs on while only the load
+    # is missing, and its 1 s gap (33 periods, each an MPC step) takes longer than that
+    sil, fly = configs(free_port(), duration=3.0, max_load_age=0.1)
 
     def stop_the_load(line: str, endpoint: SilEndpoint) -> None:
         if "the MPC flies" in line:

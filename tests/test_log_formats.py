@@ -341,7 +341,8 @@ def test_every_log_suffix_dispatches_to_its_reader(tmp_path, monkeypatch):
         target = importlib.import_module(f"slungload.data.readers.{module}")
         assert callable(getattr(target, function))
         monkeypatch.setattr(target, function, fake(reader.function))
-    mapping = {"ros": {"stamps": "header"}, "ulog": {"load": "x:1"}, "csv": {"world": "enu"}}
+    mapping = {"ros": {"stamps": "header"}, "ulog": {"load": "x:1"}, "csv": {"world": "enu"},
+               "tlog": {"load_component": 197}}  # fmt: skip
     claimed = {}
     for kind, reader in LOG_READERS.items():
         for suffix in reader.suffixes:
@@ -355,19 +356,20 @@ def test_every_log_suffix_dispatches_to_its_reader(tmp_path, monkeypatch):
                 settings["preset"] = "px4"
             assert calls[-1] == (reader.function, path.name, settings, True, None)
     assert claimed == {".bag": "ros1", ".mcap": "ros2", ".db3": "ros2", ".ulg": "ulog",
-                       ".csv": "csv"}  # fmt: skip
+                       ".csv": "csv", ".tlog": "tlog"}  # fmt: skip
     bag2 = tmp_path / "bag2"
     bag2.mkdir()
     (bag2 / "metadata.yaml").write_text("")
     assert find_logs([bag2]) == [(bag2, "ros2")]
-    assert [k for _, k in find_logs([tmp_path])] == ["ros2", "ros1", "csv", "ros2", "ros2", "ulog"]
+    assert [k for _, k in find_logs([tmp_path])] == [
+        "ros2", "ros1", "csv", "ros2", "ros2", "tlog", "ulog"]  # fmt: skip
 
 
 def test_unknown_log_suffix_names_the_file(tmp_path):
     log = tmp_path / "flight.txt"
     log.write_text("")
     with pytest.raises(LogError, match=r"flight.txt: unknown log format '.txt'; known: \.bag, "
-                       r"\.mcap, \.db3, \.ulg, \.csv and rosbag2 folders"):  # fmt: skip
+                       r"\.mcap, \.db3, \.ulg, \.csv, \.tlog and rosbag2 folders"):  # fmt: skip
         find_logs([log])
     with pytest.raises(LogError, match=rf"{tmp_path.name}: holds no logs \(\*\.bag"):
         find_logs([tmp_path])

@@ -272,12 +272,12 @@ def write_plan_errors(
 
 
 def _plot(results, path: Path, title: str) -> None:
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ...reporting import save_figure
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharex=True)
+    fig = Figure(figsize=(10, 3.8))
+    axes = fig.subplots(1, 2, sharex=True)
     names = list(dict.fromkeys(n for per_model in results.values() for n in per_model))
     colors = {n: f"C{i}" for i, n in enumerate(names)}  # a colour per model
     styles = {f: s for f, s in zip(results, ("-", "--", ":"), strict=False)}  # a line per MPC
@@ -297,5 +297,4 @@ def _plot(results, path: Path, title: str) -> None:
     axes[0].legend(fontsize=7)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
