@@ -28,15 +28,12 @@ import numpy as np
 
 from ..frames import rotation_matrix
 from .config import SimConfig
-from .plant import PlantParams
+from .mjcf import _vec
+from .plant import PlantParams, VehicleState
 
 QUAD = "quad"
 LOAD = "load"
 ROTORS = 4
-
-
-def _vec(values) -> str:
-    return " ".join(f"{float(v):.9g}" for v in values)
 
 
 def bead_masses(cfg: SimConfig) -> np.ndarray:
@@ -208,10 +205,10 @@ class ChainForces:
         return -self.load_q * np.linalg.norm(rel, axis=1, keepdims=True) * rel
 
 
-class ChainPlant:
-    """MuJoCo model and data of one ``chain`` flight (the ``plant.Plant`` interface: the same
-    properties, ``advance``, ``fork``, ``sync``, ``set_state``), starting in hover with the
-    chain hanging still."""
+class ChainPlant(VehicleState):
+    """MuJoCo model and data of one ``chain`` flight (the ``plant.Plant`` interface: the state
+    of ``VehicleState``, ``advance``, ``fork``, ``sync``, ``set_state``), starting in hover with
+    the chain hanging still."""
 
     def __init__(self, cfg: SimConfig, params: PlantParams | None = None) -> None:
         self.cfg = cfg
@@ -236,38 +233,6 @@ class ChainPlant:
         self.rotors.speed[:] = math.sqrt(min(hover / (ROTORS * self.rotors.f_max), 1.0))
         self.forces = ChainForces(cfg)
         mujoco.mj_forward(self.model, self.data)
-
-    # --- state, world frame z up (as ``plant.Plant``) -------------------------------------
-    @property
-    def p(self) -> np.ndarray:
-        return self.data.qpos[0:3].copy()
-
-    @property
-    def v(self) -> np.ndarray:
-        return self.data.qvel[0:3].copy()
-
-    @property
-    def q(self) -> np.ndarray:
-        """Vehicle attitude, unit quaternion w-x-y-z (4,), body -> world."""
-        return self.data.qpos[3:7].copy()
-
-    @property
-    def rates(self) -> np.ndarray:
-        """Achieved body rates (3,), rad/s."""
-        return self.data.qvel[3:6].copy()
-
-    @property
-    def p_load(self) -> np.ndarray:
-        return self.data.qpos[self.load_qpos : self.load_qpos + 3].copy()
-
-    @property
-    def v_load(self) -> np.ndarray:
-        return self.data.qvel[self.load_qvel : self.load_qvel + 3].copy()
-
-    @property
-    def rot(self) -> np.ndarray:
-        """Vehicle rotation matrix (3, 3), body -> world."""
-        return rotation_matrix(self.data.qpos[3:7])
 
     @property
     def thrust(self) -> float:
@@ -339,7 +304,3 @@ class ChainPlant:
         mujoco.mj_copyData(self.data, self.model, source.data)
         self.rotors.take(source.rotors)
         self.time, self.command, self.wind = source.time, source.command, source.wind
-
-    def tilt(self) -> float:
-        """Angle between body z and world z, rad."""
-        return math.acos(max(-1.0, min(1.0, self.rot[2, 2])))

@@ -41,8 +41,57 @@ class PlantParams:
         )
 
 
-class Plant:
+class VehicleState:
+    """The state every plant family reads the same way from its MuJoCo data: the vehicle a free
+    joint first, the load's position at ``load_qpos`` and velocity at ``load_qvel`` (three
+    coordinates each, world frame)."""
+
+    data: mujoco.MjData
+    load_qpos: int
+    load_qvel: int
+
+    @property
+    def p(self) -> np.ndarray:
+        return self.data.qpos[0:3].copy()
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.data.qvel[0:3].copy()
+
+    @property
+    def q(self) -> np.ndarray:
+        """Vehicle attitude, unit quaternion w-x-y-z (4,), body -> world."""
+        return self.data.qpos[3:7].copy()
+
+    @property
+    def rates(self) -> np.ndarray:
+        """Achieved body rates (3,), rad/s (a MuJoCo free joint's angular velocity: body axes)."""
+        return self.data.qvel[3:6].copy()
+
+    @property
+    def p_load(self) -> np.ndarray:
+        return self.data.qpos[self.load_qpos : self.load_qpos + 3].copy()
+
+    @property
+    def v_load(self) -> np.ndarray:
+        return self.data.qvel[self.load_qvel : self.load_qvel + 3].copy()
+
+    @property
+    def rot(self) -> np.ndarray:
+        """Vehicle rotation matrix (3, 3), body -> world."""
+        r = np.empty(9)
+        mujoco.mju_quat2Mat(r, self.data.qpos[3:7])
+        return r.reshape(3, 3)
+
+    def tilt(self) -> float:
+        """Angle between body z and world z, rad."""
+        return math.acos(max(-1.0, min(1.0, self.rot[2, 2])))
+
+
+class Plant(VehicleState):
     """MuJoCo model and data of one flight, starting in hover with the load hanging still."""
+
+    load_qpos, load_qvel = 7, 6  # the cube's free joint follows the vehicle's
 
     def __init__(self, cfg: SimConfig, params: PlantParams | None = None) -> None:
         self.cfg = cfg
@@ -64,40 +113,6 @@ class Plant:
         if cfg.effects.thrust_lag:
             self.data.act[THRUST_ACTUATOR] = self.data.ctrl[THRUST_ACTUATOR]
         mujoco.mj_forward(self.model, self.data)
-
-    # --- state, world frame z up ------------------------------------------------------------
-    @property
-    def p(self) -> np.ndarray:
-        return self.data.qpos[0:3].copy()
-
-    @property
-    def v(self) -> np.ndarray:
-        return self.data.qvel[0:3].copy()
-
-    @property
-    def q(self) -> np.ndarray:
-        """Vehicle attitude, unit quaternion w-x-y-z (4,), body -> world."""
-        return self.data.qpos[3:7].copy()
-
-    @property
-    def rates(self) -> np.ndarray:
-        """Achieved body rates (3,), rad/s (a MuJoCo free joint's angular velocity: body axes)."""
-        return self.data.qvel[3:6].copy()
-
-    @property
-    def p_load(self) -> np.ndarray:
-        return self.data.qpos[7:10].copy()
-
-    @property
-    def v_load(self) -> np.ndarray:
-        return self.data.qvel[6:9].copy()
-
-    @property
-    def rot(self) -> np.ndarray:
-        """Vehicle rotation matrix (3, 3), body -> world."""
-        r = np.empty(9)
-        mujoco.mju_quat2Mat(r, self.data.qpos[3:7])
-        return r.reshape(3, 3)
 
     @property
     def thrust(self) -> float:
@@ -170,7 +185,3 @@ class Plant:
         the latency, the wind); both plants share one model (``fork``)."""
         mujoco.mj_copyData(self.data, self.model, source.data)
         self.time, self.command, self.wind = source.time, source.command, source.wind
-
-    def tilt(self) -> float:
-        """Angle between body z and world z, rad."""
-        return math.acos(max(-1.0, min(1.0, self.rot[2, 2])))
