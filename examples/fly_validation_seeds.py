@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from slungload.cli.common import comma_names, seed_range
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
-from slungload.deploy.compiled.batched import load_model
+from slungload.deploy.backends import load_model
 from slungload.deploy.predictor import torch_threads
 from slungload.fileio import read_json
 from slungload.lab.control.config import BENCHMARK_SEEDS, NOMINAL, SHIFTS, RecordConfig

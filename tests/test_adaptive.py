@@ -18,7 +18,8 @@ from slungload.constants_estimate import ADAPT_RANGE, adapted
 from slungload.data import load_dataset
 from slungload.deploy.compiled import CompiledNetworkModel, CompiledPhysicsModel, CompiledPredictor
 from slungload.deploy.compiled.batched import with_backend
-from slungload.deploy.onnx import OnnxPredictor, export
+from slungload.deploy.onboard import OnnxPredictor
+from slungload.deploy.onnx import export
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
 from slungload.load_state import estimate_load_state
 from slungload.models import PhysicsStepNet

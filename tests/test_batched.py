@@ -10,19 +10,22 @@ import json
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 from flights import TINY
 from test_prediction import candidate_windows, random_history, random_plans
 
 from slungload.config import MODEL_SIZES, PREDICTION_BACKENDS, ModelConfig, VehicleParams
+from slungload.control.mpc import TorchCandidates, candidate_model
+from slungload.deploy.backends import load_model
 from slungload.deploy.compiled import (
     CompiledNetworkModel,
     CompiledPhysicsModel,
-    load_model,
     with_backend,
 )
 from slungload.deploy.predictor import PARITY_TOLERANCE
+from slungload.lab.control.oracle import PlantCandidates
 from slungload.models import MODELS, PhysicsStepNet, build
 from slungload.models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from slungload.state import LOAD_POS, POS, QUAT, VEL, rotate_about_z
@@ -41,6 +44,27 @@ M, N, K = 9, 6, 11
 # --- the physics model ----------------------------------------------------------------------
 
 
+def assert_numpy_entry(model, x_hist, u_past, plans, want: torch.Tensor) -> None:
+    """The MPC calls a compiled model through its numpy entry (``candidate_model``), no
+    tensor at the edges, and gets the torch call's states to the bit."""
+    entry = candidate_model(model)
+    assert entry.predict_candidates == model.numpy_candidates
+    got = entry.predict_candidates(*(t.double().numpy() for t in (x_hist, u_past, plans)))
+    assert isinstance(got, np.ndarray) and got.dtype == np.float64
+    np.testing.assert_array_equal(got, want.double().numpy())
+
+
+def test_the_mpc_calls_each_kind_of_model_in_its_own_way(tiny_run):
+    """Numpy models as they are, compiled ones through their numpy entry, eager torch ones
+    through ``TorchCandidates``."""
+    eager = load_model(tiny_run.out, backend="eager")
+    assert isinstance(candidate_model(eager), TorchCandidates)
+    compiled = load_model(tiny_run.out, backend="compiled")
+    assert candidate_model(compiled).predict_candidates == compiled.numpy_candidates
+    oracle = PlantCandidates()
+    assert candidate_model(oracle) is oracle
+
+
 @pytest.mark.parametrize("params", [PARAMS, OTHER_PARAMS])
 def test_compiled_physics_candidates_are_the_physics_model(params):
     gen = torch.Generator().manual_seed(0)
@@ -51,6 +75,7 @@ def test_compiled_physics_candidates_are_the_physics_model(params):
     want = PhysicsModel(params).predict_candidates(x_hist, u_past, plans)
     got = CompiledPhysicsModel(params).predict_candidates(x_hist, u_past, plans)
     assert got.shape == (K, 40, 13) and got.dtype == torch.float64
+    assert_numpy_entry(CompiledPhysicsModel(params), x_hist, u_past, plans, got)
     torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
     # float32 plans: float32 out (the plans' dtype), computed in float64 inside
     got32 = CompiledPhysicsModel(params).predict_candidates(x_hist, u_past, plans.float())
@@ -107,8 +132,10 @@ def assert_parity(
         x_hist = rotate_about_z(x_hist, torch.zeros(m, 6, dtype=x_hist.dtype), yaw)[0]
     plans = random_plans(k, n, gen, scale=1.0)
     want = NetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
-    got = CompiledNetworkModel(net, m).predict_candidates(x_hist, u_past, plans)
+    compiled = CompiledNetworkModel(net, m)
+    got = compiled.predict_candidates(x_hist, u_past, plans)
     assert got.shape == want.shape == (k, n, 13) and got.dtype == torch.float64
+    assert_numpy_entry(compiled, x_hist, u_past, plans, got)
     diff = (got - want).abs().max().item()
     assert diff <= PARITY_TOLERANCE, diff
     torch.testing.assert_close(got[:, :, QUAT].norm(dim=-1), torch.ones(k, n, dtype=got.dtype))

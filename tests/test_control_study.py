@@ -565,7 +565,7 @@ def test_the_oracle_flies_the_learned_mpcs_settings_at_its_own_k():
 
 
 def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
-    from slungload.deploy.compiled.batched import load_model
+    from slungload.deploy.backends import load_model
 
     nominal = SimConfig()
     params = vehicle_params(nominal)

@@ -34,7 +34,7 @@ def test_an_old_checkpoint_loads_and_predicts_as_before(frozen, tag, architectur
 
 
 def test_an_old_onnx_export_loads_and_predicts_as_before(frozen):
-    from slungload.deploy.onnx import OnnxPredictor
+    from slungload.deploy.onboard import OnnxPredictor
 
     predictor = OnnxPredictor(FIXTURES / "lstm.onnx")
     got = predictor.predict(frozen["lstm_history"], frozen["lstm_future"])

@@ -16,12 +16,14 @@ import torch
 from flights import physics_flight
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
-from slungload.control.mpc import SamplingMPC
+from slungload.control.mpc import SamplingMPC, candidate_model
 from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
 from slungload.data.windows import make_windows
+from slungload.deploy.backends import load_model
 from slungload.deploy.candidates import candidate_inputs, export_for_mpc, hover_inputs
-from slungload.deploy.onboard import OnboardModelError, OnnxCandidateModel, sidecar_path
+from slungload.deploy.onboard import OnnxCandidateModel
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
+from slungload.deploy.sidecar import OnnxModelError, sidecar_path
 from slungload.models import build
 from slungload.models.prediction import NetworkModel, PhysicsModel
 
@@ -138,7 +140,7 @@ def test_a_model_that_disagrees_with_its_sidecar_is_refused(exported, tmp_path, 
     path.write_bytes(source.read_bytes())
     sidecar_path(path).write_bytes(sidecar_path(source).read_bytes())
     tamper(path)
-    with pytest.raises(OnboardModelError, match=message):
+    with pytest.raises(OnnxModelError, match=message):
         OnnxCandidateModel(path)
 
 
@@ -249,3 +251,19 @@ def test_the_physics_model_exports_too_and_flies_onboard(tmp_path):
         torch_mpc.core.step(x, ref)
         onboard_mpc.step(x, ref)
         np.testing.assert_allclose(onboard_mpc.plan, torch_mpc.plan, rtol=0, atol=1e-5)
+
+
+def test_one_loader_for_every_backend_onnx_included(physics_files, tiny_run):
+    """``load_model`` gives the onnx backend's numpy model (the MPC takes it as it is) and
+    refuses what that backend cannot do, naming why; the torch backends as before."""
+    mpc_file, _ = physics_files
+    model = load_model(mpc_file, backend="onnx")
+    assert isinstance(model, OnnxCandidateModel) and candidate_model(model) is model
+    limits = InputLimits(4.0, 30.0, 4.0)
+    assert SamplingMPC(model, limits, MPCConfig(samples=8, horizon=10)).core.model is model
+    with pytest.raises(ValueError, match="takes no params or constants"):
+        load_model(mpc_file, PARAMS, backend="onnx")
+    with pytest.raises(ValueError, match="export it first"):
+        load_model(tiny_run.out, backend="onnx")
+    with pytest.raises(ValueError, match="unknown prediction backend 'tensorrt'"):
+        load_model(mpc_file, backend="tensorrt")

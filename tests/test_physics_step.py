@@ -16,7 +16,8 @@ from slungload.config import LossWeights, ModelConfig, VehicleParams, WindowConf
 from slungload.data.dataset import load_dataset
 from slungload.data.windows import make_windows
 from slungload.deploy.compiled import CompiledPredictor, unsupported
-from slungload.deploy.onnx import OnnxPredictor, export
+from slungload.deploy.onboard import OnnxPredictor
+from slungload.deploy.onnx import export
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
 from slungload.load_state import (
     LOAD_FIT_STEPS,

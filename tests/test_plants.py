@@ -184,7 +184,7 @@ def test_simulate_plant_option_writes_its_vehicle(tmp_path):
 
 def test_plan_errors_are_zero_for_the_plant_itself_and_not_for_physics(tmp_path):
     from slungload.control.mpc import MPCConfig
-    from slungload.deploy.compiled.batched import load_model
+    from slungload.deploy.backends import load_model
     from slungload.lab.control.config import PlanErrorConfig
     from slungload.lab.control.oracle import PlantCandidates
     from slungload.lab.control.plan_errors import plan_errors, write_plan_errors

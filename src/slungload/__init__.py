@@ -37,7 +37,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "deploy.predictor": ("FlightWindow", "Predictor", "flight_window"),
     "deploy.compiled": ("CompiledPredictor",),
     "control.mppi": ("Command", "InputLimits", "MPCConfig", "MPPIController", "ReferenceAhead"),
-    "deploy.onnx": ("ExportResult", "OnnxModelError", "OnnxPredictor", "export"),
+    "deploy.onnx": ("ExportResult", "export"),
+    "deploy.backends": ("load_model",),
+    "deploy.sidecar": ("OnnxModelError",),
+    "deploy.onboard": ("OnnxCandidateModel", "OnnxPredictor"),
     "deploy.timing": ("evaluate_runs", "time_inference"),
 }  # fmt: skip
 __all__, __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())

@@ -1,12 +1,13 @@
-"""The MPPI controller in the simulator: ``mppi.MPPIController`` over a torch prediction model.
+"""The MPPI controller in the simulator: ``mppi.MPPIController`` over any prediction model.
 
 ``SamplingMPC`` meets ``sim.controller.Controller`` (``(measurement, reference, k) -> (thrust,
 rates)``): it takes the state out of the simulator's ``Measurement``, the N reference rows
 ahead out of its ``Reference``, and runs the one MPPI core (``mppi``: sampling, clamping, cost,
-weights, fallbacks, written once in numpy float64) with any ``models.prediction
-.PredictionModel``, converted at the edge by ``TorchCandidates`` (numpy float64 in, the model's
-torch call, numpy float64 out). The onboard controller is the same core over an exported
-network on ONNX Runtime (``deploy.onboard``), without torch.
+weights, fallbacks, written once in numpy float64) over one numpy contract,
+``mppi.CandidateModel``: the compiled backends meet it with their own numpy entry, an ONNX
+model and the oracle as they are, an eager or GPU ``models.prediction.PredictionModel``
+through ``TorchCandidates`` (``candidate_model`` picks). The onboard controller is the same
+core over an exported network on ONNX Runtime (``deploy.onboard``), without torch.
 
 The MPPI update is written here rather than taken from ``pytorch-mppi``: see docs/control.md.
 The names of ``mppi`` that the simulator's callers use (``InputLimits``, ``MPCConfig``,
@@ -49,6 +50,7 @@ __all__ = [
     "MPCStats",
     "SamplingMPC",
     "TorchCandidates",
+    "candidate_model",
     "knots_for",
     "mpc_maker",
     "reference_ahead",
@@ -78,6 +80,31 @@ class TorchCandidates:
         return states.detach().to("cpu", torch.float64).numpy()
 
 
+class _NumpyEntry:
+    """A prediction model's own numpy entry point (``numpy_candidates``: the compiled
+    backends) as a ``mppi.CandidateModel``: no tensor at the call's edges."""
+
+    numpy = True
+
+    def __init__(self, model) -> None:
+        self.model = model
+        self.name, self.history = model.name, model.history
+        self.predict_candidates = model.numpy_candidates
+
+
+def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:
+    """What the MPPI core calls for ``model``: a numpy ``mppi.CandidateModel`` (``numpy =
+    True``: the oracle, an ONNX model) as it is; a model with its own numpy entry point
+    (``numpy_candidates``: the compiled backends) through it; any other torch
+    ``PredictionModel`` through ``TorchCandidates`` (which passes a GPU model's ``prepare``
+    on)."""
+    if getattr(model, "numpy", False):
+        return model
+    if hasattr(model, "numpy_candidates"):
+        return _NumpyEntry(model)
+    return TorchCandidates(model)
+
+
 def window_estimate(params: VehicleParams) -> ConstantsEstimate:
     """The controller's in-flight estimate of the load: the adaptive network's
     (``constants_estimate.adapted``, numpy: ``deploy.compiled.physics.history_constants``)
@@ -94,8 +121,9 @@ def window_estimate(params: VehicleParams) -> ConstantsEstimate:
 class SamplingMPC:
     """MPPI controller meeting ``sim.controller.Controller``; one per flight.
 
-    model: a ``PredictionModel`` (torch, converted by ``TorchCandidates``) or a numpy
-    ``mppi.CandidateModel`` that says so with ``numpy = True`` (the oracle); limits: the input
+    model: a ``PredictionModel`` or a numpy ``mppi.CandidateModel`` (``candidate_model`` picks
+    the call: the compiled backends' numpy entry, an ONNX model or the oracle as they are, a
+    torch model through ``TorchCandidates``); limits: the input
     box (``InputLimits.from_sim``); params: the vehicle constants for hover thrust and cable
     length (default ``VehicleParams()``; with ``config.constants = "window"`` the prior of the
     in-flight estimate, ``window_estimate``, which needs M >= ``ESTIMATE_MIN_STEPS``).
@@ -113,9 +141,7 @@ class SamplingMPC:
         params: VehicleParams | None = None,
     ) -> None:
         self.model = model
-        # A torch model is converted at the edge; a model that says it takes numpy arrays
-        # (``numpy = True``: the oracle) is the core's model as it is.
-        numpy_model = model if getattr(model, "numpy", False) else TorchCandidates(model)
+        numpy_model = candidate_model(model)
         estimate = None
         if config is not None and config.constants == "window":
             if model.history < ESTIMATE_MIN_STEPS:

@@ -36,7 +36,6 @@ from ..state import with_unit_quaternion
 from . import onboard
 from .onnx import (
     OPSET,
-    OnnxModelError,
     _check_model_path,
     _load,
     export_name,
@@ -44,6 +43,21 @@ from .onnx import (
     trace_to_onnx,
 )
 from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
+from .sidecar import (
+    FORMAT_VERSIONS,
+    FORMATS,
+    MPC,
+    MPC_SUFFIX,
+    PLANS,
+    STATES,
+    U_PAST,
+    X_HIST,
+    OnnxModelError,
+    mpc_io_spec,
+    mpc_layout,
+    sha256,
+    sidecar_path,
+)
 
 CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
 
@@ -117,7 +131,7 @@ def export_for_mpc(
     params: VehicleParams | None = None,
     opset: int = OPSET,
 ) -> MPCExportResult:
-    """Write ``out`` (the candidates graph) and its sidecar (``onboard.sidecar_path``).
+    """Write ``out`` (the candidates graph) and its sidecar (``sidecar_path``).
 
     run_or_ckpt: a run folder, a ``.ckpt`` or a loaded ``Predictor``; or ``"physics"``, the
     discrete model (``models.prediction.PhysicsModel``, M = 2) with the constants ``params``
@@ -133,12 +147,12 @@ def export_for_mpc(
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
     src = _source(run_or_ckpt, horizon, params)
     if out.is_dir():
-        out = out / f"{src.name}-n{horizon}{onboard.SUFFIX}"
+        out = out / f"{src.name}-n{horizon}{MPC_SUFFIX}"
     with atomic_path(out) as tmp:
         trace_to_onnx(
             src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
-            ([onboard.X_HIST, onboard.U_PAST, onboard.PLANS], [onboard.STATES]),
-            {onboard.PLANS: {0: "candidates"}, onboard.STATES: {0: "candidates"}},
+            ([X_HIST, U_PAST, PLANS], [STATES]),
+            {PLANS: {0: "candidates"}, STATES: {0: "candidates"}},
         )  # fmt: skip
         session = ort.InferenceSession(str(tmp), onboard.session_options(1), providers=onboard.CPU)
         diff = max(_parity(src, session, k) for k in CHECK_CANDIDATES)
@@ -147,14 +161,14 @@ def export_for_mpc(
                 f"{out}: exported candidates graph disagrees with the eager model by "
                 f"{diff:.3g} (> {PARITY_TOLERANCE}); not written"
             )
-        digest = onboard.sha256(tmp)
+        digest = sha256(tmp)
     m = src.history
-    sidecar = onboard.sidecar_path(out)
+    sidecar = sidecar_path(out)
     write_json(
         sidecar,
         {
-            "format": onboard.FORMAT,
-            "format_version": onboard.FORMAT_VERSION,
+            "format": FORMATS[MPC],
+            "format_version": FORMAT_VERSIONS[MPC],
             "package_version": __version__,
             "model_file": out.name,
             "model_sha256": digest,
@@ -162,8 +176,8 @@ def export_for_mpc(
             "architecture": src.architecture,
             "history": m,
             "horizon": horizon,
-            **onboard.io_spec(m, horizon),
-            "layout": onboard.layout(),
+            **mpc_io_spec(m, horizon),
+            "layout": mpc_layout(),
             "params": src.configs["params"],
             "variant": src.variant,
             "configs": src.configs,
@@ -236,7 +250,7 @@ def hover_inputs(
 
 def _parity(src: _Source, session, k: int) -> float:
     x_hist, u_past, plans = src.inputs(k, k)
-    feeds = {onboard.X_HIST: x_hist, onboard.U_PAST: u_past, onboard.PLANS: plans}
+    feeds = {X_HIST: x_hist, U_PAST: u_past, PLANS: plans}
     got = session.run(None, feeds)[0]
     with torch.no_grad():
         want = src.net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()

@@ -1,13 +1,15 @@
-"""The onboard prediction model: an exported network for the MPC on ONNX Runtime, numpy only.
+"""Exported graphs on ONNX Runtime, numpy only: what runs on the vehicle's computer.
 
     model = OnnxCandidateModel("ps-n15.mpc.onnx")    # + ps-n15.mpc.json (its sidecar)
     states = model.predict_candidates(x_hist, u_past, plans)   # (K, N, 13) float64
     controller = MPPIController.from_onnx("ps-n15.mpc.onnx", limits, MPCConfig(samples=256))
+    predictor = OnnxPredictor("proposed-n50.onnx")   # a whole-window export
+    states = predictor.predict(history, future_inputs)           # (N, 13), file layout
 
-The file (written by ``deploy.candidates.export_for_mpc``, ``slungload export --for-mpc``) is
-the network's ``forward_candidates`` with its normalisation and the final unit-quaternion
-projection, in the **package layout** (``layout.py``: quaternions w-x-y-z, physical units,
-world z up), float32 inside::
+``OnnxCandidateModel`` runs the MPC's graph (``deploy.candidates.export_for_mpc``, ``slungload
+export --for-mpc``): the network's ``forward_candidates`` with its normalisation and the final
+unit-quaternion projection, in the **package layout** (``layout.py``: quaternions w-x-y-z,
+physical units, world z up), float32 inside::
 
     x_hist  (M, 13)      the last M measured states x_{k-M+1} ... x_k
     u_past  (M-1, 4)     the inputs applied at x_{k-M+1} ... x_{k-1}
@@ -16,64 +18,42 @@ world z up), float32 inside::
 
 The encoder runs once over the M - 1 rows the candidates share (batch 1); the candidates' last
 history step and the decoder run at batch K. N is fixed because the exporter unrolls the
-decoder's recursion (the sidecar records it); M is the trained M. The sidecar (same name,
-``.json``) holds the shapes, the layout, the vehicle constants of the run's data (hover thrust
-and cable length for the MPC), every config and the versions; loading refuses a file whose
-checksum, inputs, outputs or layout disagree with it.
+decoder's recursion (the sidecar records it); M is the trained M. ``OnnxPredictor`` runs the
+whole-window graph (``deploy.onnx.export``) with ``deploy.Predictor``'s ``predict`` call, in
+the data files' layout. Both files' sidecars and their checks: ``sidecar``.
 
-Imports numpy, onnxruntime and the package's torch-free modules only (``layout``, ``config``):
-no torch (a test checks ``sys.modules`` in a fresh interpreter). The controller over it is
-``control.mppi.MPPIController`` (``from_onnx``).
+Imports numpy, onnxruntime and the package's torch-free modules only (``layout``, ``config``,
+``sidecar``, ``inputs``): no torch (a test checks ``sys.modules`` in a fresh interpreter). The
+controller over a candidates graph is ``control.mppi.MPPIController`` (``from_onnx``).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import onnxruntime as ort
 
 from ..config import VehicleParams, from_dict
-from ..layout import INPUT_DIM, INPUT_NAMES, STATE_DIM, STATE_NAMES
+from ..layout import INPUT_DIM, STATE_DIM
+from .inputs import check_inputs, unbatch
+from .sidecar import (
+    FUTURE_INPUT,
+    HISTORY_INPUT,
+    MPC,
+    PLANS,
+    STATES,
+    U_PAST,
+    WINDOW,
+    X_HIST,
+    OnnxModelError,
+    check_session,
+    mpc_io_spec,
+    read_sidecar,
+    window_io_spec,
+)
 
-FORMAT = "slungload-onnx-mpc"
-FORMAT_VERSION = 1  # bump when the graph's inputs/outputs or the sidecar change incompatibly
-X_HIST, U_PAST, PLANS, STATES = "x_hist", "u_past", "plans", "states"
-SUFFIX = ".mpc.onnx"  # what ``export_for_mpc`` names a file it writes into a folder
 CPU = ["CPUExecutionProvider"]
-
-
-class OnboardModelError(ValueError):
-    """An exported MPC model that cannot be used: missing, altered or inconsistent sidecar."""
-
-
-def layout() -> dict[str, Any]:
-    """The columns and conventions the graph takes and returns (recorded in the sidecar)."""
-    return {
-        "state_columns": list(STATE_NAMES),
-        "input_columns": list(INPUT_NAMES),
-        "quaternion": "w-x-y-z (the package layout), body -> world, unit norm on output",
-        "frame": "world z up, gravity -g e3; body rates FLU",
-        "units": "m, m/s, N, rad/s",
-    }
-
-
-def io_spec(history: int, horizon: int) -> dict[str, Any]:
-    """Names, shapes (``"candidates"``: the dynamic K) and dtypes of the graph's inputs and
-    outputs."""
-    return {
-        "inputs": [
-            {"name": X_HIST, "shape": [history, STATE_DIM], "dtype": "float32"},
-            {"name": U_PAST, "shape": [history - 1, INPUT_DIM], "dtype": "float32"},
-            {"name": PLANS, "shape": ["candidates", horizon, INPUT_DIM], "dtype": "float32"},
-        ],
-        "outputs": [
-            {"name": STATES, "shape": ["candidates", horizon, STATE_DIM], "dtype": "float32"}
-        ],
-    }
 
 
 def session_options(threads: int = 1) -> ort.SessionOptions:
@@ -92,15 +72,6 @@ def session_options(threads: int = 1) -> ort.SessionOptions:
     return so
 
 
-def sidecar_path(model_path: str | Path) -> Path:
-    """The sidecar of an exported MPC model: ``x.mpc.onnx`` -> ``x.mpc.json``."""
-    return Path(model_path).with_suffix(".json")
-
-
-def sha256(path: str | Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 class OnnxCandidateModel:
     """An exported network on ONNX Runtime behind the MPC's numpy call
     (``control.mppi.CandidateModel``): ``predict_candidates(x_hist, u_past, plans)``.
@@ -111,20 +82,22 @@ class OnnxCandidateModel:
     from the sidecar.
     """
 
+    numpy = True  # numpy in and out: ``control.mpc.candidate_model`` takes it as it is
+
     def __init__(
         self, path: str | Path, *, threads: int = 1, providers: list[str] | None = None
     ) -> None:
         self.path = Path(path)
         if not self.path.is_file():
             raise FileNotFoundError(f"exported model {self.path} does not exist")
-        self.meta = read_sidecar(self.path)
-        try:
-            self.session = ort.InferenceSession(
-                str(self.path), session_options(threads), providers=providers or CPU
-            )
-        except Exception as exc:  # ORT raises its own exception types for unreadable files
-            raise OnboardModelError(f"{self.path}: not a loadable ONNX model ({exc})") from exc
-        check_session(self.path, self.session, self.meta)
+        self.meta = read_sidecar(self.path, MPC)
+        self.session = _session(self.path, threads, providers)
+        check_session(
+            self.path,
+            self.session,
+            self.meta,
+            mpc_io_spec(self.meta["history"], self.meta["horizon"]),
+        )
         self.history: int = self.meta["history"]
         self.horizon: int = self.meta["horizon"]
         self.name: str = self.meta.get("name", self.path.stem)
@@ -161,86 +134,66 @@ class OnnxCandidateModel:
         return states.astype(np.float64)
 
 
-def check_sidecar(
-    model_path: str | Path,
-    *,
-    what: str,
-    format: str,
-    format_version: int,
-    columns: dict[str, Any],
-    min_history: int,
-    error: type[ValueError],
-) -> dict[str, Any]:
-    """The sidecar of an exported model, checked for its format and version, the model
-    file's checksum, its layout's entries against ``columns`` (this package's column names)
-    and positive integer history (at least ``min_history``) and horizon. Shared by the MPC's
-    export and the whole-window export (``deploy.onnx``); ``what`` names the sidecar in
-    messages, ``error`` is the exception raised."""
-    model_path = Path(model_path)
-    path = sidecar_path(model_path)
-    if not path.is_file():
-        raise error(f"{model_path}: its sidecar {path.name} is missing")
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise error(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict) or meta.get("format") != format:
-        raise error(f"{path}: not a slungload {what} sidecar (format != {format!r})")
-    if meta.get("format_version") != format_version:
-        raise error(
-            f"{path}: sidecar format version {meta.get('format_version')}, this package reads "
-            f"{format_version}; re-export the model"
+class OnnxPredictor:
+    """An exported whole-window network (``deploy.onnx.export``) on ONNX Runtime, with
+    ``deploy.Predictor``'s ``predict`` call.
+
+    Loading checks the model file against its sidecar (``sidecar.read_sidecar``: format
+    version, checksum, input and output names and shapes, state layout) and refuses a mismatch
+    with ``OnnxModelError``. threads: ONNX Runtime's intra-op threads; providers: its execution
+    providers (default the CPU); any_history: accept histories of any length M >= 1 (the
+    graph's M is dynamic), not only the M the network was trained with.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        threads: int = 1,
+        any_history: bool = False,
+        providers: list[str] | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.any_history = any_history
+        if not self.path.is_file():
+            raise FileNotFoundError(f"exported model {self.path} does not exist")
+        self.meta = read_sidecar(self.path, WINDOW)
+        self.session = _session(self.path, threads, providers)
+        check_session(
+            self.path, self.session, self.meta, window_io_spec("history", self.meta["horizon"])
         )
-    if meta.get("model_sha256") != sha256(model_path):
-        raise error(
-            f"{model_path}: the file does not match its sidecar {path.name} (checksum differs); "
-            "was it replaced or damaged?"
+        self.horizon: int = self.meta["horizon"]
+        self.history: int = self.meta["history"]  # M it was trained with
+
+    def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
+        """Predict the next N states, as ``Predictor.predict``.
+
+        history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout; M must
+        be ``self.history`` (unless ``any_history``) and N this file's horizon. Returns (N, 13)
+        or (B, N, 13) float64, unit quaternion x-y-z-w.
+        """
+        hist, fut, single = check_inputs(
+            history,
+            future_inputs,
+            caller="OnnxPredictor.predict",
+            history_rows=None if self.any_history else self.history,
         )
-    got = meta.get("layout", {})
-    for key, want in columns.items():
-        if got.get(key) != want:
-            raise error(f"{path}: {key} {got.get(key)} differ from this package's {want}")
-    for key in ("history", "horizon"):
-        if not isinstance(meta.get(key), int) or meta[key] < (
-            min_history if key == "history" else 1
-        ):
-            raise error(f"{path}: '{key}' must be a positive integer")
-    return meta
-
-
-def read_sidecar(model_path: str | Path) -> dict[str, Any]:
-    """The sidecar of an exported MPC model, checked (``check_sidecar``), with its vehicle
-    constants."""
-    meta = check_sidecar(
-        model_path,
-        what="MPC",
-        format=FORMAT,
-        format_version=FORMAT_VERSION,
-        columns={k: layout()[k] for k in ("state_columns", "input_columns")},
-        min_history=2,
-        error=OnboardModelError,
-    )
-    if not isinstance(meta.get("params"), dict):
-        path = sidecar_path(model_path)
-        raise OnboardModelError(f"{path}: the vehicle constants ('params') are missing")
-    return meta
-
-
-def check_session(
-    path: Path,
-    session: ort.InferenceSession,
-    meta: dict[str, Any],
-    spec: dict[str, Any] | None = None,
-    error: type[ValueError] = OnboardModelError,
-) -> None:
-    """The graph's inputs and outputs must be the ones the sidecar describes: ``spec``
-    (default: the MPC graph's, ``io_spec``)."""
-    spec = spec if spec is not None else io_spec(meta["history"], meta["horizon"])
-    for kind, actual in (("inputs", session.get_inputs()), ("outputs", session.get_outputs())):
-        want = [(s["name"], s["shape"]) for s in spec[kind]]
-        declared = [(s.get("name"), s.get("shape")) for s in meta.get(kind, [])]
-        got = [(a.name, list(a.shape)) for a in actual]
-        if declared != want or got != want:
-            raise error(
-                f"{path}: graph {kind} {got} and sidecar {kind} {declared} must both be {want}"
+        if fut.shape[1] != self.horizon:
+            raise ValueError(
+                f"OnnxPredictor.predict: {self.path} is exported for N = {self.horizon} future "
+                f"inputs, got {fut.shape[1]} (export one file per horizon)"
             )
+        feeds = {
+            HISTORY_INPUT: np.ascontiguousarray(hist, dtype=np.float32),
+            FUTURE_INPUT: np.ascontiguousarray(fut, dtype=np.float32),
+        }
+        return unbatch(self.session.run(None, feeds)[0], single)
+
+
+def _session(path: Path, threads: int, providers: list[str] | None) -> ort.InferenceSession:
+    """An ONNX Runtime session of the graph at ``path`` (``session_options``); a file it cannot
+    load is an ``OnnxModelError``."""
+    try:
+        return ort.InferenceSession(str(path), session_options(threads), providers=providers or CPU)
+    except Exception as exc:  # ORT raises its own exception types for unreadable files
+        raise OnnxModelError(f"{path}: not a loadable ONNX model ({exc})") from exc

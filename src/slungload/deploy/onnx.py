@@ -1,7 +1,7 @@
-"""ONNX export of a trained network, and its runtime predictor on ONNX Runtime.
+"""ONNX export of a trained network for whole windows (its runtime: ``onboard.OnnxPredictor``).
 
     result = export("runs/proposed", "model-n25.onnx", horizon=25)  # + model-n25.json
-    predictor = OnnxPredictor("model-n25.onnx")
+    predictor = onboard.OnnxPredictor("model-n25.onnx")  # numpy + onnxruntime, no torch
     states = predictor.predict(history, future_inputs)  # (N, 13), as predictor.Predictor
 
 The ONNX file is self-contained: it takes and returns the **file layout** of
@@ -15,13 +15,11 @@ quaternion reordering and sign continuity, and the final unit-norm projection
     states         (batch, N, 13)  x_M ... x_{M+N-1}
 
 N is fixed per file because the exporter unrolls the decoder's recursion (export one file per
-horizon); batch and M are dynamic. A JSON sidecar beside the model (same name, ``.json``)
-describes the columns, units, shapes, the quaternion convention, every config of the run and
-the package version; ``OnnxPredictor`` refuses a model whose file, inputs, outputs or state
-layout disagree with its sidecar.
-
-Runtime path: ``OnnxPredictor`` needs numpy, onnxruntime and the package's ``predictor`` checks;
-it never imports Lightning or ``training`` (checkpoints are read with torch alone).
+horizon); batch and M are dynamic. A JSON sidecar beside the model (same name, ``.json``;
+``sidecar``, the ``window`` format) describes the columns, units, shapes, the quaternion
+convention, every config of the run and the package version; ``OnnxPredictor`` refuses a model
+whose file, inputs, outputs or state layout disagree with its sidecar. The exporter needs torch;
+the predictor does not.
 """
 
 from __future__ import annotations
@@ -41,101 +39,41 @@ import onnxruntime as ort
 from .._version import __version__
 from ..config import DEFAULT_ARCHITECTURE, to_dict
 from ..fileio import atomic_path, write_json
-from ..layout import HISTORY_DIM, STATE_COLUMNS
 from ..models.checkpoints import load_checkpoint
 from ..models.registry import require_architecture
 from ..reporting import versions
 from ..state import (
-    GROUP_UNITS,
-    GROUPS,
     INPUT_DIM,
-    INPUT_NAMES,
     LOAD_POS,
     POS,
-    RATES,
     STATE_DIM,
-    THRUST,
     rotate_about_z,
     with_unit_quaternion,
 )
-from .onboard import CPU as _CPU
-from .onboard import check_session, check_sidecar, session_options, sha256
+from .onboard import CPU, session_options
 from .predictor import (
     PARITY_TOLERANCE,
     FileLayoutNet,
     Predictor,
-    check_inputs,
     states_to_file,
-    unbatch,
+)
+from .sidecar import (
+    FORMAT_VERSIONS,
+    FORMATS,
+    FUTURE_INPUT,
+    HISTORY_INPUT,
+    STATES_OUTPUT,
+    WINDOW,
+    OnnxModelError,
+    sha256,
+    sidecar_path,
+    window_io_spec,
+    window_layout,
 )
 
-FORMAT = "slungload-onnx"
-FORMAT_VERSION = 1  # bump when the graph's inputs/outputs or the sidecar change incompatibly
 OPSET = 17
 # The architectures whose export is checked by tests; any other is refused by name.
 ONNX_ARCHITECTURES = (DEFAULT_ARCHITECTURE, "physics-step")
-HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
-
-
-class OnnxModelError(ValueError):
-    """An exported model that cannot be used: missing, altered or inconsistent sidecar."""
-
-
-# --- what the files mean -----------------------------------------------------------------
-
-
-def state_columns() -> list[str]:
-    """Names of the 13 state columns in the file layout (quaternion x-y-z-w), from state.py."""
-    return list(STATE_COLUMNS)
-
-
-def state_units() -> list[str]:
-    """Unit of each state column (same order as ``state_columns``)."""
-    units = [""] * STATE_DIM
-    for group, cols in GROUPS.items():
-        for i in range(cols.start, cols.stop):
-            units[i] = GROUP_UNITS[group]
-    return units
-
-
-def input_units() -> list[str]:
-    """Unit of each input column: thrust in N, body rates in rad/s."""
-    units = [""] * INPUT_DIM
-    for i in range(THRUST.start, THRUST.stop):
-        units[i] = "N"
-    for i in range(RATES.start, RATES.stop):
-        units[i] = "rad/s"
-    return units
-
-
-def sidecar_path(model_path: str | Path) -> Path:
-    """The JSON sidecar of an exported model: same name, ``.json``."""
-    return Path(model_path).with_suffix(".json")
-
-
-def _layout() -> dict[str, Any]:
-    cols = state_columns()
-    return {
-        "state_columns": cols,
-        "state_units": state_units(),
-        "input_columns": list(INPUT_NAMES),
-        "input_units": input_units(),
-        "history_columns": cols + list(INPUT_NAMES),
-        "quaternion": "x-y-z-w (as in the data files), body -> world, unit norm on output",
-        "frame": "world z up, gravity -g e3",
-    }
-
-
-def _io_spec(history: int | str, horizon: int) -> dict[str, Any]:
-    return {
-        "inputs": [
-            {"name": HISTORY_INPUT, "shape": ["batch", history, HISTORY_DIM], "dtype": "float32"},
-            {"name": FUTURE_INPUT, "shape": ["batch", horizon, INPUT_DIM], "dtype": "float32"},
-        ],
-        "outputs": [
-            {"name": STATES_OUTPUT, "shape": ["batch", horizon, STATE_DIM], "dtype": "float32"}
-        ],
-    }
 
 
 # --- export ------------------------------------------------------------------------------
@@ -201,7 +139,7 @@ def export(
             {HISTORY_INPUT: {0: "batch", 1: "history"}, FUTURE_INPUT: {0: "batch"},
              STATES_OUTPUT: {0: "batch"}},
         )  # fmt: skip
-        session = ort.InferenceSession(str(tmp), session_options(1), providers=_CPU)
+        session = ort.InferenceSession(str(tmp), session_options(1), providers=CPU)
         got = session.run(None, {HISTORY_INPUT: history, FUTURE_INPUT: future})[0]
         want = predictor.predict(history, future).astype(np.float32)
         diff = float(np.abs(got - want).max())
@@ -215,15 +153,15 @@ def export(
     write_json(
         sidecar,
         {
-            "format": FORMAT,
-            "format_version": FORMAT_VERSION,
+            "format": FORMATS[WINDOW],
+            "format_version": FORMAT_VERSIONS[WINDOW],
             "package_version": __version__,
             "model_file": out.name,
             "model_sha256": digest,
             "history": m,
             "horizon": n,
-            **_io_spec("history", n),
-            "layout": _layout(),
+            **window_io_spec("history", n),
+            "layout": window_layout(),
             "variant": predictor.variant,
             "configs": configs,
             "source": source,
@@ -363,76 +301,6 @@ def sample_inputs(
     x = states_to_file(x)
     history = torch.cat([x, u[:, :m].double()], dim=-1)
     return history.float().numpy(), u[:, m:].float().numpy()
-
-
-# --- runtime (session options and providers: ``onboard``, their one home) ------------------
-
-
-class OnnxPredictor:
-    """An exported network on ONNX Runtime, with ``Predictor``'s ``predict`` call.
-
-    Loading checks the model file against its sidecar (format version, checksum, input and
-    output names and shapes, state layout) and refuses a mismatch with ``OnnxModelError``.
-    threads: ONNX Runtime's intra-op threads; any_history: accept histories of any length
-    M >= 1 (the graph's M is dynamic), not only the M the network was trained with.
-    """
-
-    def __init__(self, path: str | Path, *, threads: int = 1, any_history: bool = False) -> None:
-        self.path = Path(path)
-        self.any_history = any_history
-        if not self.path.is_file():
-            raise FileNotFoundError(f"exported model {self.path} does not exist")
-        self.meta = read_sidecar(self.path)
-        try:
-            self.session = ort.InferenceSession(
-                str(self.path), session_options(threads), providers=_CPU
-            )
-        except Exception as exc:  # ORT raises its own exception types for unreadable files
-            raise OnnxModelError(f"{self.path}: not a loadable ONNX model ({exc})") from exc
-        check_session(
-            self.path, self.session, self.meta, _io_spec("history", self.meta["horizon"]),
-            OnnxModelError,
-        )  # fmt: skip
-        self.horizon: int = self.meta["horizon"]
-        self.history: int = self.meta["history"]  # M it was trained with
-
-    def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
-        """Predict the next N states, as ``Predictor.predict``.
-
-        history (M, 17) or (B, M, 17), future_inputs (N, 4) or (B, N, 4), file layout; M must
-        be ``self.history`` (unless ``any_history``) and N this file's horizon. Returns (N, 13)
-        or (B, N, 13) float64, unit quaternion x-y-z-w.
-        """
-        hist, fut, single = check_inputs(
-            history,
-            future_inputs,
-            caller="OnnxPredictor.predict",
-            history_rows=None if self.any_history else self.history,
-        )
-        if fut.shape[1] != self.horizon:
-            raise ValueError(
-                f"OnnxPredictor.predict: {self.path} is exported for N = {self.horizon} future "
-                f"inputs, got {fut.shape[1]} (export one file per horizon)"
-            )
-        feeds = {
-            HISTORY_INPUT: np.ascontiguousarray(hist, dtype=np.float32),
-            FUTURE_INPUT: np.ascontiguousarray(fut, dtype=np.float32),
-        }
-        return unbatch(self.session.run(None, feeds)[0], single)
-
-
-def read_sidecar(model_path: str | Path) -> dict[str, Any]:
-    """The sidecar of ``model_path``, checked for format, version, checksum and layout
-    (``onboard.check_sidecar``)."""
-    return check_sidecar(
-        model_path,
-        what="ONNX",
-        format=FORMAT,
-        format_version=FORMAT_VERSION,
-        columns={k: _layout()[k] for k in ("state_columns", "input_columns", "history_columns")},
-        min_history=1,
-        error=OnnxModelError,
-    )
 
 
 def export_record(opset: int, diff: float) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """The compiled (Numba) paths, one home: the batch-1 ``CompiledPredictor`` for a control loop
 (``predictor``) and the batched candidate rollouts for the MPC (``batched``:
-``CompiledPhysicsModel``, ``CompiledNetworkModel``, ``load_model(..., backend=)``), on one
+``CompiledPhysicsModel``, ``CompiledNetworkModel``, ``with_backend``), on one
 weight fold (``fold``), one set of math kernels (``kernels``) and one compiled copy of the
 discrete model and the load-state estimates (``physics``).
 """
@@ -10,7 +10,6 @@ from __future__ import annotations
 from .batched import (
     CompiledNetworkModel,
     CompiledPhysicsModel,
-    load_model,
     with_backend,
 )
 from .fold import COMPILED_ARCHITECTURES, FoldedWeights, fold
@@ -24,7 +23,6 @@ __all__ = [
     "CompiledPredictor",
     "FoldedWeights",
     "fold",
-    "load_model",
     "unsupported",
     "with_backend",
 ]

@@ -1,6 +1,6 @@
 """Fast batched rollouts for a sampling controller: ``PredictionModel``s on compiled kernels.
 
-    model = load_model("runs/ps-exc", backend="compiled")   # or "physics"
+    model = load_model("runs/ps-exc", backend="compiled")   # deploy.backends; or "physics"
     states = model.predict_candidates(x_hist, u_past, plans)  # (K, N, 13), as the eager model
 
 What a model-predictive controller asks for at every step is one history and K candidate
@@ -24,16 +24,17 @@ H, GELUs, gates, quaternions) and allocations cost as much as the matrix product
 Both equal the eager model to float32 rounding for the network (tests: both architectures,
 every model mode) and to round-off for the physics (float64); ``predict_windows`` is the eager
 model's. The ``cuda`` backend is the eager model on the GPU, replayed from CUDA graphs
-(``deploy.gpu``; CPU tensors in and out, as the MPC calls it). ``load_model(spec, params,
-backend=...)`` picks one of ``config.PREDICTION_BACKENDS``; a model a backend cannot run, or a
-GPU that torch does not see, is a ``ValueError`` naming why, never a silent fallback.
+(``deploy.gpu``; CPU tensors in and out, as the MPC calls it). ``with_backend`` puts a model
+on one of ``config.PREDICTION_BACKENDS`` (``deploy.backends.load_model`` loads and puts); a
+model a backend cannot run, or a GPU that torch does not see, is a ``ValueError`` naming why,
+never a silent fallback. Both compiled models also take the MPC's numpy call directly
+(``numpy_candidates``, ``control.mppi.CandidateModel``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -50,7 +51,6 @@ from ...models.prediction import (
     PhysicsModel,
     PredictionModel,
     check_candidates,
-    load_prediction_model,
 )
 from ...physics import VehicleConstants
 from ...state import from_heading_frame, heading_turn, to_heading_frame
@@ -90,19 +90,37 @@ class CompiledPhysicsModel:
 
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
+        if self.constants not in ("dataset", "window"):
+            self._eager.predict_candidates(x_hist, u_past, plans)  # its error
+        out = self.numpy_candidates(*_arrays(x_hist, u_past, plans))
+        return torch.from_numpy(out).to(plans.device, plans.dtype)
+
+    def numpy_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """``predict_candidates`` on float64 arrays, without torch: the MPC's call
+        (``control.mppi.CandidateModel``, through ``control.mpc.candidate_model``)."""
         vehicle = self._vehicle
         if self.constants == "window":
-            history = x_hist.detach().cpu().numpy(), u_past.detach().cpu().numpy()
-            vehicle = history_constants(*history, vehicle, self.prior_weight)
+            vehicle = history_constants(x_hist, u_past, vehicle, self.prior_weight)
         elif self.constants != "dataset":
-            self._eager.predict_candidates(x_hist, u_past, plans)  # its error
-        x = np.ascontiguousarray(x_hist[-2:].detach().cpu().numpy(), np.float64)
+            raise ValueError(
+                f"the compiled physics predicts candidates with constants 'dataset' or "
+                f"'window', not {self.constants!r}"
+            )
+        x = np.ascontiguousarray(x_hist[-2:], np.float64)
         aux = np.empty(AUX_DIM, np.float64)
         estimate_load_state(x[0], x[1], vehicle, aux)
-        u = np.ascontiguousarray(plans.detach().cpu().numpy(), np.float64)
+        u = np.ascontiguousarray(plans, np.float64)
         out = np.empty((*u.shape[:2], STATE_DIM), np.float64)
         physics_rollout(x[1], aux, u, vehicle, out)
-        return torch.from_numpy(out).to(plans.device, plans.dtype)
+        return out
+
+
+def _arrays(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> tuple[np.ndarray, ...]:
+    """A torch caller's candidates call as the float64 arrays of ``numpy_candidates`` (exact:
+    float32 inputs widen without rounding)."""
+    return tuple(t.detach().to("cpu", torch.float64).numpy() for t in (x_hist, u_past, plans))
 
 
 class _Buffers:
@@ -146,27 +164,35 @@ class CompiledNetworkModel:
 
     def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         check_candidates(x_hist, u_past, plans)
+        out = self.numpy_candidates(*_arrays(x_hist, u_past, plans))
+        return torch.from_numpy(out).to(plans.device, plans.dtype)
+
+    def numpy_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """``predict_candidates`` on float64 arrays (K, N, 13) out: the MPC's call
+        (``control.mppi.CandidateModel``, through ``control.mpc.candidate_model``), no tensor
+        conversion at its edges."""
         w = self.w
-        x_t = x_hist.detach().cpu().to(torch.float64)
-        twist = self._eager.net.heading(x_t[-1])  # (4,) or None: the network's frame undoes it
+        x = np.asarray(x_hist, np.float64)
+        twist = self._eager.net.heading(torch.from_numpy(x[-1]))  # the network's frame undoes it
         turn = None if twist is None else heading_turn(twist)
-        x = (x_t if turn is None else to_heading_frame(x_t, turn)).numpy()
+        if turn is not None:
+            x = to_heading_frame(torch.from_numpy(x), turn).numpy()
         origin = x[-1, POS] @ w.origin_shift  # (13,)
         x_rel = x - origin
-        u_cols = np.ascontiguousarray(  # (N, 4, K)
-            plans.detach().cpu().numpy().transpose(1, 2, 0), np.float32
-        )
+        u_cols = np.ascontiguousarray(np.asarray(plans).transpose(1, 2, 0), np.float32)  # (N, 4, K)
         n, _, k = u_cols.shape
         b = self._buffers_for(k)
         vehicle, embed = w.vehicle, w.embed
         if self.constants == "window":  # the history's own, and the embedding's bias with them
-            vehicle = history_constants(x_rel, u_past.detach().cpu().numpy(), w.vehicle)
+            vehicle = history_constants(x_rel, u_past, w.vehicle)
             bias0 = torch.from_numpy(first_bias(self.folded, vehicle))[:, None]
             embed = [(embed[0][0], bias0), *embed[1:]]
         aux = self._load_state(x_rel, b.a["aux"], vehicle)
         b.a["xu"][:STATE_DIM] = x_rel[-1, :, None]
         b.a["xu"][STATE_DIM:] = u_cols[0]
-        shared = self._encode(x_rel, u_past.detach().cpu().numpy(), b, embed)
+        shared = self._encode(x_rel, np.asarray(u_past), b, embed)
         out = np.empty((k, n, STATE_DIM), np.float64)
         no_input = np.empty((INPUT_DIM, 0), np.float32)
         for step in range(n):
@@ -178,10 +204,9 @@ class CompiledNetworkModel:
                 b.a["xu"], self._head(b), aux, w.mode, w.add_mean, vehicle, u_next, origin,
                 out, step,
             )  # fmt: skip
-        pred = torch.from_numpy(out)
         if turn is not None:
-            pred = from_heading_frame(pred, turn)
-        return pred.to(plans.device, plans.dtype)
+            out = from_heading_frame(torch.from_numpy(out), turn).numpy()
+        return out
 
     # --- the pieces ---------------------------------------------------------------------------
 
@@ -408,19 +433,3 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
     raise ValueError(
         f"the compiled backend runs a PhysicsModel or a NetworkModel, not a {type(model).__name__}"
     )
-
-
-def load_model(
-    spec: str | Path,
-    params: VehicleParams | None = None,
-    *,
-    backend: str = "eager",
-    constants: VehicleParams | None = None,
-) -> PredictionModel:
-    """``models.prediction.load_prediction_model(spec, params, constants=constants)`` on
-    ``backend`` (``config.PREDICTION_BACKENDS``; see ``with_backend``)."""
-    if backend not in PREDICTION_BACKENDS:
-        raise ValueError(
-            f"unknown prediction backend {backend!r}; known: {list(PREDICTION_BACKENDS)}"
-        )
-    return with_backend(load_prediction_model(spec, params, constants=constants), backend)

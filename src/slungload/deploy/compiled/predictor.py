@@ -47,7 +47,8 @@ from ...layout import (
 )
 from ...physics import VehicleConstants
 from ...state import from_heading_frame, heading_turn, to_heading_frame
-from ..predictor import PARITY_TOLERANCE, Predictor, check_inputs, torch_threads, unbatch
+from ..inputs import check_inputs, unbatch
+from ..predictor import PARITY_TOLERANCE, Predictor, torch_threads
 from .fold import (
     PHYSICS_STEP,
     RESIDUAL,

@@ -49,15 +49,10 @@ from ...config import (
 )
 from ...data.windows import Windows, make_windows
 from ...deploy.compiled import CompiledPredictor, unsupported
-from ...deploy.onnx import OnnxPredictor, export
-from ...deploy.predictor import (
-    FileLayoutNet,
-    Predictor,
-    check_inputs,
-    states_to_file,
-    torch_threads,
-    unbatch,
-)
+from ...deploy.inputs import check_inputs, unbatch
+from ...deploy.onboard import OnnxPredictor
+from ...deploy.onnx import export
+from ...deploy.predictor import FileLayoutNet, Predictor, states_to_file, torch_threads
 from ...deploy.timing import time_calls
 from ...load_state import estimate_load_state
 from ...loss import compute_loss, model_config_for

@@ -212,7 +212,7 @@ def _onnx_model(predictor: Predictor, horizon: int, folder: Path, notes: list[st
     why) when the exporter refuses it: its own parity check against eager."""
     from ...deploy.candidates import export_for_mpc
     from ...deploy.onboard import OnnxCandidateModel
-    from ...deploy.onnx import OnnxModelError
+    from ...deploy.sidecar import OnnxModelError
 
     try:
         result = export_for_mpc(predictor, folder / f"n{horizon}.mpc.onnx", horizon=horizon)

@@ -23,7 +23,7 @@ from ...config import VehicleParams
 from ...control.closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
 from ...control.controllers import PID, reference_maker
 from ...control.mpc import InputLimits, MPCConfig, mpc_maker
-from ...deploy.compiled.batched import load_model
+from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...fileio import write_json
 from ...models.checkpoints import checkpoint_meta

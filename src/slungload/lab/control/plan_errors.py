@@ -30,7 +30,7 @@ import numpy as np
 
 from ...config import VehicleParams
 from ...control.closed_loop import fly
-from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, TorchCandidates, reference_ahead
+from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, candidate_model, reference_ahead
 from ...control.mppi import CandidateModel, knots_for, trajectory_cost
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from ...sim.controller import Measurement
@@ -172,8 +172,7 @@ def plan_errors(
     (N,) RMS errors per horizon step (m), ``spearman`` and ``regret`` (means over the probes),
     and ``probes`` (their count)."""
     cfg = cfg or PlanErrorConfig()
-    numpy_models = {name: m if getattr(m, "numpy", False) else TorchCandidates(m)
-                    for name, m in models.items()}  # fmt: skip
+    numpy_models = {name: candidate_model(m) for name, m in models.items()}
     mpc = MPCConfig(**{**mpc.__dict__, "horizon": cfg.horizon, "samples": cfg.samples,
                        "knots": knots_for(cfg.horizon)})  # fmt: skip
     limits = InputLimits.from_sim(plant_cfg)
@@ -213,7 +212,7 @@ def run_plan_errors(
     """``plan_errors`` of the physics model and the ``learned`` run (None: physics alone)
     along the plans of each MPC of ``config.flying``, on ``config.plant``; the report in
     ``out`` (``write_plan_errors``)."""
-    from ...deploy.compiled.batched import load_model
+    from ...deploy.backends import load_model
     from ...models.prediction import PHYSICS
     from ...sim.config import vehicle_params
     from ...sim.plants import plant_config

@@ -25,7 +25,7 @@ from ...control.mpc import InputLimits, MPCConfig, knots_for, mpc_maker
 from ...data.folder import read_splits
 from ...data.readers import flight_files
 from ...data.writer import DatasetWriter
-from ...deploy.compiled.batched import load_model
+from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...fileio import read_json, write_npz
 from ...models.prediction import PredictionModel

@@ -42,9 +42,9 @@ from ...control.closed_loop import FlightLog, flight_metrics, fly, log_path, rea
 from ...control.controllers import REFERENCE, reference_maker
 from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
 from ...control.mppi import ReferenceAhead
-from ...deploy.compiled.batched import load_model
-from ...deploy.onboard import sha256
+from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
+from ...deploy.sidecar import sha256
 from ...deploy.timing import time_calls
 from ...fileio import read_json, write_json
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM

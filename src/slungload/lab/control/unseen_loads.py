@@ -38,7 +38,8 @@ from matplotlib.figure import Figure
 from ...config import VehicleParams
 from ...control.controllers import PID, reference_maker
 from ...control.mpc import InputLimits, MPCConfig, mpc_maker
-from ...deploy.compiled.batched import load_model, with_backend
+from ...deploy.backends import load_model
+from ...deploy.compiled.batched import with_backend
 from ...deploy.predictor import torch_threads
 from ...fileio import read_json, write_json, write_text
 from ...models.checkpoints import checkpoint_meta
