@@ -48,6 +48,13 @@ def add_flight_options(
         p.add_argument("--plant", choices=choices("plants"),
                        help=f"the simulated vehicle ({plants_help()}; docs/simulator.md) "
                        f"(default {cfg.plant})")  # fmt: skip
+    if hasattr(cfg, "cost"):
+        from ..control.mppi import COSTS  # numpy only
+
+        shown = "; ".join(f"{name}: {text}" for name, text in COSTS.items())
+        p.add_argument("--cost", choices=list(COSTS),
+                       help=f"the MPC's cost: {shown} (docs/control.md) "
+                       f"(default {cfg.cost})")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -122,7 +129,8 @@ def cmd_control(args: argparse.Namespace) -> int:
 
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
-                                         backend=args.backend, plant=args.plant)  # fmt: skip
+                                         backend=args.backend, plant=args.plant,
+                                         cost=args.cost)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     result = compare(args.model, args.out, config, threads=args.threads,

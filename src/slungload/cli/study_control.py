@@ -86,7 +86,8 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      oracle_horizons=args.oracle_horizons and tuple(args.oracle_horizons),
                      shift_horizons=args.shift_horizons and tuple(args.shift_horizons),
                      oracle_samples=args.oracle_samples, samples=args.samples,
-                     backend=args.backend, steps=args.steps, plant=args.plant)  # fmt: skip
+                     backend=args.backend, steps=args.steps, plant=args.plant,
+                     cost=args.cost)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     warn_model_notes(args.model, max(config.horizons))
     learned = args.model[0] if args.model else None

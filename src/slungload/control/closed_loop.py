@@ -39,7 +39,7 @@ from ..sim.controller import Controller, Measurement
 from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
 from .mpc import InputLimits, MPCConfig
-from .mppi import ReferenceAhead, trajectory_cost
+from .mppi import ReferenceAhead, payload_first, trajectory_cost
 
 
 @dataclass(frozen=True)
@@ -253,15 +253,19 @@ def realized_cost(
     rec = np.flatnonzero(log.t >= -1e-9)
     if rec.size == 0 or rec[0] == 0:
         raise ValueError(f"{log.controller} {log.maneuver} s{log.seed}: no warm-up or no record")
-    ref = ReferenceAhead(reference.position[rec], reference.velocity[rec], reference.yaw[rec])
+    ref = ReferenceAhead(reference.position[rec], reference.velocity[rec], reference.yaw[rec],
+                         reference.acceleration[rec])  # fmt: skip
     x, u = log.states[rec][None], log.inputs[rec][None]
     hover = (params.mass_quad + params.mass_load) * params.gravity
+    target = (payload_first(ref, params.cable_length, params.gravity, params.dt)
+              if mpc.cost == "payload" else None)  # fmt: skip
     weights = [w for ws in COST_TERMS.values() for w in ws]
     out = {}
     for name, ws in COST_TERMS.items():
         only = replace(mpc, terminal=0.0, **{w: getattr(mpc, w) if w in ws else 0.0
                                               for w in weights})  # fmt: skip
-        cost = trajectory_cost(x, u, ref, log.inputs[rec[0] - 1], only, params.cable_length, hover)
+        cost = trajectory_cost(x, u, ref, log.inputs[rec[0] - 1], only, params.cable_length, hover,
+                               target)  # fmt: skip
         out[name] = float(cost[0])
     out["total"] = sum(out.values())
     return out

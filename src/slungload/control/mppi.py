@@ -97,6 +97,14 @@ class InputLimits:
         return bool(thrust or (np.abs(u[1:]) >= self.rate_max * (1.0 - rel)).any())
 
 
+# The MPC's cost options (``MPCConfig.cost``), first the default.
+COSTS: dict[str, str] = {
+    "vehicle": "the vehicle at the reference, the load below it on a vertical cable",
+    "payload": "the load on the reference's path, the vehicle and the cable where that path's "
+    "acceleration needs them (turns are not penalised for the swing they need)",
+}
+
+
 @dataclass(frozen=True)
 class MPCConfig:
     """The sampler, the cost weights (per step, SI units squared) and the safety settings."""
@@ -135,6 +143,10 @@ class MPCConfig:
     # (estimated in flight from the history at every step, the params as the prior: a load
     # the controller was not told of; ``MPPIController``'s ``estimate``).
     constants: str = "dataset"
+    # What the state terms hold the vehicle and the cable to (a name of ``COSTS``): "vehicle"
+    # the reference itself and a vertical cable; "payload" the vehicle's position, velocity and
+    # cable direction that the load's reference path requires (``payload_first``).
+    cost: str = "vehicle"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -145,6 +157,8 @@ class MPCConfig:
             )
         if not self.temperature > 0:
             raise ValueError(f"MPCConfig.temperature must be > 0, got {self.temperature}")
+        if self.cost not in COSTS:
+            raise ValueError(f"MPCConfig.cost: unknown {self.cost!r}; known: {list(COSTS)}")
         if self.constants not in NETWORK_CONSTANTS:
             raise ValueError(
                 f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
@@ -172,19 +186,55 @@ class MPCStats:
 
 
 class ReferenceAhead(NamedTuple):
-    """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up)."""
+    """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up): the
+    vehicle's; the load's is l e3 below (``MPCConfig.cost`` "payload" reads it as the load's
+    path, and needs its acceleration)."""
 
     position: np.ndarray  # (N, 3) m
     velocity: np.ndarray  # (N, 3) m/s
     yaw: np.ndarray  # (N,) rad
+    acceleration: np.ndarray | None = None  # (N, 3) m/s^2
+
+
+class VehicleTarget(NamedTuple):
+    """What the payload-first cost holds the vehicle and the cable to at the N steps ahead
+    (``payload_first``)."""
+
+    position: np.ndarray  # (N, 3) m
+    velocity: np.ndarray  # (N, 3) m/s
+    offset: np.ndarray  # (N, 2) m: the load's horizontal offset from the vehicle, l q_xy
+
+
+def payload_first(
+    ref: ReferenceAhead, cable_length: float, gravity: float, dt: float
+) -> VehicleTarget:
+    """The vehicle's reference from the load's path (differential flatness of the slung load,
+    Sreenath, Lee and Kumar 2013): the load at p_L = ref.position - l e3 with acceleration a_L
+    (``ref.acceleration``) hangs along q = -(a_L + g e3) / |a_L + g e3| (unit, vehicle to
+    load), so the vehicle belongs at p_L - l q, moving at v_L - l dq/dt (dq/dt by differences
+    over the N steps of ``dt`` s), with the load offset l q_xy from it horizontally. A
+    reference without acceleration is a ValueError."""
+    if ref.acceleration is None:
+        raise ValueError(
+            "the payload-first cost needs the reference's acceleration (ReferenceAhead"
+            ".acceleration, (N, 3) m/s^2)"
+        )
+    pull = ref.acceleration + np.array([0.0, 0.0, gravity])
+    q = -pull / np.maximum(np.linalg.norm(pull, axis=-1, keepdims=True), 1e-6)
+    q_dot = np.gradient(q, dt, axis=0) if len(q) > 1 else np.zeros_like(q)
+    load = ref.position - np.array([0.0, 0.0, cable_length])
+    return VehicleTarget(
+        load - cable_length * q, ref.velocity - cable_length * q_dot, cable_length * q[:, :2]
+    )
 
 
 def reference_ahead(ref, k: int, n: int) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
-    velocity (T, 3), yaw (T,)), held at its last row past the end: position (n, 3) m,
-    velocity (n, 3) m/s, yaw (n,) rad, float64."""
+    velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
+    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64."""
     idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(), ref.yaw[idx].copy())
+    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
+                          ref.yaw[idx].copy(), ref.acceleration[idx].copy())  # fmt: skip
 
 
 class Command(NamedTuple):
@@ -237,22 +287,29 @@ def trajectory_cost(
     cfg: MPCConfig,
     cable_length: float,
     hover_thrust: float,
+    target: VehicleTarget | None = None,
 ) -> np.ndarray:
     """Cost (K,) of predicted states (K, N, 13) under plans (K, N, 4); u_prev (4,) the input
-    applied at the previous step. A non-finite prediction gives a non-finite cost."""
+    applied at the previous step. target: where the vehicle and the cable belong
+    (``payload_first``, the "payload" cost); None: the reference itself and a vertical cable
+    (the "vehicle" cost). A non-finite prediction gives a non-finite cost."""
     n = states.shape[1]
     step_w = np.ones(n)
     step_w[-1] += cfg.terminal
     p, v, q, pl = states[..., POS], states[..., VEL], states[..., QUAT], states[..., LOAD_POS]
     load_ref = ref.position - np.array([0.0, 0.0, cable_length])
+    if target is None:
+        p_ref, v_ref, offset = ref.position, ref.velocity, (pl - p)[..., :2]
+    else:
+        p_ref, v_ref, offset = target.position, target.velocity, (pl - p)[..., :2] - target.offset
     with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf predictions: dropped later
         yaw_err = np.remainder(yaw_of(q) - ref.yaw + math.pi, 2.0 * math.pi) - math.pi
         over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
         state_cost = (
-            cfg.w_position * _huber(_square_norm(p - ref.position), cfg.position_huber)
-            + cfg.w_velocity * _square_norm(v - ref.velocity)
+            cfg.w_position * _huber(_square_norm(p - p_ref), cfg.position_huber)
+            + cfg.w_velocity * _square_norm(v - v_ref)
             + cfg.w_load * _huber(_square_norm(pl - load_ref), cfg.position_huber)
-            + cfg.w_swing * _square_norm((pl - p)[..., :2])
+            + cfg.w_swing * _square_norm(offset)
             + cfg.w_yaw * np.square(yaw_err)
             + cfg.w_tilt * np.square(over_tilt)
         )  # (K, N)
@@ -403,7 +460,21 @@ class MPPIController:
     def check_reference(self, reference: ReferenceAhead) -> ReferenceAhead:
         """The reference as float64 arrays of N rows (a longer one is cut), or ValueError."""
         n = self.cfg.horizon
-        p, v, yaw = (np.asarray(a, dtype=np.float64) for a in reference)
+        p, v, yaw = (np.asarray(a, dtype=np.float64) for a in reference[:3])
+        acc = reference.acceleration if isinstance(reference, ReferenceAhead) else None
+        if acc is not None:
+            acc = np.asarray(acc, dtype=np.float64)
+            if acc.shape[1:] != (3,) or len(acc) < n:
+                raise ValueError(
+                    f"reference: acceleration must be ({n}, 3) for the N = {n} steps ahead; "
+                    f"got {acc.shape}"
+                )
+            acc = acc[:n]
+        elif self.cfg.cost == "payload":
+            raise ValueError(
+                "reference: the payload-first cost (MPCConfig.cost 'payload') needs the "
+                f"acceleration of the N = {n} steps ahead (ReferenceAhead.acceleration)"
+            )
         if (
             p.shape[1:] != (3,)
             or v.shape[1:] != (3,)
@@ -414,10 +485,17 @@ class MPPIController:
                 f"reference: need position ({n}, 3), velocity ({n}, 3) and yaw ({n},) for the "
                 f"N = {n} steps ahead; got {p.shape}, {v.shape}, {yaw.shape}"
             )
-        ahead = ReferenceAhead(p[:n], v[:n], yaw[:n])
-        if not all(np.isfinite(a).all() for a in ahead):
+        ahead = ReferenceAhead(p[:n], v[:n], yaw[:n], acc)
+        if not all(np.isfinite(a).all() for a in ahead if a is not None):
             raise ValueError("reference: the N steps ahead hold NaN or infinite values")
         return ahead
+
+    def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
+        """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of
+        ``ref`` with the cost's cable length for the "payload" cost, None for "vehicle"."""
+        if self.cfg.cost != "payload":
+            return None
+        return payload_first(ref, self.cable_length, self.params.gravity, self.params.dt)
 
     def sample(self) -> np.ndarray:
         """K clamped input sequences (K, N, 4) around the nominal plan; row 0 is the plan."""
@@ -439,7 +517,14 @@ class MPPIController:
             return None, "prediction of the wrong shape"
         states = np.asarray(states, dtype=np.float64)
         cost = trajectory_cost(
-            states, samples, ref, self.u_prev, self.cfg, self.cable_length, self.hover_thrust
+            states,
+            samples,
+            ref,
+            self.u_prev,
+            self.cfg,
+            self.cable_length,
+            self.hover_thrust,
+            self.target(ref),
         )
         finite = np.isfinite(cost) & np.isfinite(states).reshape(len(states), -1).all(1)
         weights = mppi_weights(np.where(finite, cost, math.inf), self.cfg.temperature)

@@ -8,9 +8,10 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from typing import Any
 
 from ...control.controllers import REFERENCE
-from ...control.mppi import MPCConfig, knots_for
+from ...control.mppi import COSTS, MPCConfig, knots_for
 from ...sim.config import SimConfig
 from ...sim.maneuvers import MANEUVERS
 from ...sim.plants import DEFAULT_PLANT, PLANTS
@@ -68,7 +69,7 @@ COST_GRID: tuple[dict[str, float], ...] = (
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
-    "tune", "backend",
+    "tune", "backend", "cost",
 )  # fmt: skip
 
 
@@ -85,9 +86,11 @@ class ComparisonConfig:
     steps: int | None = None  # recorded steps per flight (None: the maneuver's whole length)
     backend: str = "eager"  # what the prediction models run on (``config.PREDICTION_BACKENDS``)
     plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
+    cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
+        _check_cost(self.cost)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
@@ -96,7 +99,7 @@ class ComparisonConfig:
     @property
     def mpc(self) -> MPCConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots)."""
-        return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon))
+        return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost)
 
 
 @dataclass(frozen=True)
@@ -121,6 +124,11 @@ class StudyConfig:
     # the simulated vehicle (``sim.plants.PLANTS``): its nominal constants are the physics
     # model's, the shifts are of it
     plant: str = DEFAULT_PLANT
+    cost: str = MPCConfig.cost  # every MPC's cost (``control.mppi.COSTS``)
+
+    def mpc(self, **fields: Any) -> MPCConfig:
+        """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost."""
+        return MPCConfig(cost=self.cost, **fields)
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -129,6 +137,7 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         _check_steps("StudyConfig", self.steps)
+        _check_cost(self.cost)
         _check_plant(self.plant)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
@@ -267,3 +276,8 @@ class RecordConfig:
     def seeds(self) -> range:
         """The sim seeds flown (each maneuver from ``first_seed`` on)."""
         return range(self.first_seed, self.first_seed + max(n for _, n in self.flights))
+
+
+def _check_cost(cost: str) -> None:
+    if cost not in COSTS:
+        raise ValueError(f"unknown MPC cost {cost!r}; known: {list(COSTS)}")

@@ -113,7 +113,8 @@ class Probe:
 
         def cost(states: np.ndarray) -> np.ndarray:
             return trajectory_cost(states, plans, self.reference, core.u_prev, self.mpc,
-                                   core.cable_length, core.hover_thrust)  # fmt: skip
+                                   core.cable_length, core.hover_thrust,
+                                   core.target(self.reference))  # fmt: skip
 
         true_cost = cost(truth)
         spread = float(true_cost.mean() - true_cost.min())

@@ -227,7 +227,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 continue
             for n in horizons:
                 tuned = tuples_from_json(settings["mpc"][kind][str(n)])
-                mpc = MPCConfig(**tuned, horizon=n, knots=knots_for(n),
+                mpc = cfg.mpc(**tuned, horizon=n, knots=knots_for(n),
                                 samples=settings["samples"][kind][str(n)])  # fmt: skip
                 plans.append(Flown(plant, mpc_label(kind, n),
                                    mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
@@ -235,7 +235,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
             for n in cfg.oracle_horizons:
                 chosen = (tuples_from_json(settings["mpc"]["learned"][str(n)])
                           if "learned" in models else {})  # fmt: skip
-                mpc = MPCConfig(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
+                mpc = cfg.mpc(**chosen, horizon=n, knots=knots_for(n), samples=cfg.oracle_samples)
                 plans.append(Flown(plant, mpc_label(ORACLE, n),
                                    mpc_maker(PlantCandidates, limits, mpc, params)))  # fmt: skip
     return plans
@@ -329,7 +329,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
 
             def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
                 tuned = tuples_from_json(mpc[kind][str(n)])
-                return lambda k: mpc_maker(models[kind], limits, MPCConfig(
+                return lambda k: mpc_maker(models[kind], limits, cfg.mpc(
                     **tuned, horizon=n, knots=knots_for(n), samples=k), params)(0)  # fmt: skip
 
             samples[PHYSICS][str(n)] = equal_compute_samples(
@@ -388,7 +388,7 @@ def _best(
     nominal = named_plant(cfg.plant)
     best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
-        mpc = MPCConfig(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
+        mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
         rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
                                limits, nominal.cable_length)

@@ -396,7 +396,7 @@ def _oracle_gap_section(
         ]
     chosen = settings.get("mpc", {}).get("learned", {}).get(str(n))
     if chosen is not None:
-        mpc = MPCConfig(**tuples_from_json(chosen), horizon=n, knots=knots_for(n))
+        mpc = config.mpc(**tuples_from_json(chosen), horizon=n, knots=knots_for(n))
         parts += [
             f"The MPC's own cost over each flight at N = {n} (the learned MPC's settings, "
             "which the oracle flies; terms by weight group, no terminal weight):",
