@@ -19,6 +19,7 @@ from slungload.control.mppi import (
     MPPIController,
     ReferenceAhead,
     mppi_weights,
+    payload_first,
     trajectory_cost,
 )
 from slungload.frames import rotation_matrix, swing_angle
@@ -203,3 +204,62 @@ def test_a_reference_with_nan_is_refused():
     ref.yaw[2] = math.nan
     with pytest.raises(ValueError, match="NaN"):
         mpc.step(hover_state(), ref)
+
+
+# --- the payload-first cost ------------------------------------------------------------------
+
+
+def accelerating(a, n: int = 6) -> ReferenceAhead:
+    """A reference at (0, 0, 1.5) accelerating at a constant ``a`` (3,) m/s^2."""
+    ref = hold([0.0, 0.0, 1.5], n)
+    return ref._replace(acceleration=np.tile(np.asarray(a, float), (n, 1)))
+
+
+def test_payload_first_hangs_the_cable_along_the_loads_specific_force():
+    """At rest the vehicle target is the reference and the cable vertical; accelerating at a
+    the cable leans back by atan(a / g) and the vehicle leads the load by l sin of it."""
+    l, g = PARAMS.cable_length, PARAMS.gravity
+    rest = payload_first(accelerating([0, 0, 0]), l, g)
+    np.testing.assert_allclose(rest.position, np.tile([0, 0, 1.5], (6, 1)), atol=1e-12)
+    np.testing.assert_allclose(rest.offset, 0.0, atol=1e-12)
+    np.testing.assert_allclose(rest.velocity, 0.0, atol=1e-12)
+    a = 3.0
+    lean = math.atan2(a, g)
+    turn = payload_first(accelerating([a, 0, 0]), l, g)
+    load = np.array([0.0, 0.0, 1.5 - l])  # the load's path: the reference l below
+    np.testing.assert_allclose(turn.position - load, np.tile(l * np.array([math.sin(lean), 0,
+                               math.cos(lean)]), (6, 1)), atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(turn.offset, np.tile([-l * math.sin(lean), 0.0], (6, 1)))
+    np.testing.assert_allclose(turn.velocity, 0.0, atol=1e-12)  # the load's
+    with pytest.raises(ValueError, match="needs the reference's acceleration"):
+        payload_first(hold([0, 0, 1.5], 6), l, g)
+
+
+def test_the_payload_cost_charges_nothing_for_the_lean_a_turn_needs():
+    """A vehicle where the load's path puts it, its load on that path: no state cost under
+    the payload cost, a swing and position cost under the vehicle cost."""
+    ref = accelerating([3.0, 0.0, 0.0])
+    l = PARAMS.cable_length
+    target = payload_first(ref, l, PARAMS.gravity)
+    states = np.zeros((1, 6, 13))
+    states[..., 0:3], states[..., 6] = target.position, 1.0
+    states[..., 10:13] = ref.position - [0.0, 0.0, l]
+    plans = np.tile([HOVER_T, 0.0, 0.0, 0.0], (1, 6, 1))
+    u_prev = plans[0, 0]
+    payload = replace(SMALL, cost="payload")
+    no_inputs = {"w_thrust": 0.0, "w_rates": 0.0, "w_thrust_rate": 0.0, "w_rates_rate": 0.0}
+    zero = trajectory_cost(states, plans, ref, u_prev, replace(payload, **no_inputs), l, HOVER_T,
+                           target)  # fmt: skip
+    assert zero[0] == pytest.approx(0.0, abs=1e-18)
+    vehicle = trajectory_cost(states, plans, ref, u_prev, replace(SMALL, **no_inputs), l, HOVER_T)
+    assert vehicle[0] > 1.0
+
+
+def test_the_payload_cost_needs_the_references_acceleration_and_flies_with_it():
+    mpc = MPPIController(HoldModel(), LIMITS, replace(SMALL, cost="payload"), PARAMS)
+    with pytest.raises(ValueError, match="payload-first cost .* needs the acceleration"):
+        mpc.step(hover_state(), hold([0, 0, 1.5], 6))
+    command = mpc.step(hover_state(), accelerating([1.0, 0.0, 0.0]))
+    assert LIMITS.contains([command.thrust, *command.rates]) and mpc.stats.fallback_steps == 0
+    with pytest.raises(ValueError, match="unknown 'payload-first'"):
+        MPCConfig(cost="payload-first")

@@ -257,7 +257,7 @@ def realized_cost(
                          reference.acceleration[rec])  # fmt: skip
     x, u = log.states[rec][None], log.inputs[rec][None]
     hover = (params.mass_quad + params.mass_load) * params.gravity
-    target = (payload_first(ref, params.cable_length, params.gravity, params.dt)
+    target = (payload_first(ref, params.cable_length, params.gravity)
               if mpc.cost == "payload" else None)  # fmt: skip
     weights = [w for ws in COST_TERMS.values() for w in ws]
     out = {}
