@@ -425,6 +425,23 @@ def test_a_study_flies_its_named_plant_and_keeps_to_it(tmp_path):
         run_study(None, out, chain, controllers=("pid",), progress=None)
 
 
+def test_a_study_flies_its_cost_and_keeps_to_it(tmp_path):
+    """``StudyConfig.cost`` reaches every MPC of the study (its flights differ from today's
+    cost's where the reference accelerates), and a folder keeps the cost it was flown with."""
+    payload = replace(TINY, cost="payload", maneuvers=("baf_very_fast",), shifts=())
+    rows = {}
+    for cfg in (payload, replace(payload, cost="vehicle")):
+        out = tmp_path / cfg.cost
+        found = run_study(None, out, cfg, controllers=("physics",), progress=None)
+        rows[cfg.cost] = [r["load_rmse"] for r in found if r["controller"].startswith("mpc")]
+    assert rows["payload"] != rows["vehicle"]
+    with pytest.raises(ValueError, match="cost differ"):
+        run_study(None, tmp_path / "payload", replace(payload, cost="vehicle"),
+                  controllers=("physics",), progress=None)  # fmt: skip
+    with pytest.raises(ValueError, match="unknown MPC cost 'lean'"):
+        replace(TINY, cost="lean")
+
+
 def test_a_study_and_a_comparison_never_share_a_folder(tmp_path):
     from slungload.lab.control.comparison import compare
     from slungload.lab.control.config import ComparisonConfig
