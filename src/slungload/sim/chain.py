@@ -28,7 +28,7 @@ import numpy as np
 
 from ..frames import rotation_matrix
 from .config import SimConfig
-from .mjcf import _vec
+from .mjcf import options, vec
 from .plant import PlantParams, VehicleState
 
 QUAD = "quad"
@@ -66,11 +66,11 @@ def build_chain_mjcf(cfg: SimConfig) -> str:
 
     def point(name: str, mass: float, site: str, damping: float) -> str:
         joints = "\n".join(
-            f'      <joint name="{name}_{a}" type="slide" axis="{_vec(np.eye(3)[i])}" '
+            f'      <joint name="{name}_{a}" type="slide" axis="{vec(np.eye(3)[i])}" '
             f'damping="{damping:.9g}"/>'
             for i, a in enumerate("xyz")
         )
-        inertia = _vec([max(mass * 1e-4, 1e-9)] * 3)  # a point: no rotation joint moves it
+        inertia = vec([max(mass * 1e-4, 1e-9)] * 3)  # a point: no rotation joint moves it
         return (f'    <body name="{name}" pos="0 0 0">\n{joints}\n'
                 f'      <inertial pos="0 0 0" mass="{mass:.9g}" diaginertia="{inertia}"/>\n'
                 f"      {site}\n    </body>")  # fmt: skip
@@ -85,18 +85,16 @@ def build_chain_mjcf(cfg: SimConfig) -> str:
     sites = ["attach", *(f"bead{i}" for i in range(len(masses))), "hook"]
     tendons = "\n".join(
         f'    <spatial name="link{i}" limited="true" range="0 {link:.9g}" '
-        f'solreflimit="{_vec(solref)}" solimplimit="0.95 0.95 0.001">'
+        f'solreflimit="{vec(solref)}" solimplimit="0.95 0.95 0.001">'
         f'<site site="{a}"/><site site="{b}"/></spatial>'
         for i, (a, b) in enumerate(zip(sites[:-1], sites[1:], strict=True))
     )
     return f"""<mujoco model="slungload-chain">
-  <option timestep="{cfg.timestep:.9g}" gravity="0 0 {-cfg.gravity:.9g}" integrator="implicitfast">
-    <flag contact="disable"/>
-  </option>
+  {options(cfg)}
   <worldbody>
     <body name="{QUAD}" pos="0 0 {cfg.hover_z:.9g}">
       <freejoint/>
-      <inertial pos="0 0 0" mass="{cfg.mass_quad:.9g}" diaginertia="{_vec(cfg.inertia_quad)}"/>
+      <inertial pos="0 0 0" mass="{cfg.mass_quad:.9g}" diaginertia="{vec(cfg.inertia_quad)}"/>
       <site name="attach" pos="0 0 {-cfg.attach_below:.9g}"/>
     </body>
 {beads}

@@ -22,8 +22,18 @@ CABLE = "cable"
 THRUST_ACTUATOR = 0  # index of the thrust actuator; rate actuators follow (x, y, z)
 
 
-def _vec(values) -> str:
+def vec(values) -> str:
+    """Numbers as an MJCF attribute's text: space-separated, 9 significant digits."""
     return " ".join(f"{float(v):.9g}" for v in values)
+
+
+def options(cfg: SimConfig) -> str:
+    """The ``<option>`` block both families' models share: the timestep, gravity, the
+    implicit-fast integrator, contacts off (nothing but the arena's guard ends a flight)."""
+    gravity = f"0 0 {-cfg.gravity:.9g}"
+    return f"""<option timestep="{cfg.timestep:.9g}" gravity="{gravity}" integrator="implicitfast">
+    <flag contact="disable"/>
+  </option>"""
 
 
 def cable_solref(cfg: SimConfig) -> tuple[float, float]:
@@ -77,31 +87,29 @@ def build_mjcf(cfg: SimConfig, thrust_offset: np.ndarray | None = None) -> str:
         thrust_dyn = 'dyntype="none"'
     solref = cable_solref(cfg)
     rate_actuators = "\n".join(
-        f'    <general name="rate_{axis}" site="thrust" gear="0 0 0 {_vec(np.eye(3)[i])}" '
+        f'    <general name="rate_{axis}" site="thrust" gear="0 0 0 {vec(np.eye(3)[i])}" '
         f'{rate_dyn} gainprm="{rate_gain[i]:.9g}" biastype="affine" '
         f'biasprm="0 0 {-rate_gain[i]:.9g}"/>'
         for i, axis in enumerate("xyz")
     )
     return f"""<mujoco model="slungload">
-  <option timestep="{cfg.timestep:.9g}" gravity="0 0 {-cfg.gravity:.9g}" integrator="implicitfast">
-    <flag contact="disable"/>
-  </option>
+  {options(cfg)}
   <worldbody>
     <body name="{QUAD}" pos="0 0 {cfg.hover_z:.9g}">
       <freejoint/>
-      <inertial pos="0 0 0" mass="{cfg.mass_quad:.9g}" diaginertia="{_vec(inertia)}"/>
+      <inertial pos="0 0 0" mass="{cfg.mass_quad:.9g}" diaginertia="{vec(inertia)}"/>
       <site name="thrust" pos="{off[0]:.9g} {off[1]:.9g} 0"/>
       <site name="attach" pos="0 0 {-cfg.attach_below:.9g}"/>
     </body>
     <body name="{LOAD}" pos="0 0 {z_load:.9g}">
       <freejoint/>
-      <inertial pos="0 0 0" mass="{cfg.load_mass:.9g}" diaginertia="{_vec([inertia_load] * 3)}"/>
+      <inertial pos="0 0 0" mass="{cfg.load_mass:.9g}" diaginertia="{vec([inertia_load] * 3)}"/>
       <site name="hook" pos="0 0 {half:.9g}"/>
     </body>
   </worldbody>
   <tendon>
     <spatial name="{CABLE}" limited="true" range="0 {cfg.string_length:.9g}"
-             solreflimit="{_vec(solref)}" solimplimit="{_vec(cable_solimp(cfg))}">
+             solreflimit="{vec(solref)}" solimplimit="{vec(cable_solimp(cfg))}">
       <site site="attach"/>
       <site site="hook"/>
     </spatial>

@@ -27,31 +27,56 @@ _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS  # time, qpos, qvel, act (no mocap,
 _CONTROL = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_XFRC_APPLIED
 
 
-class PlantBatch:
+DIMS = {"p": 3, "v": 3, "q": 4, "p_load": 3, "v_load": 3}  # what a look-ahead records
+
+
+class _Batch:
+    """What both families' look-aheads share: K copies of the plant's MuJoCo state (time,
+    qpos, qvel, act), stepped one substep at a time by ``mujoco.rollout`` under ``control``
+    (a MuJoCo state spec: what the Python side sets between the steps)."""
+
+    control: int = _CONTROL
+
+    def __init__(self, plant: Plant | ChainPlant, threads: int = 1) -> None:
+        m = plant.model
+        if mujoco.mj_stateSize(m, _STATE) != 1 + m.nq + m.nv + m.na:
+            raise ValueError(
+                f"{type(self).__name__} expects a model whose state is time, qpos, qvel, act"
+            )
+        self.plant = plant
+        self.threads = threads
+        self._ncontrol = mujoco.mj_stateSize(m, self.control)
+        self._datas = [mujoco.MjData(m) for _ in range(threads)]
+        self._pool = rollout.Rollout(nthread=threads) if threads > 1 else None
+
+    def _start(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """K copies of the plant's state now (K, nstate), the step's output (K, 1, nstate) and
+        a zero control (K, 1, ncontrol)."""
+        m = self.plant.model
+        state0 = np.empty(mujoco.mj_stateSize(m, _STATE))
+        mujoco.mj_getState(m, self.plant.data, state0, _STATE)
+        state = np.tile(state0, (k, 1))
+        return state, np.empty((k, 1, state.shape[1])), np.zeros((k, 1, self._ncontrol))
+
+    def _step(self, models, state: np.ndarray, control: np.ndarray, out: np.ndarray) -> None:
+        """One MuJoCo step of every row of ``state`` (K, nstate) into ``out`` (K, 1, nstate)."""
+        runner = self._pool.rollout if self._pool is not None else rollout.rollout
+        runner(models, self._datas, state, control, control_spec=self.control, skip_checks=True,
+               nstep=1, state=out)  # fmt: skip
+
+
+class PlantBatch(_Batch):
     """Look-ahead of a ``Plant``: K plans from its state now, stepped together (see module).
 
     threads: MuJoCo threads stepping the K states (``mujoco.rollout``'s pool).
     """
 
     def __init__(self, plant: Plant, threads: int = 1) -> None:
+        super().__init__(plant, threads)
         m = plant.model
-        size = mujoco.mj_stateSize(m, _STATE)
-        if size != 1 + m.nq + m.nv + m.na:
-            raise ValueError("PlantBatch expects a model whose state is time, qpos, qvel, act")
-        self.plant = plant
-        self.threads = threads
         self._qpos = 1
         self._qvel = 1 + m.nq
         self._act = 1 + m.nq + m.nv + THRUST_ACTUATOR  # the lagged thrust, as Plant.thrust
-        self._ncontrol = mujoco.mj_stateSize(m, _CONTROL)
-        self._datas = [mujoco.MjData(m) for _ in range(threads)]
-        self._pool = rollout.Rollout(nthread=threads) if threads > 1 else None
-
-    def _step(self, models, state: np.ndarray, control: np.ndarray, out: np.ndarray) -> None:
-        """One MuJoCo step of every row of ``state`` (K, nstate) into ``out`` (K, 1, nstate)."""
-        runner = self._pool.rollout if self._pool is not None else rollout.rollout
-        runner(models, self._datas, state, control, control_spec=_CONTROL, skip_checks=True,
-               nstep=1, state=out)  # fmt: skip
 
     def advance(self, plans: np.ndarray, wind: np.ndarray) -> dict[str, np.ndarray]:
         """Fly K plans (K, N, 4) (thrust N, body rates rad/s), each command held for one
@@ -68,11 +93,7 @@ class PlantBatch:
         ideal_rates = not cfg.effects.rate_loop
         wind = np.asarray(wind, dtype=float)
 
-        state0 = np.empty(mujoco.mj_stateSize(m, _STATE))
-        mujoco.mj_getState(m, d, state0, _STATE)
-        state = np.tile(state0, (k_count, 1))
-        out = np.empty((k_count, 1, state.shape[1]))
-        control = np.zeros((k_count, 1, self._ncontrol))
+        state, out, control = self._start(k_count)
         ctrl = control[:, 0, : m.nu]
         xfrc = control[:, 0, m.nu :].reshape(k_count, m.nbody, 6)
         ctrl[:] = d.ctrl  # the command still held for the latency
@@ -83,8 +104,7 @@ class PlantBatch:
         models = [m] * k_count
         thrust_cap = cfg.max_thrust
 
-        dims = {"p": 3, "v": 3, "q": 4, "p_load": 3, "v_load": 3}
-        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in dims.items()}
+        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in DIMS.items()}
         lag = cfg.effects.thrust_lag
         for j in range(n_steps):
             time = plant.time + j * cfg.control_dt
@@ -119,20 +139,12 @@ class PlantBatch:
         return record
 
 
-class ChainBatch:
+class ChainBatch(_Batch):
     """Look-ahead of a ``sim.chain.ChainPlant``: K plans from its state now, stepped together
     (as ``PlantBatch``; the rotors' loop and the drag are the plant's own ``RotorLoop`` and
     ``ChainForces``, run for K states between the MuJoCo steps)."""
 
-    def __init__(self, plant: ChainPlant, threads: int = 1) -> None:
-        m = plant.model
-        if mujoco.mj_stateSize(m, _STATE) != 1 + m.nq + m.nv + m.na:
-            raise ValueError("ChainBatch expects a model whose state is time, qpos, qvel, act")
-        self.plant = plant
-        self.threads = threads
-        self._ncontrol = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_XFRC_APPLIED)
-        self._datas = [mujoco.MjData(m) for _ in range(threads)]
-        self._pool = rollout.Rollout(nthread=threads) if threads > 1 else None
+    control = mujoco.mjtState.mjSTATE_XFRC_APPLIED  # no MuJoCo actuators: forces only
 
     def advance(self, plans: np.ndarray, wind: np.ndarray) -> dict[str, np.ndarray]:
         """As ``PlantBatch.advance``: K plans (K, N, 4) from the plant's state now in the wind
@@ -142,20 +154,14 @@ class ChainBatch:
         k_count, n_steps = plans.shape[:2]
         qv, lq, lv = 1 + m.nq, 1 + plant.load_qpos, 1 + m.nq + plant.load_qvel
         wind = np.asarray(wind, dtype=float)
-        state0 = np.empty(mujoco.mj_stateSize(m, _STATE))
-        mujoco.mj_getState(m, plant.data, state0, _STATE)
-        state = np.tile(state0, (k_count, 1))
-        out = np.empty((k_count, 1, state.shape[1]))
-        control = np.zeros((k_count, 1, self._ncontrol))
+        state, out, control = self._start(k_count)
         xfrc = control[:, 0].reshape(k_count, m.nbody, 6)
         loop = RotorLoop(cfg, plant.params, k_count)
         loop.take(plant.rotors, k_count)
         thrust = np.full(k_count, plant.command[0])  # the command still held for the latency
         rates = np.tile(plant.command[1], (k_count, 1))
         models = [m] * k_count
-        runner = self._pool.rollout if self._pool is not None else rollout.rollout
-        dims = {"p": 3, "v": 3, "q": 4, "p_load": 3, "v_load": 3}
-        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in dims.items()}
+        record = {name: np.empty((k_count, n_steps, dim)) for name, dim in DIMS.items()}
         for j in range(n_steps):
             scale = plant.scale(plant.time + j * cfg.control_dt)
             for s in range(cfg.substeps):
@@ -169,8 +175,7 @@ class ChainBatch:
                     rot, state[:, qv : qv + 3], wind, force_b, torque_b
                 )
                 xfrc[:, plant.load, 0:3] = plant.forces.load(state[:, lv : lv + 3], wind)
-                runner(models, self._datas, state, control, skip_checks=True, nstep=1,
-                       control_spec=mujoco.mjtState.mjSTATE_XFRC_APPLIED, state=out)  # fmt: skip
+                self._step(models, state, control, out)
                 state = out[:, 0].copy()
             record["p"][:, j], record["q"][:, j] = state[:, 1:4], state[:, 4:8]
             record["p_load"][:, j] = state[:, lq : lq + 3]
