@@ -44,9 +44,11 @@ def reference_ahead(t: float, n: int) -> ReferenceAhead:
     times = t + H * np.arange(1, n + 1)
     s = np.clip(times / 2.0, 0.0, 1.0)
     shape, rate = 10 * s**3 - 15 * s**4 + 6 * s**5, (30 * s**2 - 60 * s**3 + 30 * s**4) / 2.0
+    curve = (60 * s - 180 * s**2 + 120 * s**3) / 4.0 * (times < 2.0)  # d2 shape / dt2
     position = np.stack([0.6 * shape, np.zeros(n), np.full(n, 1.5)], axis=-1)
     velocity = np.stack([0.6 * rate, np.zeros(n), np.zeros(n)], axis=-1)
-    return ReferenceAhead(position, velocity, np.zeros(n))
+    acceleration = np.stack([0.6 * curve, np.zeros(n), np.zeros(n)], axis=-1)
+    return ReferenceAhead(position, velocity, np.zeros(n), acceleration)  # any MPCConfig.cost
 
 
 def state_from_px4(p_ned, v_ned, q_ned_frd, p_load_ned) -> np.ndarray:

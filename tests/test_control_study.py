@@ -492,7 +492,8 @@ def test_flights_flown_by_workers_are_the_flights_flown_in_turn(tmp_path):
 def test_the_report_sets_the_learned_model_against_the_oracle(tiny_run, tmp_path):
     # With a learned model the oracle flies its settings, and the report pairs the two at
     # each horizon the oracle flew and measures the gap closed there.
-    config = replace(TINY, shifts=(), horizons=(3, 4), oracle_horizons=(3, 4))
+    # (the payload-first cost: every MPC of the study, its equal-compute timing too, takes it)
+    config = replace(TINY, shifts=(), horizons=(3, 4), oracle_horizons=(3, 4), cost="payload")
     kinds = ("geometric", "physics", "learned", "oracle")
     rows = run_study(tiny_run.out, tmp_path, config, controllers=kinds, progress=None)
     assert len(rows) == 7

@@ -429,7 +429,8 @@ def equal_compute_samples(
     def median_s(make: Callable[[int], SamplingMPC], samples: int) -> float:
         mpc = make(samples)
         n = mpc.cfg.horizon
-        ref = ReferenceAhead(np.tile(hover[POS], (n, 1)), np.zeros((n, 3)), np.zeros(n))
+        ref = ReferenceAhead(np.tile(hover[POS], (n, 1)), np.zeros((n, 3)), np.zeros(n),
+                             np.zeros((n, 3)))  # fmt: skip
         states = hover + 1e-3 * rng.standard_normal((repeats + 3, STATE_DIM))
         states[:, QUAT] /= np.linalg.norm(states[:, QUAT], axis=1, keepdims=True)
         wall, _ = time_calls(lambda i: mpc.core.step(states[i], ref), repeats, 3)
