@@ -11,7 +11,8 @@ body -> world, pL m; world z up); the reference holds the N steps ahead, x_{k+1}
 its model needs (``history.History``). ``model`` is any ``CandidateModel``: numpy in, numpy
 out, ``predict_candidates(x_hist (M, 13), u_past (M-1, 4), plans (K, N, 4)) -> (K, N, 13)``;
 onboard the exported network on ONNX Runtime (``deploy.onboard.OnnxCandidateModel``), in the
-simulator any torch ``models.prediction.PredictionModel`` behind ``mpc.TorchCandidates``.
+simulator any ``models.prediction.PredictionModel`` through ``mpc.candidate_model`` (the
+compiled backends' own numpy entry, or ``mpc.TorchCandidates``).
 From PX4's NED/FRD, convert with ``frames`` first (docs/control.md).
 
 At every step the controller
@@ -26,7 +27,9 @@ At every step the controller
 3. predicts their N-step outcomes with its model;
 4. scores them (``trajectory_cost``): vehicle position and velocity against the reference,
    load position against its reference (vehicle reference minus l e3), load swing
-   (horizontal cable offset), yaw, tilt beyond ``max_tilt``, swing angle beyond ``max_swing``,
+   (horizontal cable offset; with ``MPCConfig.cost`` "payload" the vehicle's targets and the
+   offset follow the cable direction the load's path needs, ``payload_first``), yaw, tilt
+   beyond ``max_tilt``, swing angle beyond ``max_swing``,
    vehicle height below ``min_height``, input effort about hover and input rate (position
    errors beyond ``position_huber`` growing linearly);
 5. weights them by ``exp(-(c - c_min) / lambda)`` with lambda = ``temperature`` times the
