@@ -17,9 +17,10 @@ from collections.abc import Callable, Sequence
 from .._version import __version__
 from .autopilot import add_fly, add_sil
 from .control import add_control, add_record
-from .data import add_import, add_inspect, add_maneuvers, add_simulate, add_split
+from .data import add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
 from .evaluate import add_evaluate, add_reproduce
+from .importing import add_import
 from .study import add_study, add_tune
 from .train import add_identify, add_train
 
