@@ -38,8 +38,9 @@ from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
 from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
+from .cost import cost_target, trajectory_cost
 from .mpc import InputLimits, MPCConfig
-from .mppi import ReferenceAhead, payload_first, trajectory_cost
+from .mppi import ReferenceAhead
 
 
 @dataclass(frozen=True)
@@ -257,8 +258,7 @@ def realized_cost(
                          reference.acceleration[rec])  # fmt: skip
     x, u = log.states[rec][None], log.inputs[rec][None]
     hover = (params.mass_quad + params.mass_load) * params.gravity
-    target = (payload_first(ref, params.cable_length, params.gravity)
-              if mpc.cost == "payload" else None)  # fmt: skip
+    target = cost_target(mpc, ref, params.cable_length, params.gravity)
     weights = [w for ws in COST_TERMS.values() for w in ws]
     out = {}
     for name, ws in COST_TERMS.items():

@@ -87,7 +87,6 @@ class _NumpyEntry:
     numpy = True
 
     def __init__(self, model) -> None:
-        self.model = model
         self.name, self.history = model.name, model.history
         self.predict_candidates = model.numpy_candidates
 

@@ -57,8 +57,38 @@ import numpy as np
 
 from .. import frames
 from ..config import NETWORK_CONSTANTS, VehicleParams
-from ..layout import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL
+from ..layout import INPUT_DIM, QUAT, STATE_DIM
+from .cost import (
+    COSTS,
+    ReferenceAhead,
+    VehicleTarget,
+    cost_target,
+    payload_first,
+    tilt_of,
+    trajectory_cost,
+    yaw_of,
+)
 from .history import History
+
+__all__ = [
+    "COSTS",
+    "CandidateModel",
+    "Command",
+    "ConstantsEstimate",
+    "InputLimits",
+    "MPCConfig",
+    "MPCStats",
+    "MPPIController",
+    "ReferenceAhead",
+    "VehicleTarget",
+    "knots_for",
+    "mppi_weights",
+    "payload_first",
+    "reference_ahead",
+    "tilt_of",
+    "trajectory_cost",
+    "yaw_of",
+]
 
 
 @dataclass(frozen=True)
@@ -98,14 +128,6 @@ class InputLimits:
         thrust_tol = rel * (self.thrust_max - self.thrust_min)
         thrust = u[0] <= self.thrust_min + thrust_tol or u[0] >= self.thrust_max - thrust_tol
         return bool(thrust or (np.abs(u[1:]) >= self.rate_max * (1.0 - rel)).any())
-
-
-# The MPC's cost options (``MPCConfig.cost``), first the default.
-COSTS: dict[str, str] = {
-    "vehicle": "the vehicle at the reference, the load below it on a vertical cable",
-    "payload": "the load on the reference's path, the vehicle and the cable where that path's "
-    "acceleration needs them (turns are not penalised for the swing they need)",
-}
 
 
 @dataclass(frozen=True)
@@ -188,46 +210,6 @@ class MPCStats:
         return sum(self.fallbacks.values())
 
 
-class ReferenceAhead(NamedTuple):
-    """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up): the
-    vehicle's; the load's is l e3 below (``MPCConfig.cost`` "payload" reads it as the load's
-    path, and needs its acceleration)."""
-
-    position: np.ndarray  # (N, 3) m
-    velocity: np.ndarray  # (N, 3) m/s
-    yaw: np.ndarray  # (N,) rad
-    acceleration: np.ndarray | None = None  # (N, 3) m/s^2
-
-
-class VehicleTarget(NamedTuple):
-    """What the payload-first cost holds the vehicle and the cable to at the N steps ahead
-    (``payload_first``)."""
-
-    position: np.ndarray  # (N, 3) m
-    velocity: np.ndarray  # (N, 3) m/s
-    offset: np.ndarray  # (N, 2) m: the load's horizontal offset from the vehicle, l q_xy
-
-
-def payload_first(ref: ReferenceAhead, cable_length: float, gravity: float) -> VehicleTarget:
-    """The vehicle's reference from the load's path (differential flatness of the slung load,
-    Sreenath, Lee and Kumar 2013): the load at p_L = ref.position - l e3 with acceleration a_L
-    (``ref.acceleration``) hangs along q = -(a_L + g e3) / |a_L + g e3| (unit, vehicle to
-    load), so the vehicle belongs at p_L - l q, with the load offset l q_xy from it
-    horizontally. Its velocity target is the load's, v_L: the cable's turning rate -l dq/dt is
-    left out, because a reference whose acceleration jumps (a doublet, a step's corner) would
-    ask for an unbounded one (with it, the roll doublets' load error doubled at N = 15 on
-    tuning seeds; docs/control.md). A reference without acceleration is a ValueError."""
-    if ref.acceleration is None:
-        raise ValueError(
-            "the payload-first cost needs the reference's acceleration (ReferenceAhead"
-            ".acceleration, (N, 3) m/s^2)"
-        )
-    pull = ref.acceleration + np.array([0.0, 0.0, gravity])
-    q = -pull / np.maximum(np.linalg.norm(pull, axis=-1, keepdims=True), 1e-6)
-    load = ref.position - np.array([0.0, 0.0, cable_length])
-    return VehicleTarget(load - cable_length * q, ref.velocity, cable_length * q[:, :2])
-
-
 def reference_ahead(ref, k: int, n: int) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
     velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
@@ -265,81 +247,6 @@ class ConstantsEstimate(Protocol):
     (cable length m, load mass kg); ``mpc.window_estimate`` is the package's."""
 
     def __call__(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]: ...
-
-
-def yaw_of(q: np.ndarray) -> np.ndarray:
-    """Yaw (...,) rad of w-x-y-z quaternions (..., 4)."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-
-def tilt_of(q: np.ndarray) -> np.ndarray:
-    """Angle (...,) rad between the body z axis and the world z axis."""
-    x, y = q[..., 1], q[..., 2]
-    return np.arccos(np.clip(1.0 - 2.0 * (x * x + y * y), -1.0, 1.0))
-
-
-def trajectory_cost(
-    states: np.ndarray,
-    plans: np.ndarray,
-    ref: ReferenceAhead,
-    u_prev: np.ndarray,
-    cfg: MPCConfig,
-    cable_length: float,
-    hover_thrust: float,
-    target: VehicleTarget | None = None,
-) -> np.ndarray:
-    """Cost (K,) of predicted states (K, N, 13) under plans (K, N, 4); u_prev (4,) the input
-    applied at the previous step. target: where the vehicle and the cable belong
-    (``payload_first``, the "payload" cost); None: the reference itself and a vertical cable
-    (the "vehicle" cost). A non-finite prediction gives a non-finite cost."""
-    n = states.shape[1]
-    step_w = np.ones(n)
-    step_w[-1] += cfg.terminal
-    p, v, q, pl = states[..., POS], states[..., VEL], states[..., QUAT], states[..., LOAD_POS]
-    load_ref = ref.position - np.array([0.0, 0.0, cable_length])
-    if target is None:
-        p_ref, v_ref, offset = ref.position, ref.velocity, (pl - p)[..., :2]
-    else:
-        p_ref, v_ref, offset = target.position, target.velocity, (pl - p)[..., :2] - target.offset
-    with np.errstate(invalid="ignore", over="ignore"):  # NaN/inf predictions: dropped later
-        yaw_err = np.remainder(yaw_of(q) - ref.yaw + math.pi, 2.0 * math.pi) - math.pi
-        over_tilt = np.maximum(tilt_of(q) - cfg.max_tilt, 0.0)
-        state_cost = (
-            cfg.w_position * _huber(_square_norm(p - p_ref), cfg.position_huber)
-            + cfg.w_velocity * _square_norm(v - v_ref)
-            + cfg.w_load * _huber(_square_norm(pl - load_ref), cfg.position_huber)
-            + cfg.w_swing * _square_norm(offset)
-            + cfg.w_yaw * np.square(yaw_err)
-            + cfg.w_tilt * np.square(over_tilt)
-        )  # (K, N)
-        if math.isfinite(cfg.max_swing):
-            over_swing = np.maximum(frames.swing_angle(states) - cfg.max_swing, 0.0)
-            state_cost += cfg.w_swing_bound * np.square(over_swing)
-        if math.isfinite(cfg.min_height):
-            state_cost += cfg.w_floor * np.square(np.minimum(p[..., 2] - cfg.min_height, 0.0))
-    du = np.diff(plans, axis=1, prepend=np.broadcast_to(u_prev, (len(plans), 1, INPUT_DIM)))
-    input_cost = (
-        cfg.w_thrust * np.square(plans[..., 0] - hover_thrust)
-        + cfg.w_rates * _square_norm(plans[..., 1:])
-        + cfg.w_thrust_rate * np.square(du[..., 0])
-        + cfg.w_rates_rate * _square_norm(du[..., 1:])
-    )
-    return state_cost @ step_w + input_cost.sum(-1)
-
-
-def _huber(square: np.ndarray, radius: float) -> np.ndarray:
-    """A squared distance (...,) m^2 as is up to ``radius`` m, continued linearly beyond it
-    (value and slope continuous); inf radius: unchanged."""
-    if not math.isfinite(radius):
-        return square
-    dist = np.sqrt(square)
-    return np.where(dist <= radius, square, radius * (2.0 * dist - radius))
-
-
-def _square_norm(a: np.ndarray) -> np.ndarray:
-    """|a|^2 over the last axis (einsum: faster than square-then-sum for 2-3 columns)."""
-    return np.einsum("...d,...d->...", a, a)
 
 
 def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
@@ -493,9 +400,7 @@ class MPPIController:
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
         """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of
         ``ref`` with the cost's cable length for the "payload" cost, None for "vehicle"."""
-        if self.cfg.cost != "payload":
-            return None
-        return payload_first(ref, self.cable_length, self.params.gravity)
+        return cost_target(self.cfg, ref, self.cable_length, self.params.gravity)
 
     def sample(self) -> np.ndarray:
         """K clamped input sequences (K, N, 4) around the nominal plan; row 0 is the plan."""

@@ -110,11 +110,11 @@ class Probe:
         truth[..., POS], truth[..., VEL] = flown["p"], flown["v"]
         truth[..., QUAT], truth[..., LOAD_POS] = flown["q"], flown["p_load"]
         core = self.core
+        target = core.target(self.reference)
 
         def cost(states: np.ndarray) -> np.ndarray:
             return trajectory_cost(states, plans, self.reference, core.u_prev, self.mpc,
-                                   core.cable_length, core.hover_thrust,
-                                   core.target(self.reference))  # fmt: skip
+                                   core.cable_length, core.hover_thrust, target)  # fmt: skip
 
         true_cost = cost(truth)
         spread = float(true_cost.mean() - true_cost.min())
