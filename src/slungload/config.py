@@ -127,6 +127,9 @@ PREDICTION_BACKENDS: dict[str, str] = {
     "network in float32",
 }
 
+# An ensemble's interval: its default coverage, and the level ``calibrate`` fits at.
+ENSEMBLE_LEVEL = 0.9
+
 
 # The physics-step network's estimate of the load state at the last history step.
 LOAD_ESTIMATES: dict[str, str] = {

@@ -2,9 +2,10 @@
 
 A user error (bad path, bad file, bad option) prints one line and exits with status 2;
 ``--debug`` shows the traceback instead. The commands live by stage: ``data`` (simulate,
-maneuvers, inspect, split, import), ``train`` (train, identify), ``evaluate`` (evaluate,
-reproduce, study), ``deploy`` (export, benchmark), ``control`` and ``autopilot`` (fly, sil),
-each with its parser beside it; ``common`` holds what they share.
+maneuvers, inspect, split, import), ``train`` (train, identify), ``ensemble`` (ensemble,
+calibrate, uncertainty), ``evaluate`` (evaluate, reproduce, study), ``deploy`` (export,
+benchmark), ``control`` and ``autopilot`` (fly, sil), each with its parser beside it;
+``common`` holds what they share.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from .autopilot import add_fly, add_sil
 from .control import add_control, add_record
 from .data import add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
+from .ensemble import add_calibrate, add_ensemble, add_uncertainty
 from .evaluate import add_evaluate, add_reproduce
 from .importing import add_import
 from .study import add_study, add_tune
@@ -56,7 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_maneuvers(sub)
     add_inspect(sub)
     add_train(sub)
+    add_ensemble(sub)
+    add_calibrate(sub)
     add_evaluate(sub)
+    add_uncertainty(sub)
     add_reproduce(sub)
     add_export(sub)
     add_benchmark(sub)

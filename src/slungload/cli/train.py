@@ -6,13 +6,14 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..config import ARCHITECTURES, ESTIMATE_MIN_STEPS, LOSS_VARIANTS, MODEL_SIZES
+from ..config import ARCHITECTURES, ENSEMBLE_LEVEL, ESTIMATE_MIN_STEPS, LOSS_VARIANTS, MODEL_SIZES
 from ..run_config import RunConfig
 from .common import (
     add_vehicle_options,
     add_window_options,
     choices,
     new_command,
+    positive_int,
     preset_help,
     resolve_params,
 )
@@ -52,7 +53,19 @@ def add_train(sub: Any) -> None:
         "--seed", type=int, help=f"weights and batch order (default {RUN.seed}, or --config's)"
     )
     p.add_argument("--epochs", type=int, help="override the preset's maximum epochs")
-    p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.ckpt")
+    p.add_argument(
+        "--ensemble",
+        type=positive_int,
+        metavar="K",
+        help="train K members (seeds --seed ... --seed + K - 1) into OUT/member-i as one "
+        "ensemble (OUT/ensemble.json), then calibrate its spread on the val split "
+        "(`slungload calibrate`); a mean and an interval wherever a network is taken",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue from RUN_DIR/last.ckpt (an ensemble: its unfinished members)",
+    )
     p.add_argument(
         "--fit-constants",
         action="store_true",
@@ -187,6 +200,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from ..training.trainer import train
 
     run = run_from_args(args)
+    if args.ensemble is not None:
+        return _train_ensemble(args, run)
     result = train(
         args.data,
         run,
@@ -200,6 +215,31 @@ def cmd_train(args: argparse.Namespace) -> int:
     )
     if rank_zero_only.rank == 0:  # with --devices K every process runs this command
         print(result.summary())
+    return 0
+
+
+def _train_ensemble(args: argparse.Namespace, run: Any) -> int:
+    from ..training.ensemble import train_ensemble
+    from .ensemble import report_calibration
+
+    if args.devices != 1:
+        raise ValueError("--ensemble trains its members one process each: drop --devices")
+    if args.ensemble < 2:
+        raise ValueError(f"--ensemble needs at least 2 members, got {args.ensemble}")
+    results = train_ensemble(
+        args.data,
+        run,
+        out=args.out,
+        members=args.ensemble,
+        resume=args.resume,
+        params=resolve_params(Path(args.data), args),
+        progress=not args.quiet,
+        device=args.device,
+        num_threads=args.threads,
+    )
+    for i, result in enumerate(results):
+        print(f"member {i}: " + ("kept (finished before)" if result is None else result.summary()))
+    report_calibration(args.out, args.data, split="val", horizon=None, level=ENSEMBLE_LEVEL)
     return 0
 
 

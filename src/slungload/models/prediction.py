@@ -30,9 +30,12 @@ whose future inputs are the rest of each plan (a test holds it for both implemen
   over windows in batches, ``forward_candidates`` over candidates (the encoder runs once over
   the M - 1 rows the candidates share; equal to ``forward`` per candidate). Its quaternion is
   normalised and its slack outputs are dropped.
+- ``models.ensemble.EnsembleModel``: several networks' mean, and each member's prediction
+  for a spread.
 
-``load_prediction_model("physics" | run folder | .ckpt)`` builds either. The numpy facade for
-embedding a network in a user's own controller is ``deploy.Predictor``, a different thing.
+``load_prediction_model("physics" | run folder | .ckpt | ensemble folder)`` builds any. The
+numpy facade for embedding a network in a user's own controller is ``deploy.Predictor``, a
+different thing.
 """
 
 from __future__ import annotations
@@ -51,7 +54,8 @@ from ..data.windows import Windows, physics_rollout
 from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
 from ..load_state import estimate_load_state
 from ..state import with_unit_quaternion
-from .checkpoints import load_checkpoint
+from .checkpoints import LoadedModel, load_checkpoint
+from .ensemble import EnsembleModel, is_ensemble, load_members
 
 PHYSICS = "physics"  # the name that selects the physics model (``load_prediction_model``)
 
@@ -196,22 +200,36 @@ def load_prediction_model(
     *,
     constants: VehicleParams | None = None,
 ) -> PredictionModel:
-    """``"physics"`` (the discrete model with ``params``, default ``VehicleParams()``), or a
-    run folder / ``.ckpt`` of any registered architecture, named after its folder.
+    """``"physics"`` (the discrete model with ``params``, default ``VehicleParams()``), a
+    run folder / ``.ckpt`` of any registered architecture, named after its folder, or an
+    ensemble folder (``models.ensemble``: an ``EnsembleModel`` of its members).
 
     constants: a physics-step network's f runs with these, fixed, for every window (e.g. a
     flight's true load), whatever its checkpoint's (``ModelConfig.constants``); its weights
     unchanged. Another architecture is a ``ValueError``."""
     if str(spec) == PHYSICS:
         return PhysicsModel(params or VehicleParams())
-    loaded = load_checkpoint(spec)
     path = Path(spec)
+    if is_ensemble(path):
+        manifest, members = load_members(path)
+        nets = [
+            network_model(lm, constants, label=m.name)
+            for lm, m in zip(members, manifest.members, strict=True)
+        ]
+        return EnsembleModel(tuple(nets), name=path.name, calibration=manifest.calibration)
     label = path.name if path.is_dir() else path.parent.name
+    return network_model(load_checkpoint(spec), constants, label=label)
+
+
+def network_model(
+    loaded: LoadedModel, constants: VehicleParams | None = None, *, label: str = "network"
+) -> NetworkModel:
+    """A loaded checkpoint as a ``NetworkModel``; ``constants`` as in ``load_prediction_model``."""
     net = loaded.model
     if constants is not None:
         if net.architecture != "physics-step":
             raise ValueError(
-                f"{spec}: a {net.architecture!r} network runs no physics model; only a "
+                f"{loaded.path}: a {net.architecture!r} network runs no physics model; only a "
                 "physics-step network can be given its constants"
             )
         net.params = constants

@@ -45,6 +45,7 @@ from ...config import PREDICTION_BACKENDS, VehicleParams
 from ...constants_estimate import ADAPT_PRIOR_WEIGHT
 from ...data.windows import Windows
 from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
+from ...models.ensemble import EnsembleModel
 from ...models.prediction import (
     PHYSICS,
     NetworkModel,
@@ -410,7 +411,7 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
     """``model`` on ``backend`` (one of ``config.PREDICTION_BACKENDS``): itself for "eager";
     for "compiled" a ``CompiledPhysicsModel`` of a ``PhysicsModel`` or a
     ``CompiledNetworkModel`` of a ``NetworkModel`` on the CPU; for "cuda" a
-    ``deploy.gpu.GraphedModel`` of a copy on the GPU.
+    ``deploy.gpu.GraphedModel`` of a copy on the GPU; an ``EnsembleModel`` with each member so.
     Anything else is a ``ValueError`` naming why, a GPU that torch does not see too."""
     if backend not in PREDICTION_BACKENDS:
         raise ValueError(
@@ -418,6 +419,8 @@ def with_backend(model: PredictionModel, backend: str) -> PredictionModel:
         )
     if backend == "eager":
         return model
+    if isinstance(model, EnsembleModel):  # each member on the backend, the mean taken outside
+        return model.with_members(tuple(with_backend(m, backend) for m in model.members))
     if backend == CUDA:
         return on_gpu(model)
     if isinstance(model, PhysicsModel):

@@ -1,0 +1,242 @@
+"""An ensemble's spread against its errors: the calibration fit, coverage, and its report.
+
+- ``member_predictions``: each member's prediction over windows and the truth, float64.
+- ``fit_calibration``: the ``models.ensemble.Calibration`` of a level (default 0.9): per
+  horizon step and state group, the level quantile of |error| / std over the windows and the
+  group's components (split-conformal), divided by the level's Gaussian z; the novelty
+  reference (median std per step and component) and threshold (the 0.99 quantile of the
+  windows' novelty score).
+- ``uncertainty_stats``: per group and step, the mean's RMSE, the calibrated spread (RMS of
+  the interval's sigma), the interval's coverage (pooled over the group's components); and
+  the share of windows flagged novel.
+- ``calibrate`` and ``assess``: the same on a dataset folder's split for an ensemble folder
+  (``slungload calibrate`` / ``slungload uncertainty``); ``write_assessment`` writes the
+  table (markdown), ``coverage.csv`` and ``calibration.png``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from matplotlib.figure import Figure
+from torch import Tensor
+
+from ..config import WindowConfig
+from ..data.dataset import load_dataset
+from ..data.windows import Windows
+from ..fileio import write_text
+from ..layout import GROUPS, QUAT
+from ..models.ensemble import (
+    LEVEL,
+    Calibration,
+    EnsembleModel,
+    group_index,
+    is_ensemble,
+    set_calibration,
+    spread,
+    z_of,
+)
+from ..models.prediction import load_prediction_model
+from ..reporting import markdown_table, save_figure
+from .evaluator import horizon_windows
+
+NOVELTY_QUANTILE = 0.99  # the share of in-distribution windows not flagged novel
+REPORT_STEPS = (1, 5, 10, 25, 50, 75, 100)  # the table's horizon steps (those within N)
+
+
+def member_predictions(model: EnsembleModel, windows: Windows) -> tuple[Tensor, Tensor]:
+    """(E, W, N, 13) members' predictions and (W, N, 13) truth, float64; the truth's
+    quaternion turned to the first member's hemisphere."""
+    members = model.predict_windows_members(windows).double()
+    truth = windows.future.states.double().clone()
+    q = truth[..., QUAT]
+    sign = torch.where((q * members[0][..., QUAT]).sum(-1, keepdim=True) < 0, -1.0, 1.0)
+    truth[..., QUAT] = q * sign.to(q.dtype)
+    return members, truth
+
+
+def _ratio_quantiles(ratio: Tensor, q: float) -> np.ndarray:
+    """ratio (W, N, 13) -> (N, G): the q quantile over windows and each group's components."""
+    out = np.empty((ratio.shape[1], len(GROUPS)))
+    for g, sl in enumerate(GROUPS.values()):
+        flat = ratio[..., sl].permute(1, 0, 2).reshape(ratio.shape[1], -1).numpy()
+        out[:, g] = np.quantile(flat, q, axis=1)
+    return out
+
+
+def fit_calibration(
+    members: Tensor, truth: Tensor, *, level: float = LEVEL, fitted_on: str = ""
+) -> Calibration:
+    """The ``Calibration`` of members (E, W, N, 13) against truth (W, N, 13) at ``level``."""
+    mean, std = spread(members)
+    std = std.clamp_min(1e-12)
+    ratio = (truth - mean).abs() / std
+    scale = _ratio_quantiles(ratio, level) / z_of(level)
+    reference = std.median(dim=0).values
+    provisional = Calibration(
+        scale=tuple(map(tuple, scale.tolist())),
+        reference_std=tuple(map(tuple, reference.tolist())),
+        novelty_threshold=float("inf"),
+        level=level,
+    )
+    scores = provisional.novelty_score(std)
+    threshold = float(np.quantile(scores.numpy(), NOVELTY_QUANTILE))
+    return Calibration(
+        scale=provisional.scale,
+        reference_std=provisional.reference_std,
+        novelty_threshold=threshold,
+        level=level,
+        novelty_quantile=NOVELTY_QUANTILE,
+        fitted_on=fitted_on,
+        windows=int(truth.shape[0]),
+    )
+
+
+@dataclass(frozen=True)
+class UncertaintyStats:
+    """Per group (``layout.GROUPS`` order) and horizon step 1..N, arrays (G, N)."""
+
+    rmse: np.ndarray  # the members' mean against the truth (norm over the group's components)
+    sigma: np.ndarray  # the calibrated sigma (scale x std), RMS over windows, norm over group
+    coverage: np.ndarray  # share of (window, component) inside the interval
+    novel: float  # share of windows flagged novel
+    level: float
+    windows: int
+
+
+def uncertainty_stats(
+    members: Tensor, truth: Tensor, calibration: Calibration, level: float | None = None
+) -> UncertaintyStats:
+    """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13)."""
+    lvl = calibration.level if level is None else level
+    mean, std = spread(members)
+    half = calibration.half_width(std, lvl)
+    inside = ((truth - mean).abs() <= half).double()
+    sigma = calibration.component_scale(std.shape[-2]) * std
+    sq_err, sq_sig = (truth - mean) ** 2, sigma**2
+    idx = group_index()
+    n_groups = len(GROUPS)
+    rmse, sig, cov = (np.empty((n_groups, truth.shape[1])) for _ in range(3))
+    for g in range(n_groups):
+        cols = idx == g
+        rmse[g] = sq_err[..., cols].sum(-1).mean(0).sqrt().numpy()
+        sig[g] = sq_sig[..., cols].sum(-1).mean(0).sqrt().numpy()
+        cov[g] = inside[..., cols].mean(dim=(0, 2)).numpy()
+    novel = float(calibration.novel(std).double().mean())
+    return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]))
+
+
+def _ensemble_and_windows(
+    ensemble: str | Path, data: str | Path | None, split: str, horizon: int | None
+) -> tuple[EnsembleModel, Windows, str]:
+    """The ensemble folder's model, the split's windows (stride 1) at ``horizon`` (default:
+    the members' training horizon) and a description of them."""
+    from ..models.ensemble import load_members
+
+    if not is_ensemble(ensemble):
+        raise ValueError(f"{ensemble} is not an ensemble folder (train --ensemble K writes one)")
+    _, loaded = load_members(ensemble)
+    first = loaded[0]
+    folder = data if data is not None else first.meta.get("data")
+    if folder is None:
+        raise ValueError(f"{ensemble}: no dataset folder recorded in its members; pass --data")
+    n = horizon or first.window.horizon
+    window = WindowConfig(history=first.window.history, horizon=n, stride=1)
+    dataset = load_dataset(folder, window=window, params=first.params)
+    windows = horizon_windows(dataset, history=window.history, horizons=(n,), split=split)[n]
+    model = load_prediction_model(ensemble)
+    if not isinstance(model, EnsembleModel):  # load_prediction_model's contract
+        raise TypeError(f"{ensemble}: not loaded as an ensemble")
+    return model, windows, f"{split} split of {Path(folder)}, N = {n}"
+
+
+def calibrate(
+    ensemble: str | Path,
+    data: str | Path | None = None,
+    *,
+    split: str = "val",
+    horizon: int | None = None,
+    level: float = LEVEL,
+) -> tuple[Calibration, UncertaintyStats]:
+    """Fit the ensemble folder's calibration on a split (default val), store it in its
+    manifest, and return it with its in-sample stats."""
+    model, windows, about = _ensemble_and_windows(ensemble, data, split, horizon)
+    members, truth = member_predictions(model, windows)
+    calibration = fit_calibration(members, truth, level=level, fitted_on=about)
+    set_calibration(ensemble, calibration)
+    return calibration, uncertainty_stats(members, truth, calibration)
+
+
+def assess(
+    ensemble: str | Path,
+    data: str | Path | None = None,
+    *,
+    split: str = "test",
+    horizon: int | None = None,
+    level: float | None = None,
+) -> tuple[UncertaintyStats, str]:
+    """The calibrated ensemble folder's stats on a dataset's split, and what they are of."""
+    model, windows, about = _ensemble_and_windows(ensemble, data, split, horizon)
+    if model.calibration is None:
+        raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
+    members, truth = member_predictions(model, windows)
+    return uncertainty_stats(members, truth, model.calibration, level), about
+
+
+def stats_table(stats: UncertaintyStats) -> str:
+    """Markdown: per report step and group, RMSE / calibrated sigma / coverage."""
+    steps = [n for n in REPORT_STEPS if n <= stats.rmse.shape[1]]
+    header = ["step", *(f"{g}: RMSE / sigma / cover" for g in GROUPS)]
+    rows = [
+        [n, *(
+            f"{stats.rmse[g, n - 1]:.3f} / {stats.sigma[g, n - 1]:.3f} / "
+            f"{100 * stats.coverage[g, n - 1]:.0f} %"
+            for g in range(len(GROUPS))
+        )]
+        for n in steps
+    ]  # fmt: skip
+    return markdown_table(header, rows)
+
+
+def write_assessment(stats: UncertaintyStats, about: str, out: str | Path) -> list[Path]:
+    """``out/uncertainty.md``, ``out/coverage.csv`` (every step) and ``out/calibration.png``."""
+    out = Path(out).expanduser()
+    lo, hi = stats.coverage.min(), stats.coverage.max()
+    text = (
+        f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows; the {stats.level:.0%} "
+        f"interval; coverage pooled over each group's components, {100 * lo:.1f}-"
+        f"{100 * hi:.1f} % over every step and group; {100 * stats.novel:.1f} % of windows "
+        "flagged novel.\n\n" + stats_table(stats) + "\n"
+    )
+    write_text(out / "uncertainty.md", text)
+    lines = ["step," + ",".join(f"{g}_{k}" for g in GROUPS for k in ("rmse", "sigma", "coverage"))]
+    for n in range(stats.rmse.shape[1]):
+        values = [
+            f"{a[g, n]:.6g}"
+            for g in range(len(GROUPS))
+            for a in (stats.rmse, stats.sigma, stats.coverage)
+        ]
+        lines.append(f"{n + 1}," + ",".join(values))
+    write_text(out / "coverage.csv", "\n".join(lines) + "\n")
+    return [out / "uncertainty.md", out / "coverage.csv", plot_calibration(stats, out)]
+
+
+def plot_calibration(stats: UncertaintyStats, out: Path) -> Path:
+    """Two panels: coverage per step and group beside the level; RMSE against sigma."""
+    fig = Figure(figsize=(10, 4))
+    ax_cov, ax_sig = fig.subplots(1, 2)
+    steps = np.arange(1, stats.rmse.shape[1] + 1)
+    for g, name in enumerate(GROUPS):
+        (line,) = ax_cov.plot(steps, 100 * stats.coverage[g], label=name)
+        ratio = stats.rmse[g] / np.maximum(stats.sigma[g], 1e-12)
+        ax_sig.plot(steps, ratio, color=line.get_color(), label=name)
+    ax_cov.axhline(100 * stats.level, color="k", linestyle=":", label=f"{stats.level:.0%} level")
+    ax_cov.set(xlabel="horizon step", ylabel="coverage (%)", ylim=(0, 100))
+    ax_cov.legend(fontsize=8)
+    ax_sig.axhline(1.0, color="k", linestyle=":")
+    ax_sig.set(xlabel="horizon step", ylabel="RMSE / calibrated sigma (1: matched)")
+    fig.tight_layout()
+    return save_figure(fig, out / "calibration.png")

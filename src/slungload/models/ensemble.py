@@ -1,0 +1,292 @@
+"""Ensembles: several trained networks of one recipe, predicting a mean and a spread.
+
+An ensemble is a folder holding ``ensemble.json`` (``ENSEMBLE_FILE``) beside its members'
+run folders (``train --ensemble K`` writes ``member-0`` ...; ``slungload ensemble`` names
+runs trained elsewhere, by paths relative to the folder). It is one model:
+``load_prediction_model(folder)`` builds an ``EnsembleModel``, which meets the
+``PredictionModel`` contract with the members' mean, and adds the members themselves
+(``predict_windows_members`` / ``predict_candidates_members``: (E, ..., 13)).
+
+The spread is the members' standard deviation per state component (``spread``). A
+``Calibration`` (fitted on held-out windows by ``evaluation.uncertainty.fit_calibration``
+and stored in ``ensemble.json``) scales it per horizon step and state group, so that
+``mean +- z(level) * scale * std`` is the stated interval: split-conformal at ``level``
+(the scale is the ``level`` quantile of |error| / std on the windows it was fitted on,
+divided by the Gaussian z of that level), Gaussian z at any other level. Steps beyond the
+fitted horizon keep its last step's scale. ``Calibration.novelty`` flags windows whose
+spread is far above what the fitting windows showed (the model outside what it has seen).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from statistics import NormalDist
+from typing import Any, NamedTuple
+
+import torch
+from torch import Tensor
+
+from .._version import __version__
+from ..config import ENSEMBLE_LEVEL as LEVEL
+from ..fileio import read_json, write_json
+from ..layout import GROUPS, QUAT, STATE_DIM
+from ..state import with_unit_quaternion
+from .checkpoints import LoadedModel, load_checkpoint
+
+ENSEMBLE_FILE = "ensemble.json"  # an ensemble folder's manifest
+ENSEMBLE_FORMAT = 1  # bump when the manifest changes incompatibly
+MEMBER_PREFIX = "member-"  # ``train --ensemble``'s member folders: member-0, member-1, ...
+
+
+def z_of(level: float) -> float:
+    """The two-sided Gaussian z of a coverage ``level`` in (0, 1) (1.645 at 0.9)."""
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"an interval's level must lie in (0, 1), got {level}")
+    return NormalDist().inv_cdf(0.5 + level / 2.0)
+
+
+class Spread(NamedTuple):
+    """Members' mean and standard deviation, (..., 13) each: the mean with a unit quaternion,
+    the std per component (unbiased over the members)."""
+
+    mean: Tensor
+    std: Tensor
+
+
+def spread(members: Tensor) -> Spread:
+    """members (E >= 2, ..., 13) -> their ``Spread``. Each member's quaternion is first turned
+    to the first member's hemisphere (q and -q are one attitude)."""
+    if members.dim() < 2 or members.shape[0] < 2 or members.shape[-1] != STATE_DIM:
+        raise ValueError(f"spread: expected (E >= 2, ..., {STATE_DIM}), got {tuple(members.shape)}")
+    q = members[..., QUAT]
+    sign = torch.where((q * q[:1]).sum(-1, keepdim=True) < 0, -1.0, 1.0).to(q.dtype)
+    aligned = members.clone()
+    aligned[..., QUAT] = q * sign
+    return Spread(with_unit_quaternion(aligned.mean(0)), aligned.std(0))
+
+
+def group_index() -> Tensor:
+    """(13,) the ``layout.GROUPS`` index of each state component; -1 where in none."""
+    index = torch.full((STATE_DIM,), -1, dtype=torch.long)
+    for g, sl in enumerate(GROUPS.values()):
+        index[sl] = g
+    return index
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Per-step, per-group scales on the members' std, and the novelty reference.
+
+    scale: (N, G) rows per horizon step 1..N, columns ``groups``, such that
+    ``z_of(level) * scale * std`` is the interval's half width. reference_std: (N, 13) the
+    median std per step and component on the fitting windows; novelty_threshold: the
+    ``novelty_quantile`` of ``novelty_score`` there. fitted_on: where (a dataset and split).
+    """
+
+    scale: tuple[tuple[float, ...], ...]
+    reference_std: tuple[tuple[float, ...], ...]
+    novelty_threshold: float
+    level: float = LEVEL
+    novelty_quantile: float = 0.99
+    groups: tuple[str, ...] = tuple(GROUPS)
+    fitted_on: str = ""
+    windows: int = 0
+
+    def __post_init__(self) -> None:
+        if self.groups != tuple(GROUPS):
+            raise ValueError(f"a calibration of groups {self.groups}, not {tuple(GROUPS)}")
+        if not self.scale or any(len(r) != len(self.groups) for r in self.scale):
+            raise ValueError("Calibration.scale must be (N >= 1, groups)")
+        if len(self.reference_std) != len(self.scale):
+            raise ValueError("Calibration.reference_std must have one row per step of scale")
+
+    @property
+    def horizon(self) -> int:
+        return len(self.scale)
+
+    def component_scale(self, steps: int) -> Tensor:
+        """(steps, 13) float64 scale per step and component; past ``horizon`` the last row."""
+        scale = torch.tensor(self.scale, dtype=torch.float64)
+        rows = torch.clamp(torch.arange(steps), max=self.horizon - 1)
+        out = torch.ones(steps, STATE_DIM, dtype=torch.float64)
+        idx = group_index()
+        have = idx >= 0
+        out[:, have] = scale[rows][:, idx[have]]
+        return out
+
+    def half_width(self, std: Tensor, level: float | None = None) -> Tensor:
+        """std (..., N, 13) -> the interval's half width, same shape and dtype."""
+        lvl = self.level if level is None else level
+        scale = self.component_scale(std.shape[-2]).to(std.device, std.dtype)
+        return z_of(lvl) * scale * std
+
+    def novelty_score(self, std: Tensor) -> Tensor:
+        """std (..., N, 13) -> (...): mean over steps and components of std / reference."""
+        n = std.shape[-2]
+        ref = torch.tensor(self.reference_std, dtype=torch.float64)
+        ref = ref[torch.clamp(torch.arange(n), max=self.horizon - 1)]
+        ratio = std / ref.to(std.device, std.dtype).clamp_min(1e-12)
+        return ratio.mean(dim=(-2, -1))
+
+    def novel(self, std: Tensor) -> Tensor:
+        """std (..., N, 13) -> (...) bool: spread beyond what the fitting windows showed."""
+        return self.novelty_score(std) > self.novelty_threshold
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "scale": [list(r) for r in self.scale],
+            "reference_std": [list(r) for r in self.reference_std],
+            "novelty_threshold": self.novelty_threshold,
+            "level": self.level,
+            "novelty_quantile": self.novelty_quantile,
+            "groups": list(self.groups),
+            "fitted_on": self.fitted_on,
+            "windows": self.windows,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Calibration:
+        return cls(
+            scale=tuple(tuple(float(v) for v in r) for r in d["scale"]),
+            reference_std=tuple(tuple(float(v) for v in r) for r in d["reference_std"]),
+            novelty_threshold=float(d["novelty_threshold"]),
+            level=float(d["level"]),
+            novelty_quantile=float(d["novelty_quantile"]),
+            groups=tuple(d["groups"]),
+            fitted_on=str(d.get("fitted_on", "")),
+            windows=int(d.get("windows", 0)),
+        )
+
+
+@dataclass
+class EnsembleModel:
+    """Members (prediction models of one history M) predicting their mean (``PredictionModel``)
+    and, through ``*_members``, each member's prediction for a spread."""
+
+    members: tuple[Any, ...]  # PredictionModel each
+    name: str = "ensemble"
+    calibration: Calibration | None = None
+    history: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.members = tuple(self.members)
+        if len(self.members) < 2:
+            raise ValueError(f"an ensemble needs at least 2 members, got {len(self.members)}")
+        histories = {m.history for m in self.members}
+        if len(histories) != 1:
+            raise ValueError(f"ensemble members with different histories M: {sorted(histories)}")
+        self.history = histories.pop()
+
+    def predict_windows_members(self, windows: Any) -> Tensor:
+        """(E, W, N, 13): each member's ``predict_windows``."""
+        return torch.stack([m.predict_windows(windows) for m in self.members])
+
+    def predict_candidates_members(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        """(E, K, N, 13): each member's ``predict_candidates``."""
+        return torch.stack([m.predict_candidates(x_hist, u_past, plans) for m in self.members])
+
+    def predict_windows(self, windows: Any) -> Tensor:
+        return spread(self.predict_windows_members(windows)).mean
+
+    def predict_candidates(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        return spread(self.predict_candidates_members(x_hist, u_past, plans)).mean
+
+    def with_members(self, members: tuple[Any, ...]) -> EnsembleModel:
+        """The same ensemble over other members (e.g. each on another backend)."""
+        return replace(self, members=tuple(members))
+
+
+# --- the folder ----------------------------------------------------------------------------
+
+
+def is_ensemble(path: str | Path) -> bool:
+    """Whether ``path`` is an ensemble folder (holds ``ENSEMBLE_FILE``)."""
+    return (Path(path).expanduser() / ENSEMBLE_FILE).is_file()
+
+
+@dataclass(frozen=True)
+class EnsembleManifest:
+    """What ``ensemble.json`` says: the member run folders (absolute here; relative to the
+    folder in the file) and the calibration, if fitted."""
+
+    folder: Path
+    members: tuple[Path, ...]
+    calibration: Calibration | None = None
+
+
+def write_manifest(
+    folder: str | Path, members: list[Path], calibration: Calibration | None = None
+) -> Path:
+    """Write ``folder/ensemble.json`` naming ``members`` (run folders) relative to ``folder``."""
+    folder = Path(folder).expanduser()
+    if len(members) < 2:
+        raise ValueError(f"an ensemble needs at least 2 members, got {len(members)}")
+    for m in members:
+        if not Path(m).is_dir():
+            raise FileNotFoundError(f"ensemble member {m} is not a run folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    rel = [_relative(Path(m), folder) for m in members]
+    data = {
+        "format": ENSEMBLE_FORMAT,
+        "package_version": __version__,
+        "members": rel,
+        "calibration": None if calibration is None else calibration.to_dict(),
+    }
+    path = folder / ENSEMBLE_FILE
+    write_json(path, data)
+    return path
+
+
+def read_manifest(folder: str | Path) -> EnsembleManifest:
+    """``folder/ensemble.json``; a ``ValueError`` naming the file where it is not one."""
+    folder = Path(folder).expanduser()
+    path = folder / ENSEMBLE_FILE
+    try:
+        data = read_json(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(
+            f"{folder} is not an ensemble folder (no {ENSEMBLE_FILE})"
+        ) from None
+    except ValueError as exc:
+        raise ValueError(f"{path}: not readable JSON ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != ENSEMBLE_FORMAT:
+        got = data.get("format") if isinstance(data, dict) else None
+        raise ValueError(
+            f"{path}: ensemble format {got!r}; this slungload {__version__} reads "
+            f"format {ENSEMBLE_FORMAT}"
+        )
+    try:
+        members = tuple((folder / str(m)).resolve() for m in data["members"])
+        cal = data.get("calibration")
+        calibration = None if cal is None else Calibration.from_dict(cal)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a slungload ensemble manifest ({exc})") from None
+    if len(members) < 2:
+        raise ValueError(f"{path}: an ensemble needs at least 2 members, got {len(members)}")
+    return EnsembleManifest(folder, members, calibration)
+
+
+def load_members(folder: str | Path) -> tuple[EnsembleManifest, list[LoadedModel]]:
+    """The manifest and each member's checkpoint (``load_checkpoint``); members must share
+    the history M and the dataset's constants (a ``ValueError`` naming the folder)."""
+    manifest = read_manifest(folder)
+    loaded = [load_checkpoint(m) for m in manifest.members]
+    if len({lm.window.history for lm in loaded}) > 1 or len({lm.params for lm in loaded}) > 1:
+        raise ValueError(
+            f"{manifest.folder}: ensemble members trained with different histories M or "
+            "vehicle constants: " + ", ".join(str(lm.path) for lm in loaded)
+        )
+    return manifest, loaded
+
+
+def set_calibration(folder: str | Path, calibration: Calibration | None) -> Path:
+    """Rewrite ``folder/ensemble.json`` with ``calibration`` (members unchanged)."""
+    manifest = read_manifest(folder)
+    return write_manifest(manifest.folder, list(manifest.members), calibration)
+
+
+def _relative(path: Path, folder: Path) -> str:
+    import os
+
+    return os.path.relpath(path.resolve(), folder.resolve())

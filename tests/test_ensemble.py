@@ -1,0 +1,230 @@
+"""Ensembles: the members' spread, its calibration (known solutions), the folder, the commands."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import torch
+from flights import WINDOW_ARGS
+
+from slungload.evaluation.uncertainty import fit_calibration, uncertainty_stats
+from slungload.layout import GROUPS, QUAT, STATE_DIM
+from slungload.models.ensemble import (
+    ENSEMBLE_FILE,
+    Calibration,
+    EnsembleModel,
+    read_manifest,
+    spread,
+    write_manifest,
+    z_of,
+)
+
+
+def _unit_quaternions(x: torch.Tensor) -> torch.Tensor:
+    x = x.clone()
+    x[..., QUAT] = x[..., QUAT] / x[..., QUAT].norm(dim=-1, keepdim=True)
+    return x
+
+
+def test_spread_of_equal_members_is_zero_and_ignores_the_quaternion_sign():
+    one = _unit_quaternions(torch.randn(7, 5, STATE_DIM, dtype=torch.float64))
+    flipped = one.clone()
+    flipped[..., QUAT] *= -1  # the same attitudes
+    mean, std = spread(torch.stack([one, flipped, one]))
+    torch.testing.assert_close(mean, one)
+    assert float(std.abs().max()) < 1e-12
+
+
+def test_spread_is_the_members_mean_and_unbiased_std():
+    members = torch.randn(4, 3, 2, STATE_DIM, dtype=torch.float64)
+    members[..., QUAT] = (
+        torch.tensor([1.0, 0, 0, 0], dtype=torch.float64) + 0.01 * members[..., QUAT]
+    )
+    mean, std = spread(members)
+    torch.testing.assert_close(mean[..., :3], members[..., :3].mean(0))
+    torch.testing.assert_close(std[..., :3], members[..., :3].std(0))
+    assert torch.allclose(mean[..., QUAT].norm(dim=-1), torch.ones(3, 2, dtype=torch.float64))
+
+
+def test_spread_refuses_one_member():
+    with pytest.raises(ValueError, match="E >= 2"):
+        spread(torch.zeros(1, 3, STATE_DIM))
+
+
+def _gaussian_case(windows: int, steps: int, factor: torch.Tensor, seed: int):
+    """Members whose std is known (about 1 per component, the members' own noise) and truth
+    off their mean by a Gaussian of ``factor`` (per step) times that std: the calibrated
+    scale is ``factor`` up to the members' sampling of the std."""
+    g = torch.Generator().manual_seed(seed)
+    e = 64  # many members: their std is close to the std they are drawn with
+    centre = torch.zeros(windows, steps, STATE_DIM, dtype=torch.float64)
+    centre[..., QUAT.start] = 1000.0  # a quaternion far from the others' noise: w stays ~1
+    sigma = torch.rand(windows, steps, STATE_DIM, generator=g, dtype=torch.float64) + 0.5
+    members = centre + sigma * torch.randn(e, windows, steps, STATE_DIM, generator=g,
+                                           dtype=torch.float64)  # fmt: skip
+    mean, std = spread(members)
+    noise = torch.randn(windows, steps, STATE_DIM, generator=g, dtype=torch.float64)
+    truth = mean + factor.view(1, steps, 1) * std * noise
+    return members, truth
+
+
+def test_calibration_recovers_a_known_scale_and_covers_the_level_on_new_windows():
+    steps = 3
+    factor = torch.tensor([0.5, 1.0, 3.0], dtype=torch.float64)
+    members, truth = _gaussian_case(4000, steps, factor, seed=0)
+    # the quaternion's components are renormalised by spread's mean: leave them out here
+    cal = fit_calibration(members, truth)
+    scale = torch.tensor(cal.scale, dtype=torch.float64)
+    for g, name in enumerate(GROUPS):
+        if name != "quaternion":
+            torch.testing.assert_close(scale[:, g], factor, rtol=0.05, atol=0.0)
+    fresh_members, fresh_truth = _gaussian_case(4000, steps, factor, seed=1)
+    stats = uncertainty_stats(fresh_members, fresh_truth, cal)
+    for g, name in enumerate(GROUPS):
+        if name != "quaternion":
+            assert stats.coverage[g] == pytest.approx([0.9] * steps, abs=0.02)
+    # the 50 % interval by Gaussian z: right for Gaussian errors too
+    half = uncertainty_stats(fresh_members, fresh_truth, cal, level=0.5)
+    assert half.coverage[0] == pytest.approx([0.5] * steps, abs=0.03)
+    # few windows are novel on data like the fitting windows; all are with 10x the spread
+    assert stats.novel < 0.03
+    wide = spread(fresh_members).mean + 10 * (fresh_members - spread(fresh_members).mean)
+    assert uncertainty_stats(wide, fresh_truth, cal).novel == 1.0
+
+
+def test_calibration_round_trip_and_steps_beyond_its_horizon():
+    cal = Calibration(
+        scale=((1.0, 2.0, 3.0, 4.0), (5.0, 6.0, 7.0, 8.0)),
+        reference_std=((1.0,) * STATE_DIM, (2.0,) * STATE_DIM),
+        novelty_threshold=1.5,
+        fitted_on="here",
+        windows=3,
+    )
+    assert Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
+    scale = cal.component_scale(4)
+    assert scale.shape == (4, STATE_DIM)
+    assert scale[0, QUAT].tolist() == [3.0] * 4
+    assert scale[3].tolist() == scale[1].tolist()  # past the fitted horizon: its last row
+    half = cal.half_width(torch.ones(2, STATE_DIM, dtype=torch.float64))
+    assert half[0, 0] == pytest.approx(z_of(0.9) * 1.0)
+    assert z_of(0.9) == pytest.approx(1.6449, abs=1e-4)
+    with pytest.raises(ValueError, match="one row per step"):
+        Calibration(scale=((1.0,) * 4,), reference_std=(), novelty_threshold=1.0)
+
+
+class _Constant:
+    """A prediction model that predicts a fixed state everywhere."""
+
+    def __init__(self, value: float, history: int = 2):
+        self.value, self.history, self.name = value, history, f"c{value}"
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        out = torch.zeros(*plans.shape[:2], STATE_DIM, dtype=plans.dtype)
+        out[..., 0] = self.value
+        out[..., QUAT.start] = 1.0
+        return out
+
+
+def test_ensemble_model_predicts_the_members_mean():
+    model = EnsembleModel((_Constant(1.0), _Constant(3.0)))
+    x, u, plans = torch.zeros(2, STATE_DIM), torch.zeros(1, 4), torch.zeros(5, 7, 4)
+    assert model.predict_candidates(x, u, plans)[..., 0].unique().tolist() == [2.0]
+    assert model.predict_candidates_members(x, u, plans).shape == (2, 5, 7, STATE_DIM)
+    with pytest.raises(ValueError, match="different histories"):
+        EnsembleModel((_Constant(1.0), _Constant(1.0, history=3)))
+    with pytest.raises(ValueError, match="at least 2"):
+        EnsembleModel((_Constant(1.0),))
+
+
+def test_manifest_round_trip_moves_with_its_folder_and_names_bad_files(tmp_path):
+    folder = tmp_path / "ens"
+    runs = [folder / "member-0", folder / "member-1"]
+    for r in runs:
+        r.mkdir(parents=True)
+    write_manifest(folder, runs)
+    moved = tmp_path / "moved"
+    shutil.move(folder, moved)
+    manifest = read_manifest(moved)
+    assert [m.name for m in manifest.members] == ["member-0", "member-1"]
+    assert all(m.parent == moved.resolve() for m in manifest.members)
+    assert manifest.calibration is None
+    (moved / ENSEMBLE_FILE).write_text('{"format": 99, "members": []}')
+    with pytest.raises(ValueError, match=r"ensemble\.json.*format 99"):
+        read_manifest(moved)
+    with pytest.raises(ValueError, match="at least 2"):
+        write_manifest(tmp_path / "one", runs[:1])
+
+
+@pytest.fixture(scope="module")
+def trained_ensemble(tmp_path_factory, tiny_run):
+    """``train --ensemble 2`` of the tiny network on the tiny run's dataset (calibrated)."""
+    from slungload.cli import main
+
+    out = tmp_path_factory.mktemp("ensemble") / "E"
+    code = main(["train", "--data", str(tiny_run.data), "--out", str(out), "--preset", "quick",
+                 "--size", "tiny", "--device", "cpu", "--threads", "1", "--quiet",
+                 "--ensemble", "2", "--epochs", "1", *WINDOW_ARGS])  # fmt: skip
+    assert code == 0
+    return out
+
+
+def test_train_ensemble_writes_calibrated_members_of_consecutive_seeds(trained_ensemble):
+    from slungload.models.checkpoints import load_checkpoint
+    from slungload.models.prediction import load_prediction_model
+
+    manifest = read_manifest(trained_ensemble)
+    seeds = [load_checkpoint(m).train_config.seed for m in manifest.members]
+    assert seeds == [0, 1]
+    assert manifest.calibration is not None and "val split" in manifest.calibration.fitted_on
+    model = load_prediction_model(trained_ensemble)
+    assert isinstance(model, EnsembleModel) and model.calibration == manifest.calibration
+
+
+def test_ensemble_windows_and_candidates_agree_on_every_backend(trained_ensemble, tiny_run):
+    from slungload.deploy.compiled.batched import with_backend
+    from slungload.models.prediction import load_prediction_model
+
+    model = load_prediction_model(trained_ensemble)
+    windows = tiny_run.dataset.splits["test"]
+    members = model.predict_windows_members(windows)
+    torch.testing.assert_close(model.predict_windows(windows), spread(members).mean)
+    m = model.history
+    w = windows[:1]
+    x_hist, u_past = w.states[0, :m].double(), w.inputs[0, : m - 1].double()
+    plans = w.inputs[0, m - 1 : -1].double().expand(3, -1, -1).contiguous()
+    eager = model.predict_candidates(x_hist, u_past, plans)
+    from_windows = model.predict_windows(w).double()
+    torch.testing.assert_close(eager[0], from_windows[0], atol=1e-4, rtol=0)
+    compiled = with_backend(model, "compiled")
+    assert isinstance(compiled, EnsembleModel)
+    torch.testing.assert_close(compiled.predict_candidates(x_hist, u_past, plans), eager,
+                               atol=1e-4, rtol=0)  # fmt: skip
+
+
+def test_uncertainty_command_writes_its_report_and_resume_keeps_members(
+    trained_ensemble, tiny_run, run_cli, tmp_path
+):
+    code, out, _ = run_cli("uncertainty", trained_ensemble, "--out", tmp_path / "u")
+    assert code == 0 and "flagged novel" in out
+    for name in ("uncertainty.md", "coverage.csv", "calibration.png"):
+        assert (tmp_path / "u" / name).is_file()
+    rows = (tmp_path / "u" / "coverage.csv").read_text().splitlines()
+    assert len(rows) == 1 + 4  # a header and the tiny windows' N = 4 steps
+    before = (trained_ensemble / "member-0" / "best.ckpt").stat().st_mtime_ns
+    code, out, _ = run_cli("train", "--data", tiny_run.data, "--out", trained_ensemble,
+                           "--preset", "quick", "--size", "tiny", "--device", "cpu",
+                           "--threads", "1", "--quiet", "--ensemble", "2", "--epochs", "1",
+                           "--resume", *WINDOW_ARGS)  # fmt: skip
+    assert code == 0 and out.count("kept (finished before)") == 2
+    assert (trained_ensemble / "member-0" / "best.ckpt").stat().st_mtime_ns == before
+
+
+def test_ensemble_commands_refuse_what_they_cannot_use(run_cli, tmp_path, tiny_run):
+    code, _, err = run_cli("uncertainty", tmp_path)
+    assert code == 2 and "not an ensemble folder" in err
+    code, _, err = run_cli("calibrate", tmp_path / "missing")
+    assert code == 2 and "not an ensemble folder" in err
+    code, _, err = run_cli("ensemble", tiny_run.out, "--out", tmp_path / "one")
+    assert code == 2 and "at least 2" in err
