@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 import torch
 from flights import WINDOW_ARGS
@@ -228,3 +229,29 @@ def test_ensemble_commands_refuse_what_they_cannot_use(run_cli, tmp_path, tiny_r
     assert code == 2 and "not an ensemble folder" in err
     code, _, err = run_cli("ensemble", tiny_run.out, "--out", tmp_path / "one")
     assert code == 2 and "at least 2" in err
+
+
+def test_ensemble_predictor_gives_the_mean_an_interval_and_a_flag(trained_ensemble, tiny_run):
+    from slungload.data.readers import read_flight
+    from slungload.deploy.predictor import EnsemblePredictor, flight_window
+
+    predictor = EnsemblePredictor.from_folder(trained_ensemble)
+    flight = read_flight(tiny_run.data / "test_3.npz")
+    w = flight_window(flight, 0, history=predictor.history, horizon=4)
+    mean = predictor.predict(w.history, w.future_inputs)
+    members = np.stack([m.predict(w.history, w.future_inputs) for m in predictor.members])
+    np.testing.assert_allclose(mean[:, :7], members[:, :, :7].mean(0), atol=1e-6)
+    assert np.allclose(np.linalg.norm(mean[:, 6:10], axis=-1), 1.0)
+    interval = predictor.predict_interval(w.history, w.future_inputs)
+    np.testing.assert_allclose(interval.mean, mean)
+    assert interval.half_width.shape == mean.shape and (interval.half_width >= 0).all()
+    assert interval.novel.dtype == np.bool_ and interval.novel.shape == ()
+    three = (w.history[None].repeat(3, 0), w.future_inputs[None].repeat(3, 0))
+    batch = predictor.predict_interval(*three)
+    assert batch.mean.shape == (3, 4, STATE_DIM) and batch.novel.shape == (3,)
+    np.testing.assert_allclose(batch.half_width[1], interval.half_width, atol=1e-9)
+    # the 50 % interval is narrower by the ratio of the Gaussian z's
+    half = predictor.predict_interval(w.history, w.future_inputs, level=0.5).half_width
+    np.testing.assert_allclose(half * z_of(0.9) / z_of(0.5), interval.half_width, rtol=1e-9)
+    with pytest.raises(ValueError, match="uncalibrated"):
+        EnsemblePredictor(predictor.members).predict_interval(w.history, w.future_inputs)

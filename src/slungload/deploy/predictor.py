@@ -39,6 +39,7 @@ from ..layout import (
     WXYZ_TO_XYZW,
 )
 from ..models.checkpoints import load_checkpoint
+from ..models.ensemble import Calibration, read_manifest, spread
 from ..models.lstm_attention import SlungLoadNet
 from ..state import (
     quat_continuous,
@@ -158,6 +159,74 @@ class Predictor:
             u_future = torch.as_tensor(fut, dtype=dtype, device=self.device)
             states = self.network(h, u_future)
         return unbatch(states.cpu().numpy(), single)
+
+
+class Interval(NamedTuple):
+    """An ensemble's prediction (file layout, as ``Predictor.predict``'s) with its interval."""
+
+    mean: np.ndarray  # (N, 13) or (B, N, 13): the members' mean, unit quaternion x-y-z-w
+    half_width: np.ndarray  # same shape: the interval is mean +- half_width
+    novel: np.ndarray  # () or (B,) bool: the spread is beyond what the calibration saw
+
+
+@dataclass
+class EnsemblePredictor:
+    """An ensemble folder (``models.ensemble``) behind numpy: ``predict`` gives the members'
+    mean as ``Predictor.predict`` does; ``predict_interval`` adds the calibrated interval and
+    the novelty flag (the model outside what it has seen; needs a calibrated ensemble)."""
+
+    members: tuple[Predictor, ...]
+    calibration: Calibration | None = None
+
+    @classmethod
+    def from_folder(
+        cls,
+        path: str | Path,
+        *,
+        device: str | torch.device = "cpu",
+        threads: int | None = 1,
+        any_history: bool = False,
+    ) -> EnsemblePredictor:
+        manifest = read_manifest(path)
+        members = tuple(
+            Predictor.from_checkpoint(m, device=device, threads=threads, any_history=any_history)
+            for m in manifest.members
+        )
+        return cls(members, manifest.calibration)
+
+    @property
+    def history(self) -> int:
+        return self.members[0].history
+
+    def _members(self, history: np.ndarray, future_inputs: np.ndarray) -> tuple[Tensor, bool]:
+        """(E, B, N, 13) float64 in the package layout (q w-x-y-z), and whether unbatched."""
+        single = np.asarray(history).ndim == 2
+        out = [m.predict(history, future_inputs) for m in self.members]
+        states = torch.as_tensor(np.stack([o[None] if single else o for o in out]))
+        return states_from_file(states.double()), single
+
+    def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
+        """The members' mean, as ``Predictor.predict`` (same arguments and layout)."""
+        states, single = self._members(history, future_inputs)
+        return unbatch(states_to_file(spread(states).mean).numpy(), single)
+
+    def predict_interval(
+        self, history: np.ndarray, future_inputs: np.ndarray, level: float | None = None
+    ) -> Interval:
+        """The mean, the half width of the ``level`` interval (default the calibration's) and
+        the novelty flag per window."""
+        if self.calibration is None:
+            raise ValueError("an uncalibrated ensemble states no interval: slungload calibrate")
+        states, single = self._members(history, future_inputs)
+        mean, std = spread(states)
+        half = self.calibration.half_width(std, level)
+        half[..., QUAT] = half[..., QUAT][..., list(WXYZ_TO_XYZW)]  # the file's x-y-z-w
+        novel = self.calibration.novel(std).numpy()
+        return Interval(
+            unbatch(states_to_file(mean).numpy(), single),
+            unbatch(half.numpy(), single),
+            novel[0] if single else novel,
+        )
 
 
 @contextmanager

@@ -26,6 +26,7 @@ from ..config import VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
+from ..models.ensemble import EnsembleModel, is_ensemble, load_members
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..reporting import device_name, versions
 from ..state import GROUPS, group_errors
@@ -241,8 +242,9 @@ def evaluate(
     progress: bool = True,
     split: str = "test",
 ) -> Report:
-    """Evaluate trained runs (run folders or ``.ckpt`` files) on the test flights (or, with
-    ``split="val"``, the validation flights: the split to choose a configuration on).
+    """Evaluate trained runs (run folders, ``.ckpt`` files or ensemble folders: the members'
+    mean, one row) on the test flights (or, with ``split="val"``, the validation flights:
+    the split to choose a configuration on).
 
     data: dataset folder (default: the one recorded in the first run). Every run must share
     the history M and the vehicle constants. Test windows are cut with stride 1 for each
@@ -255,7 +257,10 @@ def evaluate(
     horizons = tuple(sorted({int(n) for n in horizons}))
     if not horizons or horizons[0] < 1:
         raise ValueError(f"evaluate: horizons must be positive step counts, got {horizons}")
-    loaded = [load_checkpoint(run) for run in runs]
+    ensembles = [(Path(run), *load_members(run)) for run in runs if is_ensemble(run)]
+    singles = [load_checkpoint(run) for run in runs if not is_ensemble(run)]
+    # every network, an ensemble's members too: what the runs must share
+    loaded = singles + [lm for _, _, members in ensembles for lm in members]
     if not loaded and not include_physics:
         raise ValueError("evaluate: no run given and the physics predictor switched off")
     folder = data if data is not None else (loaded[0].meta.get("data") if loaded else None)
@@ -273,12 +278,18 @@ def evaluate(
             truth = PhysicsModel(dataset.params, name=PHYSICS_TRUTH, constants="flight")
             candidates.append(Candidate(PHYSICS_TRUTH, truth))
     training_horizon = loaded[0].window.horizon if loaded else horizons[0]
-    for lm in loaded:
+    for lm in singles:
         model = NetworkModel(lm.model, lm.window.history, batch_size=batch_size, device=device)
         seed = lm.train_config.seed
         # "+N<steps>" where the training horizon differs from the report's (the first run's)
         label = lm.run.label(with_horizon=lm.window.horizon != training_horizon)
         candidates.append(Candidate(label, model, seed, lm.model, _run_info(lm)))
+    for folder, manifest, members in ensembles:
+        nets = [NetworkModel(lm.model, lm.window.history, batch_size=batch_size, device=device)
+                for lm in members]  # fmt: skip
+        model = EnsembleModel(tuple(nets), folder.name, manifest.calibration)
+        label = f"{folder.name} (mean of {len(members)})"
+        candidates.append(Candidate(label, model, None, None, {"ensemble": str(folder)}))
     test = windows[horizons[0]].names
     report = evaluate_predictors(
         candidates,
