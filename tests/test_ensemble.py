@@ -255,3 +255,13 @@ def test_ensemble_predictor_gives_the_mean_an_interval_and_a_flag(trained_ensemb
     np.testing.assert_allclose(half * z_of(0.9) / z_of(0.5), interval.half_width, rtol=1e-9)
     with pytest.raises(ValueError, match="uncalibrated"):
         EnsemblePredictor(predictor.members).predict_interval(w.history, w.future_inputs)
+
+
+def test_the_mpc_calls_an_ensemble_for_its_mean():
+    from slungload.control.mpc import candidate_model
+
+    call = candidate_model(EnsembleModel((_Constant(1.0), _Constant(3.0))))
+    states = call.predict_candidates(
+        np.zeros((2, STATE_DIM)), np.zeros((1, 4)), np.zeros((5, 7, 4))
+    )
+    assert states.shape == (5, 7, STATE_DIM) and np.all(states[..., 0] == 2.0)
