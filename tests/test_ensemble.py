@@ -200,6 +200,8 @@ def test_ensemble_windows_and_candidates_agree_on_every_backend(trained_ensemble
     torch.testing.assert_close(eager[0], from_windows[0], atol=1e-4, rtol=0)
     compiled = with_backend(model, "compiled")
     assert isinstance(compiled, EnsembleModel)
+    numpy_call = compiled.numpy_candidates(x_hist.numpy(), u_past.numpy(), plans.numpy())
+    torch.testing.assert_close(torch.from_numpy(numpy_call), eager, atol=1e-4, rtol=0)
     torch.testing.assert_close(compiled.predict_candidates(x_hist, u_past, plans), eager,
                                atol=1e-4, rtol=0)  # fmt: skip
 

@@ -24,6 +24,7 @@ from pathlib import Path
 from statistics import NormalDist
 from typing import Any, NamedTuple
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -177,6 +178,13 @@ class EnsembleModel:
         if len(histories) != 1:
             raise ValueError(f"ensemble members with different histories M: {sorted(histories)}")
         self.history = histories.pop()
+        if all(hasattr(m, "numpy_candidates") for m in self.members):  # the compiled backends
+            self.numpy_candidates = self._numpy_candidates
+
+    def _numpy_candidates(self, x_hist: Any, u_past: Any, plans: Any) -> Any:
+        """The members' own numpy entries (``control.mpc.candidate_model``), their mean."""
+        out = np.stack([m.numpy_candidates(x_hist, u_past, plans) for m in self.members])
+        return spread(torch.from_numpy(out)).mean.numpy()
 
     def predict_windows_members(self, windows: Any) -> Tensor:
         """(E, W, N, 13): each member's ``predict_windows``."""
