@@ -267,3 +267,19 @@ def test_the_mpc_calls_an_ensemble_for_its_mean():
         np.zeros((2, STATE_DIM)), np.zeros((1, 4)), np.zeros((5, 7, 4))
     )
     assert states.shape == (5, 7, STATE_DIM) and np.all(states[..., 0] == 2.0)
+
+
+def test_evaluate_reports_an_ensembles_mean_and_its_interval(trained_ensemble, tiny_run, tmp_path):
+    from slungload.evaluation.evaluator import evaluate
+
+    report = evaluate([trained_ensemble], data=tiny_run.data, out=tmp_path / "r", horizons=(2, 4),
+                      progress=False)  # fmt: skip
+    label = next(la for la in report.labels if la.startswith("E (mean of 2)"))
+    assert sorted(report.spreads[label]) == [2, 4]
+    stats = report.spreads[label][4]
+    assert stats.coverage.shape == (len(GROUPS), 4) and 0.0 <= stats.coverage.min() <= 1.0
+    text = (tmp_path / "r" / "report.md").read_text()
+    assert f"## The interval of {label}, N = 4" in text
+    assert list((tmp_path / "r" / "figures").glob("calibration_*_N4.png"))
+    saved = json.loads((tmp_path / "r" / "report.json").read_text())
+    assert saved["spreads"][label]["4"]["level"] == 0.9

@@ -26,13 +26,14 @@ from ..config import VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows, make_windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
-from ..models.ensemble import EnsembleModel, is_ensemble, load_members
+from ..models.ensemble import EnsembleModel, is_ensemble, load_members, spread
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
 from ..reporting import device_name, versions
 from ..state import GROUPS, group_errors
 from .metrics import Curve, mae_curve, metrics_from_errors
 from .report import write_report
 from .results import PHYSICS, PHYSICS_TRUTH, Example, Report, RunResult, TimingResult, table_rows
+from .uncertainty import UncertaintyStats, member_predictions, uncertainty_stats
 
 # Batch-1 timing of the trained networks: (label, seed, network) triples, the test windows per
 # horizon and the vehicle constants -> one record per network, backend and horizon.
@@ -127,7 +128,7 @@ def evaluate_predictors(
     """
     history = _check_windows(candidates, windows)
     horizons = tuple(sorted(windows))
-    results, pooled, predictions = _run_candidates(candidates, windows, progress)
+    results, pooled, predictions, spreads = _run_candidates(candidates, windows, progress)
     curves: dict[str, dict[int, dict[str, Curve]]] = {}
     for (label, n), parts in pooled.items():
         joined = {g: torch.cat([p[g] for p in parts]) for g in GROUPS}
@@ -161,6 +162,7 @@ def evaluate_predictors(
         example=example,
         models=tuple({"label": c.label, "seed": c.seed, **c.info} for c in candidates if c.network),
         environment=env,
+        spreads=spreads,
     )
 
 
@@ -179,25 +181,38 @@ def _check_windows(candidates: Sequence[Candidate], windows: Mapping[int, Window
 def _run_candidates(
     candidates: Sequence[Candidate], windows: Mapping[int, Windows], progress: bool
 ) -> tuple[
-    list[RunResult], dict[tuple[str, int], list[dict[str, Tensor]]], dict[tuple[int, int], Tensor]
+    list[RunResult],
+    dict[tuple[str, int], list[dict[str, Tensor]]],
+    dict[tuple[int, int], Tensor],
+    dict[str, dict[int, UncertaintyStats]],
 ]:
     """Every candidate at every horizon: its metrics, its error norms pooled per (label, N)
-    over seeds, and its predictions per (id(candidate), N), (W, N, 13)."""
+    over seeds, its predictions per (id(candidate), N), (W, N, 13), and a calibrated
+    ensemble's interval statistics per label and N (``uncertainty.uncertainty_stats``)."""
     jobs = [(c, n) for n in sorted(windows) for c in candidates]
     bar = tqdm(total=len(jobs), unit="run", leave=False, disable=None if progress else True)
     results: list[RunResult] = []
     pooled: dict[tuple[str, int], list[dict[str, Tensor]]] = {}
     predictions: dict[tuple[int, int], Tensor] = {}
+    spreads: dict[str, dict[int, UncertaintyStats]] = {}
     for c, n in jobs:
         bar.set_description(f"{c.label} N={n}")
-        pred = c.model.predict_windows(windows[n])
+        if isinstance(c.model, EnsembleModel):  # the mean, and the interval's coverage
+            members, truth = member_predictions(c.model, windows[n])
+            pred = spread(members).mean.to(windows[n].states.dtype)
+            if c.model.calibration is not None:
+                spreads.setdefault(c.label, {})[n] = uncertainty_stats(
+                    members, truth, c.model.calibration
+                )
+        else:
+            pred = c.model.predict_windows(windows[n])
         errors = group_errors(pred, windows[n].future.states)
         results.append(RunResult(c.label, c.seed, metrics_from_errors(errors)))
         pooled.setdefault((c.label, n), []).append(errors)
         predictions[(id(c), n)] = pred
         bar.update()
     bar.close()
-    return results, pooled, predictions
+    return results, pooled, predictions, spreads
 
 
 def _example(

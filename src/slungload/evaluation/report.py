@@ -35,6 +35,7 @@ from .results import (
     Report,
     RmseRow,
 )
+from .uncertainty import plot_calibration, stats_table, summary_line
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
@@ -98,6 +99,11 @@ def write_figures(report: Report, folder: Path) -> list[tuple[str, Path]]:
                            f"{ref} vs {other}")  # fmt: skip
         if len(report.labels) > 2 or ref is None:
             mae_figure(report.labels, n, f"mae_all_N{n}.png", "all models")
+    for label, by_n in report.spreads.items():
+        n = max(by_n)
+        name = f"calibration_{_slug(label)}_N{n}.png"
+        path = plot_calibration(by_n[n], folder, name)
+        out.append((f"The interval of {label}: coverage and RMSE / sigma per step (N = {n})", path))
     if report.example is not None:
         ex = report.example
         path = plots.plot_prediction(ex, folder / "prediction.png", dt=report.dt,
@@ -244,6 +250,7 @@ def render_markdown(
         lines += _rmse_section(report, n)
     lines += _paper_rmse_section()
     lines += _ratio_section(report)
+    lines += _spread_section(report)
     lines += _timing_section(report)
     lines += ["## Figures", ""]
     for caption, path in figures:
@@ -254,6 +261,19 @@ def render_markdown(
     lines += ["- [report.json](report.json)", ""]
     lines += _config_section(report)
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _spread_section(report: Report) -> list[str]:
+    """Each calibrated ensemble's interval at its longest horizon (``slungload uncertainty``)."""
+    lines = []
+    for label, by_n in report.spreads.items():
+        n = max(by_n)
+        stats = by_n[n]
+        lines += [f"## The interval of {label}, N = {n}", "",
+                  f"Calibrated on its own held-out flights; here {summary_line(stats)}. Per "
+                  "step: the mean's RMSE, the calibrated sigma and the share of errors inside "
+                  "the interval.", "", stats_table(stats), ""]  # fmt: skip
+    return lines
 
 
 def _first_per_horizon(report: Report):

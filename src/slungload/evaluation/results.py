@@ -159,6 +159,8 @@ class Report:
     models: tuple[dict[str, Any], ...]  # per trained run: label, seed, run, configs
     environment: dict[str, Any]  # package and torch versions, threads, device
     split: str = "test"  # the dataset split evaluated on ("val": to choose a configuration)
+    # a calibrated ensemble's interval per label and N (``uncertainty.UncertaintyStats``)
+    spreads: dict[str, dict[int, Any]] = dataclasses.field(default_factory=dict)
 
     @property
     def dt(self) -> float:
@@ -196,6 +198,18 @@ class Report:
             else {"flight": ex.flight, "start": ex.start, "history": ex.history},
             "models": list(self.models),
             "environment": dict(self.environment),
+            "spreads": {
+                label: {
+                    str(n): {
+                        "level": st.level,
+                        "novel": st.novel,
+                        "coverage_min": float(st.coverage.min()),
+                        "coverage_max": float(st.coverage.max()),
+                    }
+                    for n, st in by_n.items()
+                }
+                for label, by_n in self.spreads.items()
+            },  # fmt: skip
             "paper": {
                 "rmse_n50": PAPER_RMSE_N50,
                 "timing": [dataclasses.asdict(t) for t in PAPER_TIMING],

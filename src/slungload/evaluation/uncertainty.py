@@ -11,7 +11,8 @@
   the share of windows flagged novel.
 - ``calibrate`` and ``assess``: the same on a dataset folder's split for an ensemble folder
   (``slungload calibrate`` / ``slungload uncertainty``); ``write_assessment`` writes the
-  table (markdown), ``coverage.csv`` and ``calibration.png``.
+  table (markdown), ``coverage.csv`` and ``calibration.png``. ``evaluate`` adds the same
+  table and figure to its report for every calibrated ensemble it evaluates.
 """
 
 from __future__ import annotations
@@ -41,7 +42,6 @@ from ..models.ensemble import (
 )
 from ..models.prediction import load_prediction_model
 from ..reporting import markdown_table, save_figure
-from .evaluator import horizon_windows
 
 NOVELTY_QUANTILE = 0.99  # the share of in-distribution windows not flagged novel
 REPORT_STEPS = (1, 5, 10, 25, 50, 75, 100)  # the table's horizon steps (those within N)
@@ -135,6 +135,7 @@ def _ensemble_and_windows(
     """The ensemble folder's model, the split's windows (stride 1) at ``horizon`` (default:
     the members' training horizon) and a description of them."""
     from ..models.ensemble import load_members
+    from .evaluator import horizon_windows  # it imports this module
 
     if not is_ensemble(ensemble):
         raise ValueError(f"{ensemble} is not an ensemble folder (train --ensemble K writes one)")
@@ -201,15 +202,22 @@ def stats_table(stats: UncertaintyStats) -> str:
     return markdown_table(header, rows)
 
 
+def summary_line(stats: UncertaintyStats) -> str:
+    """One sentence: the coverage range over every step and group, the share flagged."""
+    lo, hi = stats.coverage.min(), stats.coverage.max()
+    return (
+        f"the {stats.level:.0%} interval covers {100 * lo:.1f}-{100 * hi:.1f} % of the errors "
+        f"over every step and group (pooled over each group's components); "
+        f"{100 * stats.novel:.1f} % of windows flagged novel"
+    )
+
+
 def write_assessment(stats: UncertaintyStats, about: str, out: str | Path) -> list[Path]:
     """``out/uncertainty.md``, ``out/coverage.csv`` (every step) and ``out/calibration.png``."""
     out = Path(out).expanduser()
-    lo, hi = stats.coverage.min(), stats.coverage.max()
     text = (
-        f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows; the {stats.level:.0%} "
-        f"interval; coverage pooled over each group's components, {100 * lo:.1f}-"
-        f"{100 * hi:.1f} % over every step and group; {100 * stats.novel:.1f} % of windows "
-        "flagged novel.\n\n" + stats_table(stats) + "\n"
+        f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows: {summary_line(stats)}."
+        "\n\n" + stats_table(stats) + "\n"
     )
     write_text(out / "uncertainty.md", text)
     lines = ["step," + ",".join(f"{g}_{k}" for g in GROUPS for k in ("rmse", "sigma", "coverage"))]
@@ -224,19 +232,19 @@ def write_assessment(stats: UncertaintyStats, about: str, out: str | Path) -> li
     return [out / "uncertainty.md", out / "coverage.csv", plot_calibration(stats, out)]
 
 
-def plot_calibration(stats: UncertaintyStats, out: Path) -> Path:
+def plot_calibration(stats: UncertaintyStats, out: Path, name: str = "calibration.png") -> Path:
     """Two panels: coverage per step and group beside the level; RMSE against sigma."""
     fig = Figure(figsize=(10, 4))
     ax_cov, ax_sig = fig.subplots(1, 2)
     steps = np.arange(1, stats.rmse.shape[1] + 1)
-    for g, name in enumerate(GROUPS):
-        (line,) = ax_cov.plot(steps, 100 * stats.coverage[g], label=name)
+    for g, group in enumerate(GROUPS):
+        (line,) = ax_cov.plot(steps, 100 * stats.coverage[g], label=group)
         ratio = stats.rmse[g] / np.maximum(stats.sigma[g], 1e-12)
-        ax_sig.plot(steps, ratio, color=line.get_color(), label=name)
+        ax_sig.plot(steps, ratio, color=line.get_color(), label=group)
     ax_cov.axhline(100 * stats.level, color="k", linestyle=":", label=f"{stats.level:.0%} level")
     ax_cov.set(xlabel="horizon step", ylabel="coverage (%)", ylim=(0, 100))
     ax_cov.legend(fontsize=8)
     ax_sig.axhline(1.0, color="k", linestyle=":")
     ax_sig.set(xlabel="horizon step", ylabel="RMSE / calibrated sigma (1: matched)")
     fig.tight_layout()
-    return save_figure(fig, out / "calibration.png")
+    return save_figure(fig, out / name)
