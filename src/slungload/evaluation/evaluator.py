@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
-from ..data.windows import Windows, make_windows
+from ..data.windows import Windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
 from ..models.ensemble import EnsembleModel, is_ensemble, load_members, spread
 from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
@@ -34,6 +34,7 @@ from .metrics import Curve, mae_curve, metrics_from_errors
 from .report import write_report
 from .results import PHYSICS, PHYSICS_TRUTH, Example, Report, RunResult, TimingResult, table_rows
 from .uncertainty import UncertaintyStats, member_predictions, uncertainty_stats
+from .windows import horizon_windows
 
 # Batch-1 timing of the trained networks: (label, seed, network) triples, the test windows per
 # horizon and the vehicle constants -> one record per network, backend and horizon.
@@ -41,31 +42,6 @@ Timer = Callable[
     [Sequence[tuple[str, "int | None", nn.Module]], Mapping[int, Windows], VehicleParams],
     Sequence[TimingResult],
 ]
-
-
-SPLITS = ("test", "val")
-# the splits ``evaluate`` measures on: report on test, choose on val
-
-
-def horizon_windows(
-    dataset: Any, *, history: int, horizons: Sequence[int], split: str = "test"
-) -> dict[int, Windows]:
-    """Windows for each horizon N, cut with stride 1 from the flights of one split.
-
-    dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...,
-    ``.params``: the constants of flights that record none of their own).
-    Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
-    """
-    if split not in SPLITS:
-        raise ValueError(f"evaluate: split must be one of {SPLITS}, got {split!r}")
-    chosen = dataset.splits[split]
-    flights = [dataset.flights[name] for name in chosen.names if name in dataset.flights]
-    if not flights:
-        raise ValueError(f"evaluate: the dataset has no {split} flight")
-    return {
-        n: make_windows(flights, WindowConfig(history=history, horizon=n, stride=1), dataset.params)
-        for n in horizons
-    }
 
 
 # --- the report --------------------------------------------------------------------------

@@ -42,6 +42,7 @@ from ..models.ensemble import (
 )
 from ..models.prediction import load_prediction_model
 from ..reporting import markdown_table, save_figure
+from .windows import horizon_windows
 
 NOVELTY_QUANTILE = 0.99  # the share of in-distribution windows not flagged novel
 REPORT_STEPS = (1, 5, 10, 25, 50, 75, 100)  # the table's horizon steps (those within N)
@@ -135,7 +136,6 @@ def _ensemble_and_windows(
     """The ensemble folder's model, the split's windows (stride 1) at ``horizon`` (default:
     the members' training horizon) and a description of them."""
     from ..models.ensemble import load_members
-    from .evaluator import horizon_windows  # it imports this module
 
     if not is_ensemble(ensemble):
         raise ValueError(f"{ensemble} is not an ensemble folder (train --ensemble K writes one)")
