@@ -10,6 +10,7 @@ import pytest
 import torch
 from flights import WINDOW_ARGS
 
+from slungload.config import to_dict
 from slungload.evaluation.uncertainty import fit_calibration, uncertainty_stats
 from slungload.layout import GROUPS, QUAT, STATE_DIM
 from slungload.models.ensemble import (
@@ -103,7 +104,7 @@ def test_calibration_round_trip_and_steps_beyond_its_horizon():
         fitted_on="here",
         windows=3,
     )
-    assert Calibration.from_dict(json.loads(json.dumps(cal.to_dict()))) == cal
+    assert Calibration.from_dict(json.loads(json.dumps(to_dict(cal)))) == cal
     scale = cal.component_scale(4)
     assert scale.shape == (4, STATE_DIM)
     assert scale[0, QUAT].tolist() == [3.0] * 4

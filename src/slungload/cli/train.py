@@ -202,17 +202,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     run = run_from_args(args)
     if args.ensemble is not None:
         return _train_ensemble(args, run)
-    result = train(
-        args.data,
-        run,
-        out=args.out,
-        device=args.device,
-        devices=args.devices,
-        resume=args.resume,
-        params=resolve_params(Path(args.data), args),
-        progress=not args.quiet,
-        num_threads=args.threads,
-    )
+    result = train(args.data, run, devices=args.devices, **_train_options(args))
     if rank_zero_only.rank == 0:  # with --devices K every process runs this command
         print(result.summary())
     return 0
@@ -224,23 +214,23 @@ def _train_ensemble(args: argparse.Namespace, run: Any) -> int:
 
     if args.devices != 1:
         raise ValueError("--ensemble trains its members one process each: drop --devices")
-    if args.ensemble < 2:
-        raise ValueError(f"--ensemble needs at least 2 members, got {args.ensemble}")
-    results = train_ensemble(
-        args.data,
-        run,
-        out=args.out,
-        members=args.ensemble,
-        resume=args.resume,
-        params=resolve_params(Path(args.data), args),
-        progress=not args.quiet,
-        device=args.device,
-        num_threads=args.threads,
-    )
+    results = train_ensemble(args.data, run, members=args.ensemble, **_train_options(args))
     for i, result in enumerate(results):
         print(f"member {i}: " + ("kept (finished before)" if result is None else result.summary()))
     report_calibration(args.out, args.data, split="val", horizon=None, level=ENSEMBLE_LEVEL)
     return 0
+
+
+def _train_options(args: argparse.Namespace) -> dict[str, Any]:
+    """What ``train`` and ``train_ensemble`` take alike from the options."""
+    return {
+        "out": args.out,
+        "device": args.device,
+        "resume": args.resume,
+        "params": resolve_params(Path(args.data), args),
+        "progress": not args.quiet,
+        "num_threads": args.threads,
+    }
 
 
 def add_identify(sub: Any) -> None:

@@ -27,7 +27,7 @@ from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..models.checkpoints import LoadedModel, load_checkpoint
 from ..models.ensemble import EnsembleModel, is_ensemble, load_members, spread
-from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel
+from ..models.prediction import NetworkModel, PhysicsModel, PredictionModel, ensemble_model
 from ..reporting import device_name, versions
 from ..state import GROUPS, group_errors
 from .metrics import Curve, mae_curve, metrics_from_errors
@@ -276,9 +276,7 @@ def evaluate(
         label = lm.run.label(with_horizon=lm.window.horizon != training_horizon)
         candidates.append(Candidate(label, model, seed, lm.model, _run_info(lm)))
     for folder, manifest, members in ensembles:
-        nets = [NetworkModel(lm.model, lm.window.history, batch_size=batch_size, device=device)
-                for lm in members]  # fmt: skip
-        model = EnsembleModel(tuple(nets), folder.name, manifest.calibration)
+        model = ensemble_model(manifest, members, batch_size=batch_size, device=device)
         label = f"{folder.name} (mean of {len(members)})"
         candidates.append(Candidate(label, model, None, None, {"ensemble": str(folder)}))
     test = windows[horizons[0]].names

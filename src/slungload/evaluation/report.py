@@ -35,7 +35,7 @@ from .results import (
     Report,
     RmseRow,
 )
-from .uncertainty import plot_calibration, stats_table, summary_line
+from .uncertainty import plot_calibration, spread_section
 
 REFERENCE_LABEL = "proposed"  # the paper's model; ratios and pairwise figures are against it
 PAPER_HORIZON = 50  # the horizon of the paper's RMSE table
@@ -250,7 +250,7 @@ def render_markdown(
         lines += _rmse_section(report, n)
     lines += _paper_rmse_section()
     lines += _ratio_section(report)
-    lines += _spread_section(report)
+    lines += spread_section(report.spreads)
     lines += _timing_section(report)
     lines += ["## Figures", ""]
     for caption, path in figures:
@@ -261,19 +261,6 @@ def render_markdown(
     lines += ["- [report.json](report.json)", ""]
     lines += _config_section(report)
     return "\n".join(lines).rstrip() + "\n"
-
-
-def _spread_section(report: Report) -> list[str]:
-    """Each calibrated ensemble's interval at its longest horizon (``slungload uncertainty``)."""
-    lines = []
-    for label, by_n in report.spreads.items():
-        n = max(by_n)
-        stats = by_n[n]
-        lines += [f"## The interval of {label}, N = {n}", "",
-                  f"Calibrated on its own held-out flights; here {summary_line(stats)}. Per "
-                  "step: the mean's RMSE, the calibrated sigma and the share of errors inside "
-                  "the interval.", "", stats_table(stats), ""]  # fmt: skip
-    return lines
 
 
 def _first_per_horizon(report: Report):

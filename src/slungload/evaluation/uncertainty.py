@@ -36,11 +36,12 @@ from ..models.ensemble import (
     EnsembleModel,
     group_index,
     is_ensemble,
+    load_members,
     set_calibration,
     spread,
     z_of,
 )
-from ..models.prediction import load_prediction_model
+from ..models.prediction import ensemble_model
 from ..reporting import markdown_table, save_figure
 from .windows import horizon_windows
 
@@ -116,7 +117,7 @@ def uncertainty_stats(
     mean, std = spread(members)
     half = calibration.half_width(std, lvl)
     inside = ((truth - mean).abs() <= half).double()
-    sigma = calibration.component_scale(std.shape[-2]) * std
+    sigma = half / z_of(lvl)  # the calibrated scale times std
     sq_err, sq_sig = (truth - mean) ** 2, sigma**2
     idx = group_index()
     n_groups = len(GROUPS)
@@ -135,11 +136,9 @@ def _ensemble_and_windows(
 ) -> tuple[EnsembleModel, Windows, str]:
     """The ensemble folder's model, the split's windows (stride 1) at ``horizon`` (default:
     the members' training horizon) and a description of them."""
-    from ..models.ensemble import load_members
-
     if not is_ensemble(ensemble):
         raise ValueError(f"{ensemble} is not an ensemble folder (train --ensemble K writes one)")
-    _, loaded = load_members(ensemble)
+    manifest, loaded = load_members(ensemble)
     first = loaded[0]
     folder = data if data is not None else first.meta.get("data")
     if folder is None:
@@ -148,10 +147,7 @@ def _ensemble_and_windows(
     window = WindowConfig(history=first.window.history, horizon=n, stride=1)
     dataset = load_dataset(folder, window=window, params=first.params)
     windows = horizon_windows(dataset, history=window.history, horizons=(n,), split=split)[n]
-    model = load_prediction_model(ensemble)
-    if not isinstance(model, EnsembleModel):  # load_prediction_model's contract
-        raise TypeError(f"{ensemble}: not loaded as an ensemble")
-    return model, windows, f"{split} split of {Path(folder)}, N = {n}"
+    return ensemble_model(manifest, loaded), windows, f"{split} split of {Path(folder)}, N = {n}"
 
 
 def calibrate(
@@ -210,6 +206,19 @@ def summary_line(stats: UncertaintyStats) -> str:
         f"over every step and group (pooled over each group's components); "
         f"{100 * stats.novel:.1f} % of windows flagged novel"
     )
+
+
+def spread_section(spreads: dict[str, dict[int, UncertaintyStats]]) -> list[str]:
+    """``evaluate``'s report lines: each calibrated ensemble's interval at its longest N."""
+    lines = []
+    for label, by_n in spreads.items():
+        n = max(by_n)
+        stats = by_n[n]
+        lines += [f"## The interval of {label}, N = {n}", "",
+                  f"Calibrated on its own held-out flights; here {summary_line(stats)}. Per "
+                  "step: the mean's RMSE, the calibrated sigma and the share of errors inside "
+                  "the interval.", "", stats_table(stats), ""]  # fmt: skip
+    return lines
 
 
 def write_assessment(stats: UncertaintyStats, about: str, out: str | Path) -> list[Path]:

@@ -19,6 +19,7 @@ spread is far above what the fitting windows showed (the model outside what it h
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from statistics import NormalDist
@@ -30,6 +31,7 @@ from torch import Tensor
 
 from .._version import __version__
 from ..config import ENSEMBLE_LEVEL as LEVEL
+from ..config import from_dict, to_dict
 from ..fileio import read_json, write_json
 from ..layout import GROUPS, QUAT, STATE_DIM
 from ..state import with_unit_quaternion
@@ -75,6 +77,9 @@ def group_index() -> Tensor:
     return index
 
 
+ROW_FIELDS = ("scale", "reference_std")  # a Calibration's per-step tables
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Per-step, per-group scales on the members' std, and the novelty reference.
@@ -106,14 +111,17 @@ class Calibration:
     def horizon(self) -> int:
         return len(self.scale)
 
+    def _rows(self, steps: int) -> Tensor:
+        """The fitted row of each of ``steps`` steps: past ``horizon``, the last."""
+        return torch.clamp(torch.arange(steps), max=self.horizon - 1)
+
     def component_scale(self, steps: int) -> Tensor:
         """(steps, 13) float64 scale per step and component; past ``horizon`` the last row."""
-        scale = torch.tensor(self.scale, dtype=torch.float64)
-        rows = torch.clamp(torch.arange(steps), max=self.horizon - 1)
+        scale = torch.tensor(self.scale, dtype=torch.float64)[self._rows(steps)]
         out = torch.ones(steps, STATE_DIM, dtype=torch.float64)
         idx = group_index()
         have = idx >= 0
-        out[:, have] = scale[rows][:, idx[have]]
+        out[:, have] = scale[:, idx[have]]
         return out
 
     def half_width(self, std: Tensor, level: float | None = None) -> Tensor:
@@ -124,9 +132,7 @@ class Calibration:
 
     def novelty_score(self, std: Tensor) -> Tensor:
         """std (..., N, 13) -> (...): mean over steps and components of std / reference."""
-        n = std.shape[-2]
-        ref = torch.tensor(self.reference_std, dtype=torch.float64)
-        ref = ref[torch.clamp(torch.arange(n), max=self.horizon - 1)]
+        ref = torch.tensor(self.reference_std, dtype=torch.float64)[self._rows(std.shape[-2])]
         ratio = std / ref.to(std.device, std.dtype).clamp_min(1e-12)
         return ratio.mean(dim=(-2, -1))
 
@@ -134,30 +140,11 @@ class Calibration:
         """std (..., N, 13) -> (...) bool: spread beyond what the fitting windows showed."""
         return self.novelty_score(std) > self.novelty_threshold
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "scale": [list(r) for r in self.scale],
-            "reference_std": [list(r) for r in self.reference_std],
-            "novelty_threshold": self.novelty_threshold,
-            "level": self.level,
-            "novelty_quantile": self.novelty_quantile,
-            "groups": list(self.groups),
-            "fitted_on": self.fitted_on,
-            "windows": self.windows,
-        }
-
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Calibration:
-        return cls(
-            scale=tuple(tuple(float(v) for v in r) for r in d["scale"]),
-            reference_std=tuple(tuple(float(v) for v in r) for r in d["reference_std"]),
-            novelty_threshold=float(d["novelty_threshold"]),
-            level=float(d["level"]),
-            novelty_quantile=float(d["novelty_quantile"]),
-            groups=tuple(d["groups"]),
-            fitted_on=str(d.get("fitted_on", "")),
-            windows=int(d.get("windows", 0)),
-        )
+        """``config.to_dict``'s output, read back (JSON's nested lists as tuples of floats)."""
+        rows = {k: tuple(tuple(float(v) for v in r) for r in d[k]) for k in ROW_FIELDS}
+        return from_dict(cls, {**d, **rows})
 
 
 @dataclass
@@ -239,7 +226,7 @@ def write_manifest(
         "format": ENSEMBLE_FORMAT,
         "package_version": __version__,
         "members": rel,
-        "calibration": None if calibration is None else calibration.to_dict(),
+        "calibration": None if calibration is None else to_dict(calibration),
     }
     path = folder / ENSEMBLE_FILE
     write_json(path, data)
@@ -295,6 +282,4 @@ def set_calibration(folder: str | Path, calibration: Calibration | None) -> Path
 
 
 def _relative(path: Path, folder: Path) -> str:
-    import os
-
     return os.path.relpath(path.resolve(), folder.resolve())

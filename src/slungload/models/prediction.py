@@ -42,7 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import torch
 from torch import Tensor, nn
@@ -55,7 +55,7 @@ from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
 from ..load_state import estimate_load_state
 from ..state import with_unit_quaternion
 from .checkpoints import LoadedModel, load_checkpoint
-from .ensemble import EnsembleModel, is_ensemble, load_members
+from .ensemble import EnsembleManifest, EnsembleModel, is_ensemble, load_members
 
 PHYSICS = "physics"  # the name that selects the physics model (``load_prediction_model``)
 
@@ -211,20 +211,36 @@ def load_prediction_model(
         return PhysicsModel(params or VehicleParams())
     path = Path(spec)
     if is_ensemble(path):
-        manifest, members = load_members(path)
-        nets = [
-            network_model(lm, constants, label=m.name)
-            for lm, m in zip(members, manifest.members, strict=True)
-        ]
-        return EnsembleModel(tuple(nets), name=path.name, calibration=manifest.calibration)
+        return ensemble_model(*load_members(path), constants)
     label = path.name if path.is_dir() else path.parent.name
     return network_model(load_checkpoint(spec), constants, label=label)
 
 
+def ensemble_model(
+    manifest: EnsembleManifest,
+    members: list[LoadedModel],
+    constants: VehicleParams | None = None,
+    **options: Any,
+) -> EnsembleModel:
+    """An ensemble folder's loaded members (``models.ensemble.load_members``) as one
+    ``EnsembleModel`` named after the folder; ``constants`` and ``options`` (``NetworkModel``'s
+    batch_size, device) as in ``network_model``."""
+    nets = [
+        network_model(lm, constants, label=folder.name, **options)
+        for lm, folder in zip(members, manifest.members, strict=True)
+    ]
+    return EnsembleModel(tuple(nets), manifest.folder.name, manifest.calibration)
+
+
 def network_model(
-    loaded: LoadedModel, constants: VehicleParams | None = None, *, label: str = "network"
+    loaded: LoadedModel,
+    constants: VehicleParams | None = None,
+    *,
+    label: str = "network",
+    **options: Any,
 ) -> NetworkModel:
-    """A loaded checkpoint as a ``NetworkModel``; ``constants`` as in ``load_prediction_model``."""
+    """A loaded checkpoint as a ``NetworkModel`` (``options``: its batch_size, device);
+    ``constants`` as in ``load_prediction_model``."""
     net = loaded.model
     if constants is not None:
         if net.architecture != "physics-step":
@@ -234,7 +250,7 @@ def network_model(
             )
         net.params = constants
         net.config = replace(net.config, constants="dataset")
-    return NetworkModel(net, loaded.window.history, name=label)
+    return NetworkModel(net, loaded.window.history, name=label, **options)
 
 
 def check_candidates(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> None:
