@@ -1,11 +1,13 @@
 """A vehicle's own control loop around the MPC: PX4-style measurements in, commands out.
 
-    slungload export runs/ps-exc --for-mpc --out ps.mpc.onnx                  # once, where
-    slungload export physics --for-mpc --horizon 2 --out vehicle.mpc.onnx     # torch is
-    python examples/onboard_loop.py ps.mpc.onnx --vehicle vehicle.mpc.onnx [--samples 256]
+    slungload export runs/ps-exc --for-mpc --format compiled --out ps.mpc.npz   # once, where
+    slungload export physics --for-mpc --format compiled --out vehicle.mpc.npz  # torch is
+    python examples/onboard_loop.py ps.mpc.npz --vehicle vehicle.mpc.npz [--samples 256]
 
-The MPC's model is any exported candidates graph: a trained network's, or the physics model's
-(``slungload export physics --for-mpc --horizon 15 --out physics.mpc.onnx``). Every control
+The MPC's model is any exported MPC model: a compiled one (``.mpc.npz``, numpy + Numba, as
+fast as the full install's compiled backend) or a candidates graph (``.mpc.onnx``, ONNX
+Runtime), a trained network's or the physics model's (``slungload export physics --for-mpc
+--out physics.mpc.npz``). Every control
 period h = 0.03 s (the data rate) the loop
 
 1. reads a measurement as PX4 reports it: position and velocity in NED, attitude body (FRD)
@@ -17,10 +19,10 @@ period h = 0.03 s (the data rate) the loop
    thrust (N) and body rates (rad/s, FLU);
 5. converts the rates back to FRD and sends them with the thrust.
 
-Everything here imports numpy, onnxruntime and the package's torch-free modules only: it runs
-in the onboard install (``pip install '.[onboard]'`` from a checkout). The stand-in vehicle below
-(``SimulatedVehicle``: the package's discrete model, exported to ONNX and stepped one command
-at a time) is what a real loop replaces with the autopilot link (MAVLink / uORB /
+Everything here imports numpy, Numba or onnxruntime and the package's torch-free modules only:
+it runs in the onboard install (``pip install '.[onboard]'`` from a checkout). The stand-in
+vehicle below (``SimulatedVehicle``: the package's discrete model, exported and stepped one
+command at a time) is what a real loop replaces with the autopilot link (MAVLink / uORB /
 ROS 2 telemetry in, an attitude-rate setpoint out).
 """
 
@@ -33,7 +35,7 @@ import numpy as np
 
 from slungload import InputLimits, MPCConfig, MPPIController, ReferenceAhead, frames
 from slungload.config import VehicleParams
-from slungload.deploy.onboard import OnnxCandidateModel
+from slungload.deploy.backends import load_exported
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 
 H = 0.03  # s, control period (the data rate)
@@ -64,12 +66,12 @@ def state_from_px4(p_ned, v_ned, q_ned_frd, p_load_ned) -> np.ndarray:
 
 
 class SimulatedVehicle:
-    """Stand-in for the autopilot link: the discrete model (an exported physics graph,
-    ``OnnxCandidateModel``) stepped one command at a time (the first step of a plan that holds
-    it), reporting in NED / FRD."""
+    """Stand-in for the autopilot link: the discrete model (an exported physics model,
+    ``deploy.backends.load_exported``) stepped one command at a time (the first step of a plan
+    that holds it), reporting in NED / FRD."""
 
     def __init__(self, path: str, params: VehicleParams) -> None:
-        self.model = OnnxCandidateModel(path)
+        self.model = load_exported(path)
         p = np.array([0.0, 0.0, 1.5])
         x = np.concatenate([p, np.zeros(3), [1.0, 0, 0, 0], p - [0, 0, params.cable_length]])
         hover = (params.mass_quad + params.mass_load) * params.gravity
@@ -88,7 +90,7 @@ class SimulatedVehicle:
     def send(self, thrust: float, rates_frd: np.ndarray) -> None:
         rates = frames.body_vectors(rates_frd, "frd")  # FRD -> FLU is its own inverse too
         u = np.array([thrust, *rates])
-        plan = np.repeat(u[None, None], self.model.horizon, axis=1)  # (1, N, 4)
+        plan = np.repeat(u[None, None], self.model.horizon or 1, axis=1)  # (1, N, 4)
         x = self.model.predict_candidates(self.x_hist, self.u_past, plan)[0, 0]
         self.x_hist = np.concatenate([self.x_hist[1:], x[None]])
         self.u_past = np.concatenate([self.u_past[1:], u[None]])
@@ -96,12 +98,12 @@ class SimulatedVehicle:
 
 def main(argv: list[str] | None = None) -> float:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("model", help="the MPC's exported model (.mpc.onnx)")
+    parser.add_argument("model", help="the MPC's exported model (.mpc.npz or .mpc.onnx)")
     parser.add_argument(
         "--vehicle",
         required=True,
         help="the stand-in vehicle: the physics model exported (slungload export physics "
-        "--for-mpc --horizon 2)",
+        "--for-mpc --format compiled, or an .mpc.onnx of it with --horizon 2)",
     )
     parser.add_argument("--samples", type=int, default=256, help="K (default 256)")
     parser.add_argument("--steps", type=int, default=200, help="control steps (default 200)")
@@ -109,8 +111,8 @@ def main(argv: list[str] | None = None) -> float:
     params = VehicleParams()
     hover = (params.mass_quad + params.mass_load) * params.gravity
     limits = InputLimits(0.3 * hover, 2.0 * hover, 4.0)  # N, N, rad/s: the vehicle's box
-    config = MPCConfig(samples=args.samples)  # N and the knots follow the model file
-    mpc = MPPIController.from_onnx(args.model, limits, config)  # numpy + onnxruntime
+    config = MPCConfig(samples=args.samples)  # an ONNX graph's N: the file's
+    mpc = MPPIController.from_file(args.model, limits, config)  # numpy + Numba or onnxruntime
     vehicle = SimulatedVehicle(args.vehicle, params)
     errors = []
     for k in range(args.steps):

@@ -1,6 +1,6 @@
 """Time one control step of the MPC: torch (the simulator's ``SamplingMPC``, eager network and
-the compiled backend) beside onboard (numpy + ONNX Runtime, ``MPPIController.from_onnx``), the
-same network, interleaved.
+the compiled backend) beside onboard (``MPPIController.from_file``: the compiled file on numpy
++ Numba, and the ONNX graph on ONNX Runtime), the same network, interleaved.
 
     python examples/time_onboard_mpc.py [--run RUN_DIR | --size NAME] [--samples 256]
 
@@ -64,12 +64,16 @@ def main() -> None:
     network = NetworkModel(pred.model, pred.window.history)
     with tempfile.TemporaryDirectory() as folder:
         exported = export_for_mpc(pred, Path(folder) / "m.mpc.onnx", horizon=args.horizon)
+        compiled = export_for_mpc(
+            pred, Path(folder) / "m.mpc.npz", horizon=args.horizon, format="compiled"
+        )
         controllers = {
             "torch MPC (eager network)": SamplingMPC(network, limits, cfg).core,
             "torch MPC (compiled backend)": SamplingMPC(
                 with_backend(network, "compiled"), limits, cfg
             ).core,
-            "onboard MPC (onnxruntime)": MPPIController.from_onnx(exported.model, limits, cfg),
+            "onboard MPC (compiled file)": MPPIController.from_file(compiled.model, limits, cfg),
+            "onboard MPC (onnxruntime)": MPPIController.from_file(exported.model, limits, cfg),
         }
     flight = physics_windows(1, WindowConfig(history=100, horizon=args.horizon)).states[0]
     states = flight.double().numpy()
@@ -83,7 +87,8 @@ def main() -> None:
     cpu = {name: [] for name in steppers}
     load = [os.getloadavg()[0]]
     for r in range(args.rounds):
-        names = list(steppers)[r % 3 :] + list(steppers)[: r % 3]  # rotate the order
+        shift = r % len(steppers)
+        names = list(steppers)[shift:] + list(steppers)[:shift]  # rotate the order
         for name in names:
             w, c = time_calls(steppers[name], args.calls, warmup=3)
             wall[name] += w
@@ -93,10 +98,16 @@ def main() -> None:
     print(f"{size}: K = {args.samples}, N = {n}, M = {pred.window.history}, one thread, "
           f"{args.rounds} x {args.calls} steps each, interleaved; load average (1 min) "
           f"{load[0]:.2f} before, {load[1]:.2f} after, {os.cpu_count()} cores")  # fmt: skip
+    base = np.array(wall["torch MPC (compiled backend)"])
     for name in steppers:
         ms = np.array(wall[name]) * 1e3
+        ratio = (
+            np.median(ms) / np.median(base) / 1e3,
+            np.percentile(ms, 99) / np.percentile(base, 99) / 1e3,
+        )
         print(f"{name}: median {np.median(ms):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms, "
-              f"CPU median {statistics.median(cpu[name]) * 1e3:.1f} ms")  # fmt: skip
+              f"CPU median {statistics.median(cpu[name]) * 1e3:.1f} ms; / compiled backend "
+              f"{ratio[0]:.2f}x median, {ratio[1]:.2f}x p99")  # fmt: skip
 
 
 if __name__ == "__main__":

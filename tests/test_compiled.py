@@ -19,10 +19,10 @@ from slungload.deploy.compiled import (
     COMPILED_ARCHITECTURES,
     PARITY_TOLERANCE,
     CompiledPredictor,
-    fold,
     unsupported,
 )
-from slungload.deploy.compiled.fold import PHYSICS_STEP as PHYSICS_STEP_MODE
+from slungload.deploy.compiled.fold import fold
+from slungload.deploy.compiled.weights import PHYSICS_STEP as PHYSICS_STEP_MODE
 from slungload.deploy.predictor import Predictor
 from slungload.load_state import estimate_load_state
 from slungload.models import MODELS, PhysicsStepNet, build

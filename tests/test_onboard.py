@@ -102,7 +102,7 @@ def test_the_onboard_mpc_plans_as_the_torch_mpc(exported, architecture):
     predictor, path = exported[architecture]
     cfg = MPCConfig(samples=48, horizon=WINDOW.horizon, knots=3, seed=7)
     torch_mpc = SamplingMPC(NetworkModel(predictor.model, WINDOW.history), LIMITS, cfg, PARAMS)
-    onboard = MPPIController.from_onnx(path, LIMITS, cfg)
+    onboard = MPPIController.from_file(path, LIMITS, cfg)
     x_hist, _, _ = candidate_inputs(predictor, WINDOW.horizon, 1)
     ref = ReferenceAhead(
         np.tile(x_hist[-1, :3] + [0.2, 0.0, 0.1], (6, 1)), np.zeros((6, 3)), np.zeros(6)
@@ -164,7 +164,7 @@ def test_the_onboard_controller_runs_without_torch(exported):
         "import numpy as np\n"
         "from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, "
         "ReferenceAhead\n"
-        f"mpc = MPPIController.from_onnx({str(exported['physics-step'][1])!r}, "
+        f"mpc = MPPIController.from_file({str(exported['physics-step'][1])!r}, "
         "InputLimits(4.0, 30.0, 4.0), MPCConfig(samples=16, knots=3))\n"
         "x = np.array([0, 0, 1.5, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0.8])\n"
         "ref = ReferenceAhead(np.tile(x[:3], (6, 1)), np.zeros((6, 3)), np.zeros(6))\n"
@@ -244,7 +244,7 @@ def test_the_physics_model_exports_too_and_flies_onboard(tmp_path):
     assert np.abs(onboard.predict_candidates(x_hist, u_past, plans) - want.numpy()).max() < 1e-4
     cfg = MPCConfig(samples=32, horizon=5, knots=3, seed=3)
     torch_mpc = SamplingMPC(PhysicsModel(PARAMS), LIMITS, cfg, PARAMS)
-    onboard_mpc = MPPIController.from_onnx(result.model, LIMITS, cfg)
+    onboard_mpc = MPPIController.from_file(result.model, LIMITS, cfg)
     target = np.tile(x_hist[-1, :3] + [0.2, 0, 0], (5, 1))
     ref = ReferenceAhead(target, np.zeros((5, 3)), np.zeros(5))
     for x in (x_hist[0], x_hist[1], x_hist[1]):

@@ -19,12 +19,7 @@ from slungload.deploy.compiled import CompiledPredictor, unsupported
 from slungload.deploy.onboard import OnnxPredictor
 from slungload.deploy.onnx import export
 from slungload.deploy.predictor import PARITY_TOLERANCE, Predictor
-from slungload.load_state import (
-    LOAD_FIT_STEPS,
-    estimate_load_state,
-    fit_load_state,
-    load_fit_coefficients,
-)
+from slungload.load_state import estimate_load_state, fit_load_state
 from slungload.loss import LOSS_VARIANTS, compute_loss, model_config_for
 from slungload.models import (
     MODELS,
@@ -36,6 +31,7 @@ from slungload.models import (
     load_checkpoint,
 )
 from slungload.physics import rollout
+from slungload.smoothing import LOAD_FIT_STEPS, load_fit_coefficients
 from slungload.state import LOAD_POS, POS, QUAT
 
 torch.set_num_threads(1)

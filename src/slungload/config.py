@@ -150,6 +150,13 @@ CONDITIONED = ("cable_length", "mass_load")
 # (``constants_estimate``), and the shortest window that estimate takes
 ESTIMATE_SMOOTHING_STEPS = 7
 ESTIMATE_MIN_STEPS = 2 * ESTIMATE_SMOOTHING_STEPS + 3
+# What a model that adapts to its load runs f with (``constants_estimate.adapted``): the mass
+# pulled towards the constants' by this prior, (m/s^2)^2 per equation (one window's median
+# error 13 % against 26 % without, every effect on: docs/data.md), then both kept within these
+# factors of the constants' (a window without swing can read as a negative load, and f divides
+# by mL).
+ADAPT_PRIOR_WEIGHT = 0.2
+ADAPT_RANGE = {"mass_load": (0.25, 4.0), "cable_length": (0.5, 2.0)}
 
 
 @dataclass(frozen=True)

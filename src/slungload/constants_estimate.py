@@ -44,16 +44,10 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .config import ESTIMATE_SMOOTHING_STEPS, VehicleParams
+from .config import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, ESTIMATE_SMOOTHING_STEPS, VehicleParams
 from .physics import VehicleConstants
 from .state import body_z, split_input, split_state
 
-# What a model that adapts to its load runs f with (``adapted``): the mass pulled towards the
-# constants' by this prior, (m/s^2)^2 per equation (one window's median error 13 % against 26 %
-# without, every effect on: docs/data.md), then both kept within these factors of the
-# constants' (a window without swing can read as a negative load, and f divides by mL).
-ADAPT_PRIOR_WEIGHT = 0.2
-ADAPT_RANGE = {"mass_load": (0.25, 4.0), "cable_length": (0.5, 2.0)}
 ESTIMATED = ("mass_load", "cable_length")  # what ``WindowConstants.vehicle`` replaces by default
 # The least-squares sums of one window, in ``stats``' last dimension (``pool`` adds them up).
 G_BB, G_BV, G_VV, M_B, M_V, T_A, T_B, T_T, LENGTH_SUM, COUNT = range(10)

@@ -28,9 +28,6 @@ shape, e.g. (B,) for x (B, 13), so that a constant of shape (B,) scales a (B, 3)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import NamedTuple
-
 import torch
 from torch import Tensor
 
@@ -46,47 +43,7 @@ from .state import (
     split_input,
     split_state,
 )
-
-Constant = float | Tensor  # a float, a 0-d tensor, or one value per window (B,)
-
-
-class VehicleConstants(NamedTuple):
-    """The constants ``step`` reads: the fields of ``config.VehicleParams``, in its order and
-    units (a test holds the two equal), as floats (``of``), fitted tensors, or one value per
-    window (``stack``)."""
-
-    mass_quad: Constant
-    mass_load: Constant
-    cable_length: Constant
-    load_damping: Constant
-    dt: Constant
-    gravity: Constant
-    thrust_gain: Constant
-
-    @classmethod
-    def of(cls, params: VehicleParams | VehicleConstants) -> VehicleConstants:
-        """One set as python floats (any object with ``VehicleParams``' attributes)."""
-        return cls(*(float(getattr(params, name)) for name in cls._fields))
-
-    @classmethod
-    def stack(
-        cls,
-        params: Sequence[VehicleParams],
-        *,
-        dtype: torch.dtype | None = None,
-        device: torch.device | str | None = None,
-    ) -> VehicleConstants:
-        """One set per window: each constant a tensor (B,) of the B ``params`` in order (dtype:
-        torch's default; give the states' dtype to keep theirs)."""
-        if not params:
-            raise ValueError("VehicleConstants.stack needs at least one set of constants")
-        return cls(
-            *(
-                torch.tensor([float(getattr(p, name)) for p in params], dtype=dtype, device=device)
-                for name in cls._fields
-            )
-        )
-
+from .vehicle_constants import Constant, VehicleConstants
 
 Vehicle = VehicleParams | VehicleConstants  # what the functions below take as ``params``
 

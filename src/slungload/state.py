@@ -198,10 +198,11 @@ def _turn_basis(dtype: torch.dtype, device: torch.device, errors: bool) -> Tenso
     made once per dtype and device (a copy at every call would stop a CUDA graph capture; a
     plain tensor even under ``torch.inference_mode``, as ``load_state._fit_coefficients``)."""
     with torch.inference_mode(False):
-        return _basis(errors).to(dtype=dtype, device=device)
+        return heading_basis(errors).to(dtype=dtype, device=device)
 
 
-def _basis(errors: bool) -> Tensor:
+def heading_basis(errors: bool) -> Tensor:
+    """(5, 13, 13) float64: ``heading_turn``'s matrix = B0 + c B1 + s B2 (+ a B3 + b B4)."""
     out = torch.zeros(5, STATE_DIM, STATE_DIM, dtype=torch.float64)
     w, qx, qy, qz = range(QUAT.start, QUAT.stop)
     vectors = [range(v.start, v.stop) for v in (POS, VEL, LOAD_POS)]

@@ -29,7 +29,14 @@ def add_export(sub: Any) -> None:
         "existing folder, to write <run name>-n<N>.onnx there. A missing folder is an error, "
         "not created",
     )
-    p.add_argument("--format", default="onnx", choices=("onnx",), help="(default: onnx)")
+    p.add_argument(
+        "--format",
+        default="onnx",
+        choices=("onnx", "compiled"),
+        help="onnx: a graph for ONNX Runtime (default); compiled (with --for-mpc): the folded "
+        "weights for the compiled MPC on numpy + Numba, <run name>.mpc.npz, any N, the onboard "
+        "MPC as fast as the compiled backend (docs/deployment.md)",
+    )
     p.add_argument(
         "--horizon",
         type=int,
@@ -53,8 +60,11 @@ def cmd_export(args: argparse.Namespace) -> int:
         from ..deploy.candidates import export_for_mpc
 
         horizon = MPCConfig().horizon if args.horizon is None else args.horizon
-        print(export_for_mpc(args.run, args.out, horizon=horizon).summary())
+        result = export_for_mpc(args.run, args.out, horizon=horizon, format=args.format)
+        print(result.summary())
         return 0
+    if args.format != "onnx":
+        raise ValueError(f"export --format {args.format} writes the MPC's model: add --for-mpc")
     from ..deploy.onnx import export
 
     result = export(args.run, args.out, format=args.format, horizon=args.horizon)

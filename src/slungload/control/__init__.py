@@ -4,7 +4,7 @@ and onboard.
 ``controllers``: the simulator's controllers by name (the PID, the geometric controller, the
 MPC), the one table every closed-loop experiment builds from; ``mppi``: the sampling (MPPI)
 controller written once in numpy, ``MPPIController.step(state, reference) -> Command``, the API
-a vehicle's own loop calls (numpy only; ``from_onnx`` runs it over an exported network on ONNX
+a vehicle's own loop calls (numpy only; ``from_file`` runs it over an exported network on ONNX
 Runtime, ``deploy.onboard``); ``history``: the measured states and applied inputs it keeps for
 its prediction model (numpy); ``mpc``: ``SamplingMPC``, the same controller over any torch
 prediction model (``models.prediction.PredictionModel``: the physics model or any trained

@@ -307,7 +307,7 @@ class MPPIController:
             prepare(self.history.m, cfg.samples, cfg.horizon)
 
     @classmethod
-    def from_onnx(
+    def from_file(
         cls,
         path,
         limits: InputLimits,
@@ -316,15 +316,17 @@ class MPPIController:
         threads: int = 1,
         providers: list[str] | None = None,
     ) -> MPPIController:
-        """The onboard controller: an exported network (``slungload export --for-mpc``) on ONNX
-        Runtime (``deploy.onboard.OnnxCandidateModel``; threads, providers: its session's),
-        N set to the file's horizon (the knots to at most N), the vehicle constants from its
-        sidecar."""
-        from ..deploy.onboard import OnnxCandidateModel  # onnxruntime, only when asked
+        """The onboard controller on an exported model (``slungload export --for-mpc``),
+        without torch: a ``.mpc.onnx`` graph on ONNX Runtime (``deploy.onboard``; threads,
+        providers: its session's; N set to the file's horizon, the knots to at most N) or a
+        ``.mpc.npz`` compiled model on numpy + Numba (``deploy.compiled.archive``; any N); the
+        vehicle constants from its sidecar."""
+        from ..deploy.backends import load_exported  # the file's runtime, only when asked
 
-        model = OnnxCandidateModel(path, threads=threads, providers=providers)
+        model = load_exported(path, threads=threads, providers=providers)
         config = config or MPCConfig()
-        config = replace(config, horizon=model.horizon, knots=min(config.knots, model.horizon))
+        if model.horizon is not None:
+            config = replace(config, horizon=model.horizon, knots=min(config.knots, model.horizon))
         return cls(model, limits, config, model.params)
 
     def step(

@@ -28,11 +28,13 @@ import torch
 from torch import Tensor, nn
 
 from .._version import __version__
-from ..config import VehicleParams, to_dict
-from ..fileio import atomic_path, write_json
+from ..config import VehicleParams, from_dict, to_dict
+from ..fileio import atomic_path, write_json, write_npz
 from ..layout import STATE_DIM
 from ..models.prediction import PHYSICS, PhysicsModel
+from ..reporting import versions
 from ..state import with_unit_quaternion
+from ..vehicle_constants import VehicleConstants
 from . import onboard
 from .onnx import (
     OPSET,
@@ -44,6 +46,8 @@ from .onnx import (
 )
 from .predictor import PARITY_TOLERANCE, Predictor, states_from_file
 from .sidecar import (
+    COMPILED,
+    COMPILED_SUFFIX,
     FORMAT_VERSIONS,
     FORMATS,
     MPC,
@@ -60,6 +64,11 @@ from .sidecar import (
 )
 
 CHECK_CANDIDATES = (3, 8)  # K traced, and another K the export is checked at
+ONNX = "onnx"
+MPC_FORMATS = {
+    ONNX: "a candidates graph for ONNX Runtime (N fixed): deploy.onboard",
+    COMPILED: "the folded weights for the compiled rollouts on numpy + Numba (any N)",
+}
 
 
 class PhysicsCandidatesNet(nn.Module):
@@ -93,21 +102,26 @@ class CandidatesNet(nn.Module):
 class MPCExportResult:
     """What ``export_for_mpc`` wrote."""
 
-    model: Path  # the .onnx file
+    model: Path  # the .mpc.onnx or .mpc.npz file
     sidecar: Path  # its JSON description
-    horizon: int  # N, fixed in the file
+    horizon: int  # N, fixed in an ONNX graph; the one checked for a compiled file (any N)
     history: int  # M, the trained history
-    opset: int
-    max_abs_diff: float  # max |ONNX Runtime - eager torch| at the checked K
+    opset: int | None  # the ONNX opset; None for a compiled file
+    max_abs_diff: float  # max |exported - eager torch| at the checked K
     seconds: float  # wall-clock time of the export and check
 
     def summary(self) -> str:
-        return (
-            f"{self.model} (+ {self.sidecar.name}): MPC candidates graph, N = {self.horizon}, "
-            f"M = {self.history}, K dynamic, opset {self.opset}, max |onnx - torch| = "
-            f"{self.max_abs_diff:.2e} at K = {', '.join(map(str, CHECK_CANDIDATES))}, "
-            f"{self.seconds:.1f} s"
-        )
+        ks = ", ".join(map(str, CHECK_CANDIDATES))
+        if self.opset is None:
+            what = f"compiled MPC model (numpy + Numba), M = {self.history}, K and N dynamic"
+            check = (
+                f"max |compiled - torch| = {self.max_abs_diff:.2e} at K = {ks}, N = {self.horizon}"
+            )
+        else:
+            what = (f"MPC candidates graph, N = {self.horizon}, M = {self.history}, K dynamic, "
+                    f"opset {self.opset}")  # fmt: skip
+            check = f"max |onnx - torch| = {self.max_abs_diff:.2e} at K = {ks}"
+        return f"{self.model} (+ {self.sidecar.name}): {what}, {check}, {self.seconds:.1f} s"
 
 
 class _Source(NamedTuple):
@@ -130,15 +144,22 @@ def export_for_mpc(
     horizon: int,
     params: VehicleParams | None = None,
     opset: int = OPSET,
+    format: str = ONNX,
 ) -> MPCExportResult:
-    """Write ``out`` (the candidates graph) and its sidecar (``sidecar_path``).
+    """Write ``out`` (the candidates graph, or the compiled model) and its sidecar
+    (``sidecar_path``).
 
     run_or_ckpt: a run folder, a ``.ckpt`` or a loaded ``Predictor``; or ``"physics"``, the
     discrete model (``models.prediction.PhysicsModel``, M = 2) with the constants ``params``
     (default ``VehicleParams()``; ignored otherwise); out: the model file in an existing
-    folder, or an existing folder to write ``<run name>-n<N>.mpc.onnx`` into; horizon: N fixed
-    in the file (the MPC's horizon).
+    folder, or an existing folder to write ``<run name>-n<N>.mpc.onnx`` (``<run
+    name>.mpc.npz``) into; horizon: N fixed in the graph (the MPC's horizon; for a compiled
+    file, which runs any N, the N it is checked at); format (``MPC_FORMATS``): ``"onnx"``, a
+    graph for ONNX Runtime (``deploy.onboard``), or ``"compiled"``, the folded weights for the
+    compiled rollouts on numpy + Numba (``compiled.archive``).
     """
+    if format not in MPC_FORMATS:
+        raise ValueError(f"export_for_mpc: unknown format {format!r}; known: {list(MPC_FORMATS)}")
     start = time.perf_counter()
     out = Path(out)
     if not out.is_dir():
@@ -146,6 +167,8 @@ def export_for_mpc(
     if horizon < 2:
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
     src = _source(run_or_ckpt, horizon, params)
+    if format == COMPILED:
+        return _export_compiled(src, out, horizon, start)
     if out.is_dir():
         out = out / f"{src.name}-n{horizon}{MPC_SUFFIX}"
     with atomic_path(out) as tmp:
@@ -186,6 +209,62 @@ def export_for_mpc(
         },
     )
     return MPCExportResult(out, sidecar, horizon, m, opset, diff, time.perf_counter() - start)
+
+
+def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPCExportResult:
+    """``export_for_mpc``'s compiled format: the fold (or the discrete model's constants) as an
+    archive, checked through the very rollouts that will load it before it is kept."""
+    from .compiled.archive import PHYSICS_MODEL, arrays, columns_of, folded_record
+    from .compiled.fold import fold
+
+    if out.is_dir():
+        out = out / f"{src.name}{COMPILED_SUFFIX}"
+    elif out.suffix != ".npz":
+        raise ValueError(
+            f"export_for_mpc: a compiled model is a .npz file ({COMPILED_SUFFIX}), not {out}"
+        )
+    vehicle = VehicleConstants.of(from_dict(VehicleParams, src.configs["params"]))
+    meta: dict[str, Any] = {
+        "name": src.name,
+        "architecture": src.architecture,
+        "history": src.history,
+    }
+    if src.architecture == PHYSICS_MODEL:
+        physics = src.net.physics
+        meta.update(constants=physics.constants, prior_weight=physics.prior_weight)
+        data = arrays(None, vehicle)
+    else:
+        folded = fold(src.net.model)
+        meta["folded"] = folded_record(folded)
+        data = arrays(folded, folded.vehicle)
+    model = columns_of(data, meta)
+    diff = max(_parity(src, model.predict_candidates, k) for k in CHECK_CANDIDATES)
+    if not diff <= PARITY_TOLERANCE:
+        raise OnnxModelError(
+            f"{out}: the compiled model disagrees with the eager model by {diff:.3g} "
+            f"(> {PARITY_TOLERANCE}); not written"
+        )
+    write_npz(out, data)
+    write_json(
+        sidecar_path(out),
+        {
+            "format": FORMATS[COMPILED],
+            "format_version": FORMAT_VERSIONS[COMPILED],
+            "package_version": __version__,
+            "model_file": out.name,
+            "model_sha256": sha256(out),
+            **meta,
+            "layout": mpc_layout(),
+            "params": src.configs["params"],
+            "variant": src.variant,
+            "configs": src.configs,
+            "source": src.source,
+            "export": {**versions("torch", "numba", "numpy"), "max_abs_diff_vs_torch": diff,
+                       "checked_candidates": list(CHECK_CANDIDATES), "checked_horizon": horizon},
+        },
+    )  # fmt: skip
+    seconds = time.perf_counter() - start
+    return MPCExportResult(out, sidecar_path(out), horizon, src.history, None, diff, seconds)
 
 
 def _source(run_or_ckpt, horizon: int, params: VehicleParams | None) -> _Source:
@@ -248,10 +327,14 @@ def hover_inputs(
     return tuple(a.astype(np.float32) for a in arrays)
 
 
-def _parity(src: _Source, session, k: int) -> float:
+def _parity(src: _Source, predict: Callable, k: int) -> float:
+    """max |predict - the eager model| on plausible inputs with K = k; predict: an ONNX
+    Runtime session or a numpy candidates call."""
     x_hist, u_past, plans = src.inputs(k, k)
-    feeds = {X_HIST: x_hist, U_PAST: u_past, PLANS: plans}
-    got = session.run(None, feeds)[0]
+    if isinstance(predict, ort.InferenceSession):
+        got = predict.run(None, {X_HIST: x_hist, U_PAST: u_past, PLANS: plans})[0]
+    else:
+        got = predict(*(a.astype(np.float64) for a in (x_hist, u_past, plans)))
     with torch.no_grad():
         want = src.net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
     return float(np.abs(got - want).max())

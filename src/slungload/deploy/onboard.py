@@ -2,7 +2,7 @@
 
     model = OnnxCandidateModel("ps-n15.mpc.onnx")    # + ps-n15.mpc.json (its sidecar)
     states = model.predict_candidates(x_hist, u_past, plans)   # (K, N, 13) float64
-    controller = MPPIController.from_onnx("ps-n15.mpc.onnx", limits, MPCConfig(samples=256))
+    controller = MPPIController.from_file("ps-n15.mpc.onnx", limits, MPCConfig(samples=256))
     predictor = OnnxPredictor("proposed-n50.onnx")   # a whole-window export
     states = predictor.predict(history, future_inputs)           # (N, 13), file layout
 
@@ -24,7 +24,7 @@ the data files' layout. Both files' sidecars and their checks: ``sidecar``.
 
 Imports numpy, onnxruntime and the package's torch-free modules only (``layout``, ``config``,
 ``sidecar``, ``inputs``): no torch (a test checks ``sys.modules`` in a fresh interpreter). The
-controller over a candidates graph is ``control.mppi.MPPIController`` (``from_onnx``).
+controller over a candidates graph is ``control.mppi.MPPIController`` (``from_file``).
 """
 
 from __future__ import annotations

@@ -1,24 +1,29 @@
-"""The JSON sidecar beside an exported ONNX graph, for both formats: numpy-free, torch-free.
+"""The JSON sidecar beside an exported model, for its three formats: numpy-free, torch-free.
 
-An exported graph ``x.onnx`` has a sidecar ``x.json`` (``sidecar_path``) holding the format and
-its version, the graph file's checksum, the graph's inputs and outputs, the columns and
-conventions it takes (``layout``), the history M and horizon N, and the run's configs. Loading
-refuses a graph whose sidecar is missing, of another format or version, or disagrees with the
-file (checksum), the graph's signature (``check_session``) or this package's columns, with an
-``OnnxModelError`` naming the file and the difference.
+An exported file ``x.onnx`` (or ``x.mpc.npz``) has a sidecar ``x.json`` (``sidecar_path``)
+holding the format and its version, the file's checksum, the graph's inputs and outputs, the
+columns and conventions it takes (``layout``), the history M and horizon N, and the run's
+configs. Loading refuses a file whose sidecar is missing, of another format or version, or
+disagrees with the file (checksum), the graph's signature (``check_session``) or this package's
+columns, with an ``OnnxModelError`` naming the file and the difference.
 
-Two formats, each in the layout of the arrays its caller holds:
+Three formats, each in the layout of the arrays its caller holds:
 
-========== ============================ ================================= ====================
-format     written by                   read by (``deploy.onboard``)      layout
-========== ============================ ================================= ====================
-``window`` ``deploy.onnx.export``       ``OnnxPredictor`` (``predict``)   the data files':
-                                                                          quaternion x-y-z-w;
-                                                                          batch and M dynamic
-``mpc``    ``deploy.candidates          ``OnnxCandidateModel`` (the MPC)  the package's:
-           .export_for_mpc``                                              quaternion w-x-y-z;
-                                                                          K dynamic, N fixed
-========== ============================ ================================= ====================
+============ ========================== ================================ ===================
+format       written by                 read by                          layout
+============ ========================== ================================ ===================
+``window``   ``deploy.onnx.export``     ``onboard.OnnxPredictor``        the data files':
+                                        (``predict``)                    quaternion x-y-z-w;
+                                                                         batch and M dynamic
+``mpc``      ``deploy.candidates        ``onboard.OnnxCandidateModel``   the package's:
+             .export_for_mpc``          (the MPC)                        quaternion w-x-y-z;
+                                                                         K dynamic, N fixed
+``compiled`` ``export_for_mpc(...,      ``compiled.archive               the package's;
+             format="compiled")``       .load_columns`` (the MPC)        K and N dynamic
+============ ========================== ================================ ===================
+
+A ``compiled`` file is not a graph but the folded weights (``compiled.weights``) as a numpy
+archive, run by the same compiled rollouts as the ``compiled`` backend.
 """
 
 from __future__ import annotations
@@ -41,11 +46,13 @@ from ..layout import (
     THRUST,
 )
 
-WINDOW, MPC = "window", "mpc"
-FORMATS = {WINDOW: "slungload-onnx", MPC: "slungload-onnx-mpc"}  # the sidecar's "format"
-# bump a format's version when its graph's inputs/outputs or its sidecar change incompatibly
-FORMAT_VERSIONS = {WINDOW: 1, MPC: 1}
-MPC_SUFFIX = ".mpc.onnx"  # what ``export_for_mpc`` names a file it writes into a folder
+WINDOW, MPC, COMPILED = "window", "mpc", "compiled"
+# the sidecar's "format"
+FORMATS = {WINDOW: "slungload-onnx", MPC: "slungload-onnx-mpc", COMPILED: "slungload-compiled-mpc"}
+# bump a format's version when its inputs/outputs, its arrays or its sidecar change incompatibly
+FORMAT_VERSIONS = {WINDOW: 1, MPC: 1, COMPILED: 1}
+# what ``export_for_mpc`` names a file it writes into a folder, per format
+MPC_SUFFIX, COMPILED_SUFFIX = ".mpc.onnx", ".mpc.npz"
 # the graphs' input and output names
 HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
 X_HIST, U_PAST, PLANS, STATES = "x_hist", "u_past", "plans", "states"
@@ -121,8 +128,8 @@ def mpc_io_spec(history: int, horizon: int) -> dict[str, Any]:
 
 
 def sidecar_path(model_path: str | Path) -> Path:
-    """The sidecar of an exported graph: ``x.onnx`` -> ``x.json``, ``x.mpc.onnx`` ->
-    ``x.mpc.json``."""
+    """The sidecar of an exported model: ``x.onnx`` -> ``x.json``, ``x.mpc.onnx`` (``x.mpc.npz``)
+    -> ``x.mpc.json``."""
     return Path(model_path).with_suffix(".json")
 
 
@@ -131,13 +138,14 @@ def sha256(path: str | Path) -> str:
 
 
 def read_sidecar(model_path: str | Path, kind: str) -> dict[str, Any]:
-    """The sidecar of the ``kind`` (``WINDOW`` or ``MPC``) graph at ``model_path``, checked for
-    its format and version, the graph file's checksum, its columns against this package's and
-    a positive history (M >= 2 for the MPC's) and horizon; the MPC's must hold the run's vehicle
-    constants (``params``). Any failure is an ``OnnxModelError`` naming the file."""
+    """The sidecar of the ``kind`` (``WINDOW``, ``MPC`` or ``COMPILED``) file at ``model_path``,
+    checked for its format and version, the file's checksum, its columns against this package's
+    and a positive history (M >= 2 for the MPC's) and horizon (a compiled file has none: any
+    N); the MPC's must hold the run's vehicle constants (``params``). Any failure is an
+    ``OnnxModelError`` naming the file."""
     model_path = Path(model_path)
     path = sidecar_path(model_path)
-    name = {WINDOW: "ONNX", MPC: "MPC"}[kind]
+    name = {WINDOW: "ONNX", MPC: "MPC", COMPILED: "compiled MPC"}[kind]
     if not path.is_file():
         raise OnnxModelError(f"{model_path}: its sidecar {path.name} is missing")
     try:
@@ -166,11 +174,13 @@ def read_sidecar(model_path: str | Path, kind: str) -> dict[str, Any]:
             raise OnnxModelError(
                 f"{path}: {key} {got.get(key)} differ from this package's {want[key]}"
             )
-    least = {"history": 2 if kind == MPC else 1, "horizon": 1}
+    least = {"history": 1} if kind == WINDOW else {"history": 2}
+    if kind != COMPILED:
+        least["horizon"] = 1
     for key, low in least.items():
         if not isinstance(meta.get(key), int) or meta[key] < low:
-            raise OnnxModelError(f"{path}: '{key}' must be a positive integer")
-    if kind == MPC and not isinstance(meta.get("params"), dict):
+            raise OnnxModelError(f"{path}: '{key}' must be an integer >= {low}")
+    if kind != WINDOW and not isinstance(meta.get("params"), dict):
         raise OnnxModelError(f"{path}: the vehicle constants ('params') are missing")
     return meta
 

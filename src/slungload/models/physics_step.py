@@ -38,9 +38,11 @@ import torch
 from torch import Tensor
 
 from .. import physics
-from ..config import CONDITIONED, ModelConfig, VehicleParams
+from ..config import ModelConfig, VehicleParams
 from ..constants_estimate import adapted
-from ..load_state import LOAD_FIT_STEPS, estimate_load_state, fit_load_state
+from ..load_state import estimate_load_state, fit_load_state
+from ..smoothing import LOAD_FIT_STEPS
+from ..vehicle_constants import constant_ratios
 from .lstm_attention import SlungLoadNet
 
 
@@ -139,12 +141,3 @@ class PhysicsStepNet(SlungLoadNet):
             [r.to(like).expand(b) if isinstance(r, Tensor) else like.new_full((b,), r)
              for r in ratios], dim=-1,
         )  # fmt: skip
-
-
-def constant_ratios(
-    params: physics.Vehicle | VehicleParams, reference: physics.Vehicle | VehicleParams
-) -> list:
-    """f's ``CONDITIONED`` constants as a network with ``constants_input`` sees them: each
-    params' / reference's - 1 (0 at the network's own), floats or tensors (B,) as params holds
-    them. One definition for the eager network and the compiled paths."""
-    return [getattr(params, name) / float(getattr(reference, name)) - 1 for name in CONDITIONED]

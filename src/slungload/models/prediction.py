@@ -48,8 +48,8 @@ import torch
 from torch import Tensor, nn
 
 from .. import physics
-from ..config import CONSTANTS_SOURCES, VehicleParams, WindowConfig
-from ..constants_estimate import ADAPT_PRIOR_WEIGHT, adapted
+from ..config import ADAPT_PRIOR_WEIGHT, CONSTANTS_SOURCES, VehicleParams, WindowConfig
+from ..constants_estimate import adapted
 from ..data.windows import Windows, physics_rollout
 from ..layout import AUX_DIM, INPUT_DIM, STATE_DIM
 from ..load_state import estimate_load_state

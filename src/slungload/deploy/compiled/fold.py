@@ -25,8 +25,6 @@ own vehicle constants, with the load estimate it was trained with.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 import torch
 from torch import Tensor, nn
@@ -34,70 +32,18 @@ from torch import Tensor, nn
 from ...config import VehicleParams
 from ...layout import STATE_DIM
 from ...models.lstm_attention import SlungLoadNet
-from ...models.physics_step import PhysicsStepNet, constant_ratios
+from ...models.physics_step import PhysicsStepNet
 from ...physics import VehicleConstants
+from ...state import heading_basis
 from .physics import load_filters
+from .weights import ABSOLUTE, PHYSICS_STEP, RESIDUAL, FoldedWeights, first_bias
 
 # What ``fold`` knows how to rearrange: architecture name -> the class a model must be.
 _COMPILED_CLASSES: dict[str, type[SlungLoadNet]] = {
     cls.architecture: cls for cls in (SlungLoadNet, PhysicsStepNet)
 }
 COMPILED_ARCHITECTURES = tuple(_COMPILED_CLASSES)
-
-# The decoder's state update (``FoldedWeights.mode``): x_{k+1} = x_k + out_k (residual),
-# out_k + add_mean (absolute), f(x_k, u_k, a_k) + out_k (the physics step).
-RESIDUAL, ABSOLUTE, PHYSICS_STEP = 0, 1, 2
-
-
-class FoldedWeights(NamedTuple):
-    """A network's weights for the compiled paths: float32 numpy arrays, C order; matrices
-    (out, in) as torch's Linear. Rows of the state blocks are in the package layout (q
-    w-x-y-z); E = the last embedding width, H = LSTM width, L = LSTM layers, G = 4H gates in
-    PyTorch's order (i, f, g, o)."""
-
-    # (W (out, in), b (out,)) per layer, GELU after each; the first on (x - origin, u), in
-    # physical units.
-    embed: tuple[tuple[np.ndarray, np.ndarray], ...]
-    # (W, b) per layer, GELU after each but the last; the last (13, .): the state rows, scaled.
-    head: tuple[tuple[np.ndarray, np.ndarray], ...]
-    enc_emb: np.ndarray  # (G, E) encoder layer 0 on the embedding
-    enc_ih: np.ndarray  # (L, G, H) encoder input weights of layers >= 1 (layer 0's zero)
-    enc_hh: np.ndarray  # (L, G, H)
-    enc_b: np.ndarray  # (L, G) b_ih + b_hh
-    att_w: np.ndarray  # (H, H) keys W enc
-    att_u: np.ndarray  # (H, H) query U h
-    att_v: np.ndarray  # (H,)
-    dec_ctx: np.ndarray  # (G, H) decoder layer 0 on the context
-    dec_emb: np.ndarray  # (G, E) decoder layer 0 on the embedding
-    dec_ih: np.ndarray  # (L, G, H) decoder input weights of layers >= 1 (layer 0's zero)
-    dec_hh: np.ndarray  # (L, G, H)
-    dec_b: np.ndarray  # (L, G)
-    add_mean: np.ndarray  # (13,) added to an absolute head's output (zero otherwise)
-    mode: int  # the decoder's state update: RESIDUAL, ABSOLUTE or PHYSICS_STEP
-    origin_shift: np.ndarray  # (3, 13) vehicle position -> origin offset (``model.origin``)
-    architecture: str  # the model's name in ``models.MODELS`` (one of COMPILED_ARCHITECTURES)
-    vehicle: VehicleConstants  # f's constants as floats (the model's; defaults where f is unused)
-    # The smoothed load estimate's weights (``physics.load_filters``), float64; (0, 0) for the
-    # backward difference.
-    load_filters: np.ndarray
-    # "window": f runs with each window's constants (``physics.adapted_constants`` of the
-    # history, in place of ``vehicle``'s cable length and load mass); "dataset": ``vehicle``.
-    constants: str = "dataset"
-    # (E0, C) the first embedding layer's columns on f's constants (C = 0 unless the network
-    # sees them) and the constants they are measured against (``PhysicsStepNet.reference``).
-    embed_constants: np.ndarray = np.zeros((0, 0), np.float32)
-    reference: VehicleConstants | None = None
-
-
-def first_bias(w: FoldedWeights, vehicle: VehicleConstants) -> np.ndarray:
-    """The first embedding layer's bias (E0,) for a window whose f runs with ``vehicle``: the
-    folded bias plus the constants' columns times ``constant_ratios`` (float64 sum, float32
-    out); the folded bias itself for a network that does not see its constants."""
-    bias = w.embed[0][1]
-    if w.embed_constants.shape[1] == 0:
-        return bias
-    ratios = np.array(constant_ratios(vehicle, w.reference), np.float64)
-    return (bias + w.embed_constants.astype(np.float64) @ ratios).astype(np.float32)
+_NO_HEADING = np.zeros((0, STATE_DIM, STATE_DIM))
 
 
 def unsupported_architecture(model: nn.Module) -> str | None:
@@ -148,6 +94,7 @@ def fold(model: SlungLoadNet) -> FoldedWeights:
         constants=getattr(cfg, "constants", "dataset"),
         embed_constants=_f32(embed_constants),
         reference=reference,
+        heading=heading_basis(False).numpy() if cfg.heading_frame else _NO_HEADING,
     )  # fmt: skip
     if folded.constants != "window":  # f's constants fixed: the constants' columns, a fixed bias
         first = (folded.embed[0][0], first_bias(folded, vehicle))

@@ -105,6 +105,16 @@ def gelu(x):
         flat[i] = max(v, _ZERO) - _HALF * a * poly * fexp(-_HALF * v * v)
 
 
+@jit
+def bias_gelu(x, b):
+    """x <- GELU(x + b) in place: x (R, K) float32 C-contiguous, b (R,) a bias per row."""
+    for i in range(x.shape[0]):
+        row, bi = x[i], b[i]
+        for r in range(row.shape[0]):
+            row[r] += bi
+    gelu(x)
+
+
 # --- products on rows (batch 1) -------------------------------------------------------------
 # Buffers are whole C-ordered arrays (slices would be typed as strided arrays, which the
 # compiler does not vectorise).
@@ -168,6 +178,31 @@ def lstm_cols(gates, c, h):
         cj, hj = c[j], h[j]
         for r in range(cj.shape[0]):
             cj[r], hj[r] = _cell(gi[r], gf[r], gg[r], go[r], cj[r])
+
+
+@jit
+def lstm_cols_bias(gates, bias, c, h):
+    """``lstm_cols`` of the pre-activations gates (4H, K) + bias (4H,) (gates unchanged)."""
+    hidden = c.shape[0]
+    for j in range(hidden):
+        gi, gf, gg, go = gates[j], gates[hidden + j], gates[2 * hidden + j], gates[3 * hidden + j]
+        bi, bf = bias[j], bias[hidden + j]
+        bg, bo = bias[2 * hidden + j], bias[3 * hidden + j]
+        cj, hj = c[j], h[j]
+        for r in range(cj.shape[0]):
+            cj[r], hj[r] = _cell(gi[r] + bi, gf[r] + bf, gg[r] + bg, go[r] + bo, cj[r])
+
+
+@jit
+def lstm_cols_add(gates, add, c, h):
+    """``lstm_cols`` of the pre-activations gates + add, both (4H, K) (gates unchanged)."""
+    hidden = c.shape[0]
+    for j in range(hidden):
+        gi, gf, gg, go = gates[j], gates[hidden + j], gates[2 * hidden + j], gates[3 * hidden + j]
+        ai, af, ag, ao = add[j], add[hidden + j], add[2 * hidden + j], add[3 * hidden + j]
+        cj, hj = c[j], h[j]
+        for r in range(cj.shape[0]):
+            cj[r], hj[r] = _cell(gi[r] + ai[r], gf[r] + af[r], gg[r] + ag[r], go[r] + ao[r], cj[r])
 
 
 @jit

@@ -28,8 +28,7 @@ import math
 
 import numpy as np
 
-from ...config import ESTIMATE_SMOOTHING_STEPS
-from ...constants_estimate import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE
+from ...config import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, ESTIMATE_SMOOTHING_STEPS
 from ...frames import rotation_matrix
 from ...layout import (
     AUX_DIM,
@@ -45,8 +44,8 @@ from ...layout import (
     THRUST,
     VEL,
 )
-from ...load_state import LOAD_FIT_STEPS, load_fit_coefficients
-from ...physics import VehicleConstants
+from ...smoothing import LOAD_FIT_STEPS, load_fit_coefficients
+from ...vehicle_constants import VehicleConstants
 from .kernels import inline, jit
 
 # Rows of an (x, u) column (the package layout, q w-x-y-z) and of a load state a = (vL, Omega_L).
@@ -257,7 +256,7 @@ def fit_load_state(xu, m, filters, c, aux):
 def load_filters(load_estimate: str, dt: float) -> np.ndarray:
     """``fit_load_state``'s weights for ``load_estimate`` ("smoothed"; anything else: the
     backward difference, an empty (0, 0) table): row K - 3 holds the K weights
-    (``load_state.load_fit_coefficients``) for a window of K = 3 ... LOAD_FIT_STEPS steps."""
+    (``smoothing.load_fit_coefficients``) for a window of K = 3 ... LOAD_FIT_STEPS steps."""
     if load_estimate != "smoothed":
         return np.zeros((0, 0), np.float64)
     table = np.zeros((LOAD_FIT_STEPS - 2, LOAD_FIT_STEPS), np.float64)

@@ -49,14 +49,7 @@ from ...physics import VehicleConstants
 from ...state import from_heading_frame, heading_turn, to_heading_frame
 from ..inputs import check_inputs, unbatch
 from ..predictor import PARITY_TOLERANCE, Predictor, torch_threads
-from .fold import (
-    PHYSICS_STEP,
-    RESIDUAL,
-    FoldedWeights,
-    first_bias,
-    fold,
-    unsupported_architecture,
-)
+from .fold import fold, unsupported_architecture
 from .kernels import (
     accumulate,
     affine,
@@ -68,6 +61,7 @@ from .kernels import (
     lstm_layer,
 )
 from .physics import adapted_constants, estimate_load_state, fit_load_state, physics_step
+from .weights import PHYSICS_STEP, RESIDUAL, FoldedWeights, first_bias
 
 _P, _Q, _U = POS.start, QUAT.start, STATE_DIM  # rows of an (x, u) row: position, q, u
 # File columns of the quaternion's w, x, y, z (the file layout is x-y-z-w), and the package

@@ -28,8 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ...cluster import check_reachable
-from ...config import VehicleParams, WindowConfig
-from ...constants_estimate import ADAPT_PRIOR_WEIGHT
+from ...config import ADAPT_PRIOR_WEIGHT, VehicleParams, WindowConfig
 from ...data.dataset import Dataset, load_dataset
 from ...data.folder import resolve_params
 from ...data.windows import Windows, make_windows
