@@ -63,7 +63,7 @@ def main() -> None:
     limits = InputLimits(4.0, 30.0, 4.0)
     network = NetworkModel(pred.model, pred.window.history)
     with tempfile.TemporaryDirectory() as folder:
-        exported = export_for_mpc(pred, Path(folder) / "m.mpc.onnx", horizon=args.horizon)
+        exported = export_for_mpc(pred, Path(folder) / "m-onnx.mpc.onnx", horizon=args.horizon)
         compiled = export_for_mpc(
             pred, Path(folder) / "m.mpc.npz", horizon=args.horizon, format="compiled"
         )

@@ -151,6 +151,8 @@ def test_the_loaders_take_the_compiled_file_and_refuse_what_it_cannot_do(compile
         load_exported(tiny_run.out)
     with pytest.raises(ValueError, match="a compiled model is a .npz file"):
         export_for_mpc("physics", path.with_suffix(".onnx"), horizon=5, format="compiled")
+    with pytest.raises(ValueError, match="model.mpc.onnx's sidecar model.mpc.json would overwrite"):
+        export_for_mpc("physics", path.with_suffix(".onnx"), horizon=5)  # beside model.mpc.npz
     with pytest.raises(ValueError, match="unknown format 'tflite'"):
         export_for_mpc("physics", path.parent, horizon=5, format="tflite")
 
@@ -196,6 +198,8 @@ def test_the_onboard_mpc_on_the_compiled_file_plans_as_the_compiled_backend(comp
     cfg = MPCConfig(samples=32, horizon=7, knots=3, seed=5)
     onboard = MPPIController.from_file(path, LIMITS, cfg)
     assert onboard.cfg.horizon == 7  # a compiled file keeps the config's N
+    work = onboard.model._work  # prepared when built: compiled, its arrays made for K
+    assert (work.shared, work.k) == (WINDOW.history - 1, 32)
     backend = with_backend(NetworkModel(predictor.model, WINDOW.history), "compiled")
     torch_mpc = SamplingMPC(backend, LIMITS, cfg, PARAMS)
     x_hist = candidate_inputs(predictor, 7, 1)[0].astype(np.float64)

@@ -89,6 +89,8 @@ class _NumpyEntry:
     def __init__(self, model) -> None:
         self.name, self.history = model.name, model.history
         self.predict_candidates = model.numpy_candidates
+        if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
+            self.prepare = model.prepare
 
 
 def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:

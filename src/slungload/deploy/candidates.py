@@ -57,6 +57,7 @@ from .sidecar import (
     U_PAST,
     X_HIST,
     OnnxModelError,
+    check_sidecar_free,
     mpc_io_spec,
     mpc_layout,
     sha256,
@@ -171,6 +172,7 @@ def export_for_mpc(
         return _export_compiled(src, out, horizon, start)
     if out.is_dir():
         out = out / f"{src.name}-n{horizon}{MPC_SUFFIX}"
+    check_sidecar_free(out)
     with atomic_path(out) as tmp:
         trace_to_onnx(
             src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
@@ -223,6 +225,7 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
         raise ValueError(
             f"export_for_mpc: a compiled model is a .npz file ({COMPILED_SUFFIX}), not {out}"
         )
+    check_sidecar_free(out)
     vehicle = VehicleConstants.of(from_dict(VehicleParams, src.configs["params"]))
     meta: dict[str, Any] = {
         "name": src.name,

@@ -65,6 +65,7 @@ from .sidecar import (
     STATES_OUTPUT,
     WINDOW,
     OnnxModelError,
+    check_sidecar_free,
     sha256,
     sidecar_path,
     window_io_spec,
@@ -129,6 +130,7 @@ def export(
     m = predictor.window.history
     if out.is_dir():
         out = out / export_name(run_or_ckpt, n)
+    check_sidecar_free(out)
     model = predictor.model.cpu().eval()
     net = FileLayoutNet(model).eval()
     history, future = sample_inputs(predictor, batch=2, horizon=n)

@@ -133,6 +133,25 @@ def sidecar_path(model_path: str | Path) -> Path:
     return Path(model_path).with_suffix(".json")
 
 
+def check_sidecar_free(model_path: str | Path) -> None:
+    """Exporting ``model_path`` must not overwrite another file's sidecar (``x.mpc.onnx`` and
+    ``x.mpc.npz`` share ``x.mpc.json``): a ``ValueError`` naming both, before anything is
+    written."""
+    model_path = Path(model_path)
+    side = sidecar_path(model_path)
+    if not side.is_file():
+        return
+    try:
+        other = json.loads(side.read_text()).get("model_file")
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+        other = None
+    if other not in (None, model_path.name) and (model_path.parent / other).exists():
+        raise ValueError(
+            f"export: {model_path.name}'s sidecar {side.name} would overwrite that of {other} "
+            "beside it; name the file otherwise"
+        )
+
+
 def sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 

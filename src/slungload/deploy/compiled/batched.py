@@ -94,6 +94,11 @@ class CompiledPhysicsModel:
             )
         return self._columns.numpy_candidates(x_hist, u_past, plans)
 
+    def prepare(self, m: int, k: int, n: int) -> None:
+        """Compile before the first control step (``columns.warm_up``; the MPC calls it)."""
+        if self._columns is not None:
+            self._columns.prepare(m, k, n)
+
 
 def _arrays(x_hist: Tensor, u_past: Tensor, plans: Tensor) -> tuple[np.ndarray, ...]:
     """A torch caller's candidates call as the float64 arrays of ``numpy_candidates`` (exact:
@@ -132,6 +137,10 @@ class CompiledNetworkModel:
         (``control.mppi.CandidateModel``, through ``control.mpc.candidate_model``), no tensor
         conversion at its edges."""
         return self.columns.numpy_candidates(x_hist, u_past, plans)
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        """Compile before the first control step (``columns.warm_up``; the MPC calls it)."""
+        self.columns.prepare(m, k, n)
 
 
 def with_backend(model: PredictionModel, backend: str) -> PredictionModel:

@@ -34,7 +34,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...config import ADAPT_PRIOR_WEIGHT, VehicleParams
-from ...layout import AUX_DIM, INPUT_DIM, POS, QUAT, STATE_DIM
+from ...layout import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
 from ...vehicle_constants import VehicleConstants
 from .kernels import attention_cols, bias_gelu, encode_rows, jit, lstm_cols_add, lstm_cols_bias
 from .physics import (
@@ -48,6 +48,20 @@ from .weights import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, heading_
 
 _Q = QUAT.start
 DATASET, WINDOW = "dataset", "window"  # ``config.NETWORK_CONSTANTS``: f's constants
+
+
+def warm_up(model, m: int, k: int, n: int, vehicle: VehicleConstants) -> None:
+    """One call of ``model.numpy_candidates`` at (M, K, N) = (m, k, n) on a vehicle hovering
+    with its load below: Numba compiles (or loads from its cache) every kernel now, and the
+    work arrays are made, rather than in the first control step (the MPC's ``prepare``)."""
+    x = np.zeros(STATE_DIM)
+    x[_Q] = 1.0
+    x[LOAD_POS.start + 2] = -vehicle.cable_length
+    hover = np.array([(vehicle.mass_quad + vehicle.mass_load) * vehicle.gravity, 0.0, 0.0, 0.0])
+    with np.errstate(all="ignore"):  # a still history reads no load: the estimates may be nan
+        model.numpy_candidates(
+            np.tile(x, (m, 1)), np.tile(hover, (m - 1, 1)), np.tile(hover, (k, n, 1))
+        )
 
 
 def check_arrays(x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray, history: int) -> None:
@@ -108,6 +122,10 @@ class PhysicsColumns:
         """``numpy_candidates`` with the shapes checked (``check_arrays``)."""
         check_arrays(x_hist, u_past, plans, np.asarray(x_hist).shape[0])
         return self.numpy_candidates(x_hist, u_past, plans)
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        """Compile before the first control step (``warm_up``; the MPC calls it when built)."""
+        warm_up(self, max(m, 2), k, n, self.vehicle)
 
 
 class _Work:
@@ -208,6 +226,11 @@ class NetworkColumns:
         """``numpy_candidates`` with the shapes checked (``check_arrays``)."""
         check_arrays(x_hist, u_past, plans, self.history)
         return self.numpy_candidates(x_hist, u_past, plans)
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        """Compile and make the work arrays before the first control step (``warm_up``; the
+        MPC calls it when built)."""
+        warm_up(self, self.history, k, n, self.folded.vehicle)
 
     # --- the pieces ---------------------------------------------------------------------------
 
