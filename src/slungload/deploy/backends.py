@@ -43,8 +43,9 @@ def load_model(
     eager, compiled, cuda: ``spec`` is "physics" (the discrete model with ``params``) or a run
     folder / ``.ckpt`` (``models.prediction.load_prediction_model``, ``constants`` fixing a
     physics-step network's f), on ``deploy.compiled.with_backend``'s backend. compiled, with a
-    ``.npz`` file: the exported compiled model (no torch). onnx: ``spec`` is a ``.mpc.onnx``
-    file with its sidecar, on ``threads`` ONNX Runtime threads and its ``providers``. An
+    ``.npz`` file: the exported compiled model (no torch; ``threads`` BLAS threads). onnx:
+    ``spec`` is a ``.mpc.onnx`` file with its sidecar, on ``threads`` ONNX Runtime threads and
+    its ``providers``. An
     exported file predicts with its run's constants: ``params`` and ``constants`` are refused
     there. An unknown backend or a combination a backend cannot run is a ``ValueError``
     naming why."""
@@ -64,7 +65,7 @@ def load_model(
             )
         from .compiled.archive import load_columns  # numba, only when asked
 
-        return load_columns(spec)
+        return load_columns(spec, threads)
     if backend == ONNX:
         if not str(spec).endswith(".onnx"):
             raise ValueError(

@@ -92,10 +92,11 @@ def columns_of(
         raise OnnxModelError(f"{where}: a damaged or incomplete compiled model ({exc})") from exc
 
 
-def load_columns(path: str | Path) -> NetworkColumns | PhysicsColumns:
+def load_columns(path: str | Path, threads: int = 1) -> NetworkColumns | PhysicsColumns:
     """The onboard MPC's model from an exported ``.mpc.npz`` and its sidecar: the rollouts
-    (``columns``) with ``params`` (the run's ``VehicleParams``) and ``meta`` (the sidecar) set
-    on them. A missing, altered or inconsistent file is an ``OnnxModelError`` naming it."""
+    (``columns``; a network's on ``threads`` BLAS threads) with ``params`` (the run's
+    ``VehicleParams``) and ``meta`` (the sidecar) set on them. A missing, altered or
+    inconsistent file is an ``OnnxModelError`` naming it."""
     path = Path(path)
     if not path.is_file():
         raise OnnxModelError(f"{path}: no such file")
@@ -105,6 +106,8 @@ def load_columns(path: str | Path) -> NetworkColumns | PhysicsColumns:
     except ValueError as exc:
         raise OnnxModelError(str(exc)) from exc
     model = columns_of(data, meta, str(path))
+    if isinstance(model, NetworkColumns):
+        model.threads = threads
     if model.history != meta["history"]:
         raise OnnxModelError(f"{path}: history {model.history} != the sidecar's {meta['history']}")
     model.params = from_dict(VehicleParams, meta["params"])

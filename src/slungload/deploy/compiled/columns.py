@@ -27,11 +27,13 @@ calls (``control.mppi``): ``predict_candidates`` is ``numpy_candidates``.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from ...config import ADAPT_PRIOR_WEIGHT, VehicleParams
 from ...layout import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
@@ -48,6 +50,13 @@ from .weights import ABSOLUTE, PHYSICS_STEP, FoldedWeights, first_bias, heading_
 
 _Q = QUAT.start
 DATASET, WINDOW = "dataset", "window"  # ``config.NETWORK_CONSTANTS``: f's constants
+
+
+@functools.cache
+def _blas() -> ThreadpoolController:
+    """numpy's BLAS, whose threads a call limits (made once: finding the libraries takes ~1 ms,
+    a limit ~20 us)."""
+    return ThreadpoolController().select(user_api="blas")
 
 
 def warm_up(model, m: int, k: int, n: int, vehicle: VehicleConstants) -> None:
@@ -156,7 +165,10 @@ class _Work:
 
 class NetworkColumns:
     """A folded network's candidates on numpy's BLAS and compiled kernels, float32 (see the
-    module). folded: ``fold.fold(net)`` (or ``archive.read_folded``); history: its M."""
+    module). folded: ``fold.fold(net)`` (or ``archive.load_columns``); history: its M;
+    threads: numpy's BLAS threads during a call (default one, as the ONNX session's and
+    torch's: at these sizes a second thread on a busy core is slower, and the vehicle's other
+    work needs the core), set around each call and restored after it (threadpoolctl)."""
 
     numpy = True  # the MPC calls ``predict_candidates`` with arrays
     horizon = None  # any N
@@ -164,11 +176,14 @@ class NetworkColumns:
     params: VehicleParams | None = None
     meta: dict | None = None
 
-    def __init__(self, folded: FoldedWeights, history: int, name: str = "network") -> None:
+    def __init__(
+        self, folded: FoldedWeights, history: int, name: str = "network", threads: int = 1
+    ) -> None:
         if history < 2:
             raise ValueError(f"a network's candidates need a history M >= 2, got {history}")
         self.folded = w = folded
         self.history, self.name, self.constants = history, name, folded.constants
+        self.threads = threads
         self._work: _Work | None = None
         rows = lambda a: np.ascontiguousarray(a.transpose(0, 2, 1))  # noqa: E731
         self._encoder_rows = (rows(w.enc_ih), rows(w.enc_hh), w.enc_b)  # (in, out) matrices
@@ -185,6 +200,10 @@ class NetworkColumns:
     ) -> np.ndarray:
         """x_hist (M, 13), u_past (M-1, 4), plans (K, N, 4) -> states (K, N, 13) float64
         (unit quaternions); float64 or float32 in."""
+        with _blas().limit(limits=self.threads):
+            return self._rollout(x_hist, u_past, plans)
+
+    def _rollout(self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray) -> np.ndarray:
         w = self.folded
         x = np.asarray(x_hist, np.float64)
         turn = heading_turn(w, x[-1, QUAT])
