@@ -22,8 +22,8 @@ from slungload.autopilot.bridge import Bridge
 from slungload.autopilot.config import BridgeConfig, SilConfig
 from slungload.autopilot.sil import SilEndpoint
 from slungload.control.mppi import MPCConfig
+from slungload.deploy.backends import load_exported
 from slungload.deploy.candidates import export_for_mpc
-from slungload.deploy.onboard import OnnxCandidateModel
 
 mavlink = px4.mavlink
 
@@ -59,7 +59,7 @@ def fly_through(model_file: Path, sil_cfg: SilConfig, fly_cfg: BridgeConfig, on_
     endpoint = SilEndpoint(sil_cfg)
     thread = threading.Thread(target=endpoint.run, daemon=True)
     thread.start()
-    model = OnnxCandidateModel(model_file)
+    model = load_exported(model_file)
     lines: list[str] = []
 
     def log(line: str) -> None:
@@ -104,6 +104,16 @@ def test_a_lockstep_flight_ends_handed_back_with_nothing_non_finite_sent(flown):
     acks = dict(endpoint.log.acks)  # already armed (airborne in position mode): no arming
     assert acks == {mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: mavlink.MAV_RESULT_ACCEPTED,
                     mavlink.MAV_CMD_DO_SET_MODE: mavlink.MAV_RESULT_ACCEPTED}  # fmt: skip
+
+
+def test_a_lockstep_flight_on_a_compiled_file(tmp_path):
+    """The bridge flies the compiled format too (numpy + Numba, the config's N)."""
+    compiled = export_for_mpc("physics", tmp_path, horizon=10, format="compiled").model
+    sil, fly = configs(free_port(), duration=0.6, mpc=MPCConfig(samples=16, horizon=8))
+    result, endpoint, _ = fly_through(compiled, sil, fly)
+    assert result.end == "flight complete" and result.steps == round(0.6 / 0.03)
+    assert not result.safety.counts and result.mpc.fallback_steps == 0
+    assert_finite_on_the_wire(endpoint)
 
 
 def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():

@@ -1,6 +1,6 @@
 """The MPC flying a PX4 vehicle over MAVLink: state in, body rates and thrust out.
 
-    result = fly("ps.mpc.onnx", BridgeConfig(connection="udpin:0.0.0.0:14540", offboard=True))
+    result = fly("ps.mpc.npz", BridgeConfig(connection="udpin:0.0.0.0:14540", offboard=True))
 
 ``Bridge.run`` connects (pymavlink), waits for the autopilot's heartbeat, takes the thrust map
 (the config's, else the autopilot's ``MPC_THR_HOVER``) and then, at every new vehicle state
@@ -94,7 +94,7 @@ class Bridge:
         self.load_source = load_source
         self.clock = clock
         self.say = log or (lambda line: None)
-        n = getattr(model, "horizon", cfg.mpc.horizon)
+        n = getattr(model, "horizon", None) or cfg.mpc.horizon  # a compiled file's: any N
         self.mpc_cfg = replace(cfg.mpc, horizon=n, knots=min(cfg.mpc.knots, n))
         self.hover_thrust = (params.mass_quad + params.mass_load) * params.gravity
         self.result = BridgeResult(end="")
@@ -410,9 +410,10 @@ def fly(
     threads: int = 1,
     log: Callable[[str], None] | None = None,
 ) -> BridgeResult:
-    """Fly the MPC over an exported model (``slungload export --for-mpc``: ``.mpc.onnx`` and its
-    sidecar, which gives the vehicle constants) through the bridge; see the module."""
-    from ..deploy.onboard import OnnxCandidateModel
+    """Fly the MPC over an exported model (``slungload export --for-mpc``: ``.mpc.npz`` or
+    ``.mpc.onnx`` and its sidecar, which gives the vehicle constants) through the bridge; see
+    the module."""
+    from ..deploy.backends import load_exported
 
-    onnx = OnnxCandidateModel(model, threads=threads)
-    return Bridge(config, onnx, onnx.params, load_source=load_source, log=log).run()
+    exported = load_exported(model, threads=threads)
+    return Bridge(config, exported, exported.params, load_source=load_source, log=log).run()

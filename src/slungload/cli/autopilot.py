@@ -54,7 +54,8 @@ def add_fly(sub: Any) -> None:
         "fly the MPC on a PX4 vehicle over MAVLink (or on the simulator behind `slungload sil`)",
         "Connects to the autopilot (pymavlink), reads the vehicle's state (ODOMETRY, or "
         "LOCAL_POSITION_NED + ATTITUDE_QUATERNION) and the load's (ODOMETRY of its motion "
-        "capture), runs the MPC over an exported model (numpy + ONNX Runtime, no torch) and "
+        "capture), runs the MPC over an exported model (.mpc.npz on numpy + Numba, or .mpc.onnx "
+        "on ONNX Runtime; no torch) and "
         "sends body rates and normalised thrust (SET_ATTITUDE_TARGET) every control period "
         "in OFFBOARD. It streams set-points first, switches mode only with --arm / --offboard "
         "(else waits for the pilot), stops the moment the autopilot leaves OFFBOARD, and on a "
