@@ -284,3 +284,24 @@ def test_evaluate_reports_an_ensembles_mean_and_its_interval(trained_ensemble, t
     assert list((tmp_path / "r" / "figures").glob("calibration_*_N4.png"))
     saved = json.loads((tmp_path / "r" / "report.json").read_text())
     assert saved["spreads"][label]["4"]["level"] == 0.9
+
+
+def test_control_prices_an_ensembles_members_with_risk(
+    trained_ensemble, tiny_run, run_cli, tmp_path
+):
+    """``control --risk``: the ensemble's MPC prices each member's prediction (its label says
+    so); the physics MPC beside it is flown as ever; without an ensemble the option is refused."""
+    out = tmp_path / "ctl"
+    code, _, err = run_cli(
+        "control", "--model", trained_ensemble, "--maneuvers", "roll_35", "--seeds", "100",
+        "--samples", "4", "--horizon", "5", "--steps", "6", "--backend", "compiled",
+        "--risk", "1", "--out", out, "--quiet",
+    )  # fmt: skip
+    assert code == 0, err
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    labels = {r["controller"] for r in rows}
+    assert labels == {"pid", "mpc-physics K=4", "mpc-E risk 1 K=4"}
+    assert all(r["completed"] for r in rows)
+    code, _, err = run_cli("control", "--model", tiny_run.out, "--risk", "1", "--steps", "2",
+                           "--out", tmp_path / "x")  # fmt: skip
+    assert code == 2 and "no --model is an ensemble" in err

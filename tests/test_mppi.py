@@ -263,3 +263,45 @@ def test_the_payload_cost_needs_the_references_acceleration_and_flies_with_it():
     assert LIMITS.contains([command.thrust, *command.rates]) and mpc.stats.fallback_steps == 0
     with pytest.raises(ValueError, match="unknown 'payload-first'"):
         MPCConfig(cost="payload-first")
+
+
+class ClimbEnsemble:
+    """Members that agree on hover and disagree on how far extra thrust lifts the vehicle
+    (gains ``gains``, m/N per step): the more a plan leaves hover, the more they disagree."""
+
+    name, history = "climb", 3
+
+    def __init__(self, gains=(0.002, 0.01)) -> None:
+        self.gains = gains
+
+    def predict_candidates_members(self, x_hist, u_past, plans):
+        out = np.broadcast_to(x_hist[-1], (len(self.gains), *plans.shape[:2], 13)).copy()
+        lift = np.cumsum(plans[..., 0] - HOVER_T, axis=1)  # (K, N), N per step
+        for e, gain in enumerate(self.gains):
+            out[e, ..., 2] += gain * lift
+            out[e, ..., 12] += gain * lift
+        return out
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        return self.predict_candidates_members(x_hist, u_past, plans).mean(0)
+
+
+def test_risk_prices_each_members_prediction_and_is_refused_without_members():
+    with pytest.raises(ValueError, match="needs an ensemble .* 'hold' is one network"):
+        MPPIController(HoldModel(), LIMITS, replace(SMALL, risk=0.0), PARAMS)
+    with pytest.raises(ValueError, match="risk must be None or a finite number >= 0"):
+        replace(SMALL, risk=-1.0)
+    x, up = hover_state(), hold(hover_state()[:3] + [0.0, 0.0, 0.4], 6)
+    cfg = replace(SMALL, samples=64)
+    # identical members at risk 0: the cost of the mean, the same samples: the same plan
+    same = MPPIController(ClimbEnsemble((0.005, 0.005)), LIMITS, replace(cfg, risk=0.0), PARAMS)
+    single = MPPIController(ClimbEnsemble((0.005,)), LIMITS, cfg, PARAMS)
+    for _ in range(3):
+        same.step(x, up), single.step(x, up)
+        np.testing.assert_allclose(same.plan, single.plan, rtol=0, atol=1e-12)
+    # disagreeing members: the more the pricing fears their spread, the less it leaves hover
+    thrust = {}
+    for risk in (None, 0.0, 5.0):
+        mpc = MPPIController(ClimbEnsemble(), LIMITS, replace(cfg, risk=risk), PARAMS)
+        thrust[risk] = np.mean([mpc.step(x, up).thrust for _ in range(4)]) - HOVER_T
+    assert thrust[None] > thrust[0.0] > thrust[5.0] > 0

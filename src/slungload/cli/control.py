@@ -55,6 +55,12 @@ def add_flight_options(
         p.add_argument("--cost", choices=list(COSTS),
                        help=f"the MPC's cost: {shown} (docs/control.md) "
                        f"(default {cfg.cost})")  # fmt: skip
+    if hasattr(cfg, "risk"):
+        p.add_argument("--risk", type=float, metavar="BETA",
+                       help="price an ensemble's candidates (--model an ensemble folder) by "
+                       "the mean of its members' costs + BETA x their standard deviation "
+                       "(each member predicts each candidate: E x the compute; docs/control.md) "
+                       "(default: the cost of the members' mean)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -130,7 +136,7 @@ def cmd_control(args: argparse.Namespace) -> int:
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
-                                         cost=args.cost)  # fmt: skip
+                                         cost=args.cost, risk=args.risk)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     result = compare(args.model, args.out, config, threads=args.threads,

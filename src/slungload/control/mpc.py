@@ -70,11 +70,20 @@ class TorchCandidates:
         self.history = model.history
         if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
             self.prepare = model.prepare
+        if hasattr(model, "predict_candidates_members"):  # an ensemble's members
+            self.predict_candidates_members = self._members
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
     ) -> np.ndarray:
-        states = self.model.predict_candidates(
+        return self._call(self.model.predict_candidates, x_hist, u_past, plans)
+
+    def _members(self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray) -> np.ndarray:
+        return self._call(self.model.predict_candidates_members, x_hist, u_past, plans)
+
+    @staticmethod
+    def _call(predict, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray) -> np.ndarray:
+        states = predict(
             torch.from_numpy(x_hist), torch.from_numpy(u_past), torch.from_numpy(plans)
         )
         return states.detach().to("cpu", torch.float64).numpy()
@@ -91,6 +100,8 @@ class _NumpyEntry:
         self.predict_candidates = model.numpy_candidates
         if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
             self.prepare = model.prepare
+        if hasattr(model, "numpy_candidates_members"):  # an ensemble's members
+            self.predict_candidates_members = model.numpy_candidates_members
 
 
 def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:

@@ -172,6 +172,12 @@ class MPCConfig:
     # the reference itself and a vertical cable; "payload" the vehicle's position, velocity and
     # cable direction that the load's reference path requires (``payload_first``).
     cost: str = "vehicle"
+    # With an ensemble (a model with ``predict_candidates_members``): None prices a candidate
+    # by the cost of the members' mean prediction, as a single network's; a number beta >= 0 by
+    # the mean of the members' costs + beta x their standard deviation (risk-averse sampling
+    # over the members: their disagreement costs through the squared terms at 0, and more with
+    # beta). Every member then predicts every candidate: E x one network's compute at equal K.
+    risk: float | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -187,6 +193,10 @@ class MPCConfig:
         if self.constants not in NETWORK_CONSTANTS:
             raise ValueError(
                 f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
+            )
+        if self.risk is not None and not 0.0 <= self.risk < math.inf:
+            raise ValueError(
+                f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"
             )
 
 
@@ -232,7 +242,8 @@ class CandidateModel(Protocol):
     ``models.prediction.PredictionModel`` contract's control entry point without torch. A
     model may also have ``prepare(M, K, N)`` (a GPU model captures its graph there): the
     controller calls it when built, so that what the model cannot run is an error then rather
-    than a fallback in flight."""
+    than a fallback in flight. An ensemble also has ``predict_candidates_members`` (the same
+    call, (E, K, N, 13) out: each member's), which ``MPCConfig.risk`` prices."""
 
     name: str
     history: int  # M: measured states the model needs (>= 2)
@@ -302,6 +313,11 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
+        if cfg.risk is not None and not hasattr(model, "predict_candidates_members"):
+            raise ValueError(
+                f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
+                f"train --ensemble K), and {getattr(model, 'name', 'the model')!r} is one network"
+            )
         prepare = getattr(model, "prepare", None)  # see ``CandidateModel``
         if prepare is not None:
             prepare(self.history.m, cfg.samples, cfg.horizon)
@@ -416,24 +432,31 @@ class MPPIController:
         self, ref: ReferenceAhead, x_hist: np.ndarray, u_past: np.ndarray
     ) -> tuple[np.ndarray | None, str | None]:
         samples = self.sample()
+        members = self.cfg.risk is not None
         try:
-            states = self.model.predict_candidates(x_hist, u_past, samples)
+            if members:  # (E, K, N, 13)
+                states = self.model.predict_candidates_members(x_hist, u_past, samples)
+            else:
+                states = self.model.predict_candidates(x_hist, u_past, samples)
         except (RuntimeError, ValueError, FloatingPointError) as exc:
             return None, f"prediction error ({type(exc).__name__})"
-        if getattr(states, "shape", None) != (*samples.shape[:2], STATE_DIM):
+        shape = tuple(getattr(states, "shape", ()))
+        if (shape[1:] if members else shape) != (*samples.shape[:2], STATE_DIM):
             return None, "prediction of the wrong shape"
-        states = np.asarray(states, dtype=np.float64)
-        cost = trajectory_cost(
-            states,
-            samples,
+        states = np.asarray(states, dtype=np.float64).reshape(-1, *samples.shape[:2], STATE_DIM)
+        e, k, n = states.shape[:3]
+        costs = trajectory_cost(
+            states.reshape(e * k, n, STATE_DIM),
+            np.tile(samples, (e, 1, 1)),
             ref,
             self.u_prev,
             self.cfg,
             self.cable_length,
             self.hover_thrust,
             self.target(ref),
-        )
-        finite = np.isfinite(cost) & np.isfinite(states).reshape(len(states), -1).all(1)
+        ).reshape(e, k)
+        cost = costs[0] if not members else costs.mean(0) + self.cfg.risk * costs.std(0)
+        finite = np.isfinite(cost) & np.isfinite(states).transpose(1, 0, 2, 3).reshape(k, -1).all(1)
         weights = mppi_weights(np.where(finite, cost, math.inf), self.cfg.temperature)
         if weights is None:
             return None, "non-finite prediction"

@@ -167,10 +167,15 @@ class EnsembleModel:
         self.history = histories.pop()
         if all(hasattr(m, "numpy_candidates") for m in self.members):  # the compiled backends
             self.numpy_candidates = self._numpy_candidates
+            self.numpy_candidates_members = self._numpy_candidates_members
+
+    def _numpy_candidates_members(self, x_hist: Any, u_past: Any, plans: Any) -> Any:
+        """(E, K, N, 13): the members' own numpy entries (``control.mpc.candidate_model``)."""
+        return np.stack([m.numpy_candidates(x_hist, u_past, plans) for m in self.members])
 
     def _numpy_candidates(self, x_hist: Any, u_past: Any, plans: Any) -> Any:
-        """The members' own numpy entries (``control.mpc.candidate_model``), their mean."""
-        out = np.stack([m.numpy_candidates(x_hist, u_past, plans) for m in self.members])
+        """The members' own numpy entries, their mean."""
+        out = self._numpy_candidates_members(x_hist, u_past, plans)
         return spread(torch.from_numpy(out)).mean.numpy()
 
     def predict_windows_members(self, windows: Any) -> Tensor:

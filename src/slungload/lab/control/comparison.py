@@ -56,6 +56,10 @@ def compare(
     limits = InputLimits.from_sim(plant)
     predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=cfg.backend)]
     predictors += [load_model(m, backend=cfg.backend) for m in models]
+    if cfg.risk is not None and not any(
+        hasattr(p, "predict_candidates_members") for p in predictors
+    ):
+        raise ValueError("--risk prices an ensemble's candidates, and no --model is an ensemble")
     base = cfg.mpc
     out_dir = Path(out) if out is not None else None
     if out_dir is not None and (out_dir / "settings.json").exists():
@@ -88,12 +92,15 @@ def _plans(
     limits: InputLimits,
     params: VehicleParams,
 ) -> list[_Plan]:
-    """The controllers to fly: the PID, then one MPC per K and prediction model."""
+    """The controllers to fly: the PID, then one MPC per K and prediction model (``base.risk``
+    for an ensemble only, named in its label)."""
     plans: list[_Plan] = [(PID, None, reference_maker(PID, cfg))]
     for k in samples:
         for model in predictors:
-            mpc_cfg = replace(base, samples=int(k))
-            plans.append((f"mpc-{model.name}", int(k), mpc_maker(model, limits, mpc_cfg, params)))
+            risk = base.risk if hasattr(model, "predict_candidates_members") else None
+            mpc_cfg = replace(base, samples=int(k), risk=risk)
+            label = f"mpc-{model.name}" + ("" if risk is None else f" risk {risk:g}")
+            plans.append((label, int(k), mpc_maker(model, limits, mpc_cfg, params)))
     return plans
 
 

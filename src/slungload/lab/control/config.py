@@ -87,6 +87,7 @@ class ComparisonConfig:
     backend: str = "eager"  # what the prediction models run on (``config.PREDICTION_BACKENDS``)
     plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
+    risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
@@ -98,8 +99,10 @@ class ComparisonConfig:
 
     @property
     def mpc(self) -> MPCConfig:
-        """The MPC's settings but K (``MPCConfig`` with this horizon and its knots)."""
-        return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost)
+        """The MPC's settings but K (``MPCConfig`` with this horizon and its knots); ``risk``
+        prices an ensemble's candidates only (``comparison``)."""
+        return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
+                         risk=self.risk)  # fmt: skip
 
 
 @dataclass(frozen=True)
