@@ -305,3 +305,51 @@ def test_control_prices_an_ensembles_members_with_risk(
     code, _, err = run_cli("control", "--model", tiny_run.out, "--risk", "1", "--steps", "2",
                            "--out", tmp_path / "x")  # fmt: skip
     assert code == 2 and "no --model is an ensemble" in err
+
+
+def test_members_mean_in_numpy_is_the_spreads_mean():
+    from slungload.deploy.compiled.columns import members_mean
+
+    gen = torch.Generator().manual_seed(4)
+    members = torch.randn(3, 5, 7, 13, generator=gen, dtype=torch.float64)
+    members[1, ..., 6:10] *= -1  # a member in the other hemisphere: the same attitudes
+    want = spread(members).mean.numpy()
+    np.testing.assert_allclose(members_mean(members.numpy()), want, rtol=0, atol=1e-12)
+
+
+def test_an_ensemble_exports_compiled_and_flies_onboard(trained_ensemble, tiny_run, tmp_path):
+    """The compiled file of an ensemble: its mean equals the eager ensemble's, its members the
+    compiled backend's exactly, the calibration travels, and the onboard MPC prices members."""
+    from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+    from slungload.deploy.candidates import export_for_mpc
+    from slungload.deploy.compiled import with_backend
+    from slungload.deploy.compiled.archive import load_columns
+    from slungload.models.prediction import load_prediction_model
+
+    result = export_for_mpc(trained_ensemble, tmp_path, horizon=4, format="compiled")
+    assert result.model.name == "E.mpc.npz" and result.max_abs_diff <= 1e-4
+    onboard = load_columns(result.model)
+    assert len(onboard.members) == 2 and onboard.calibration["level"] == 0.9
+    model = load_prediction_model(trained_ensemble)
+    w = tiny_run.dataset.splits["test"][:1]
+    m = model.history
+    x_hist, u_past = w.states[0, :m].double(), w.inputs[0, : m - 1].double()
+    plans = w.inputs[0, m - 1 : -1].double().expand(3, -1, -1).contiguous()
+    arrays = [a.numpy() for a in (x_hist, u_past, plans)]
+    want = model.predict_candidates(x_hist, u_past, plans).numpy()
+    assert np.abs(onboard.predict_candidates(*arrays) - want).max() <= 1e-4
+    compiled = with_backend(model, "compiled")
+    np.testing.assert_array_equal(
+        onboard.predict_candidates_members(*arrays), compiled.numpy_candidates_members(*arrays)
+    )
+    n = plans.shape[1]
+    mpc = MPPIController.from_file(
+        result.model,
+        InputLimits(4.0, 30.0, 4.0),
+        MPCConfig(samples=8, horizon=n, knots=2, risk=1.0),
+    )
+    x = arrays[0][-1]
+    ref = ReferenceAhead(np.tile(x[:3], (n, 1)), np.zeros((n, 3)), np.zeros(n))
+    assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
+    with pytest.raises(ValueError, match="compiled format only"):
+        export_for_mpc(trained_ensemble, tmp_path, horizon=4)

@@ -31,6 +31,7 @@ from .._version import __version__
 from ..config import VehicleParams, from_dict, to_dict
 from ..fileio import atomic_path, write_json, write_npz
 from ..layout import STATE_DIM
+from ..models.ensemble import is_ensemble, read_manifest, spread
 from ..models.prediction import PHYSICS, PhysicsModel
 from ..reporting import versions
 from ..state import with_unit_quaternion
@@ -167,7 +168,17 @@ def export_for_mpc(
         _check_model_path(out)
     if horizon < 2:
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
-    src = _source(run_or_ckpt, horizon, params)
+    ensemble = not isinstance(run_or_ckpt, Predictor) and is_ensemble(run_or_ckpt)
+    if ensemble and format != COMPILED:
+        raise ValueError(
+            f"{run_or_ckpt}: an ensemble exports for the MPC in the compiled format only "
+            "(--format compiled)"
+        )
+    src = (
+        _ensemble_source(run_or_ckpt, horizon)
+        if ensemble
+        else _source(run_or_ckpt, horizon, params)
+    )
     if format == COMPILED:
         return _export_compiled(src, out, horizon, start)
     if out.is_dir():
@@ -216,7 +227,13 @@ def export_for_mpc(
 def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPCExportResult:
     """``export_for_mpc``'s compiled format: the fold (or the discrete model's constants) as an
     archive, checked through the very rollouts that will load it before it is kept."""
-    from .compiled.archive import PHYSICS_MODEL, arrays, columns_of, folded_record
+    from .compiled.archive import (
+        PHYSICS_MODEL,
+        arrays,
+        columns_of,
+        ensemble_arrays,
+        folded_record,
+    )
     from .compiled.fold import fold
 
     if out.is_dir():
@@ -236,6 +253,10 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
         physics = src.net.physics
         meta.update(constants=physics.constants, prior_weight=physics.prior_weight)
         data = arrays(None, vehicle)
+    elif isinstance(src.net, EnsembleCandidatesNet):
+        folds = [fold(net.model) for net in src.net.nets]
+        meta.update(members=[folded_record(w) for w in folds], calibration=src.net.calibration)
+        data = ensemble_arrays(folds)
     else:
         folded = fold(src.net.model)
         meta["folded"] = folded_record(folded)
@@ -268,6 +289,34 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
     )  # fmt: skip
     seconds = time.perf_counter() - start
     return MPCExportResult(out, sidecar_path(out), horizon, src.history, None, diff, seconds)
+
+
+class EnsembleCandidatesNet(nn.Module):
+    """An ensemble's candidates (``CandidatesNet`` members): their mean
+    (``models.ensemble.spread``), what the compiled export is checked against."""
+
+    def __init__(self, nets: list[CandidatesNet], calibration: dict | None) -> None:
+        super().__init__()
+        self.nets = nn.ModuleList(nets)
+        self.calibration = calibration
+
+    def forward(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        return spread(torch.stack([net(x_hist, u_past, plans) for net in self.nets])).mean
+
+
+def _ensemble_source(folder: str | Path, horizon: int) -> _Source:
+    """An ensemble folder as one source: its members' candidates, the first member's configs
+    and inputs (the members share a recipe), the calibration as a dict."""
+    manifest = read_manifest(folder)
+    members = [_source(run, horizon, None) for run in manifest.members]
+    if len({m.history for m in members}) != 1:
+        raise ValueError(f"{folder}: ensemble members with different histories M")
+    first = members[0]
+    calibration = None if manifest.calibration is None else to_dict(manifest.calibration)
+    net = EnsembleCandidatesNet([m.net for m in members], calibration).eval()
+    name = Path(folder).expanduser().resolve().name
+    return first._replace(net=net, name=name, architecture="ensemble",
+                          source=f"ensemble {folder} ({len(members)} members)")  # fmt: skip
 
 
 def _source(run_or_ckpt, horizon: int, params: VehicleParams | None) -> _Source:

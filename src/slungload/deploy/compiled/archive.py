@@ -24,10 +24,11 @@ from ...config import VehicleParams, from_dict
 from ...fileio import read_npz
 from ...vehicle_constants import VehicleConstants
 from ..sidecar import COMPILED, OnnxModelError, read_sidecar
-from .columns import NetworkColumns, PhysicsColumns
+from .columns import EnsembleColumns, NetworkColumns, PhysicsColumns
 from .weights import FoldedWeights
 
 PHYSICS_MODEL = "physics"  # the sidecar's "architecture" of the discrete model
+ENSEMBLE = "ensemble"  # ... of an ensemble: its members' arrays under "m<i>." each
 # FoldedWeights' array fields, stored under their names (embed and head per layer; the rest
 # are numbers and names, stored in the sidecar's "folded")
 _ARRAYS = tuple(
@@ -58,11 +59,28 @@ def folded_record(folded: FoldedWeights) -> dict[str, Any]:
             "constants": folded.constants}  # fmt: skip
 
 
+def ensemble_arrays(members: list[FoldedWeights]) -> dict[str, np.ndarray]:
+    """An ensemble's archive: each member's ``arrays`` under "m<i>."."""
+    return {f"m{i}.{k}": v for i, w in enumerate(members) for k, v in arrays(w, w.vehicle).items()}
+
+
 def columns_of(
     data: dict[str, np.ndarray], meta: dict[str, Any], where: str = "model"
-) -> NetworkColumns | PhysicsColumns:
+) -> NetworkColumns | PhysicsColumns | EnsembleColumns:
     """The rollouts of an archive's arrays ``data`` and sidecar ``meta``; a missing or
     malformed array is an ``OnnxModelError`` naming ``where``."""
+    if meta.get("architecture") == ENSEMBLE:
+        records = meta.get("members")
+        if not isinstance(records, list) or len(records) < 2:
+            raise OnnxModelError(f"{where}: an ensemble's sidecar must list >= 2 members")
+        members = []
+        for i, record in enumerate(records):
+            prefix = f"m{i}."
+            own = {k[len(prefix) :]: v for k, v in data.items() if k.startswith(prefix)}
+            member = {"architecture": record.get("architecture"), "folded": record,
+                      "history": meta["history"], "name": f"{meta.get('name')}-m{i}"}  # fmt: skip
+            members.append(columns_of(own, member, f"{where} (member {i})"))
+        return EnsembleColumns(members, str(meta.get("name", ENSEMBLE)), meta.get("calibration"))
     try:
         vehicle = VehicleConstants(*(float(v) for v in _shaped(data, "vehicle", (7,))))
         if meta["architecture"] == PHYSICS_MODEL:
@@ -92,7 +110,9 @@ def columns_of(
         raise OnnxModelError(f"{where}: a damaged or incomplete compiled model ({exc})") from exc
 
 
-def load_columns(path: str | Path, threads: int = 1) -> NetworkColumns | PhysicsColumns:
+def load_columns(
+    path: str | Path, threads: int = 1
+) -> NetworkColumns | PhysicsColumns | EnsembleColumns:
     """The onboard MPC's model from an exported ``.mpc.npz`` and its sidecar: the rollouts
     (``columns``; a network's on ``threads`` BLAS threads) with ``params`` (the run's
     ``VehicleParams``) and ``meta`` (the sidecar) set on them. A missing, altered or
@@ -106,8 +126,9 @@ def load_columns(path: str | Path, threads: int = 1) -> NetworkColumns | Physics
     except ValueError as exc:
         raise OnnxModelError(str(exc)) from exc
     model = columns_of(data, meta, str(path))
-    if isinstance(model, NetworkColumns):
-        model.threads = threads
+    for member in getattr(model, "members", (model,)):
+        if isinstance(member, NetworkColumns):
+            member.threads = threads
     if model.history != meta["history"]:
         raise OnnxModelError(f"{path}: history {model.history} != the sidecar's {meta['history']}")
     model.params = from_dict(VehicleParams, meta["params"])

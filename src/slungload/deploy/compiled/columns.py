@@ -137,6 +137,68 @@ class PhysicsColumns:
         warm_up(self, max(m, 2), k, n, self.vehicle)
 
 
+def members_mean(members: np.ndarray) -> np.ndarray:
+    """The members' mean (E, ..., 13) -> (..., 13) with a unit quaternion, each member's
+    quaternion first turned to the first member's hemisphere: ``models.ensemble.spread``'s
+    mean in numpy (a test holds the two equal)."""
+    q = members[..., QUAT]
+    sign = np.where((q * q[:1]).sum(-1, keepdims=True) < 0, -1.0, 1.0)
+    mean = members.mean(0)
+    mean[..., QUAT] = (q * sign).mean(0)
+    norm = np.linalg.norm(mean[..., QUAT], axis=-1, keepdims=True)
+    mean[..., QUAT] /= np.maximum(norm, 1e-12)
+    return mean
+
+
+class EnsembleColumns:
+    """An ensemble's rollouts (``NetworkColumns`` members of one history M): the members'
+    mean as the MPC's ``predict_candidates``, each member's as ``predict_candidates_members``
+    (``MPCConfig.risk``). calibration: its ``models.ensemble.Calibration`` as a dict (from the
+    exported file), or None."""
+
+    numpy = True
+    horizon = None  # any N
+    params: VehicleParams | None = None
+    meta: dict | None = None
+
+    def __init__(
+        self, members: list[NetworkColumns], name: str = "ensemble", calibration: dict | None = None
+    ) -> None:
+        histories = {m.history for m in members}
+        if len(members) < 2 or len(histories) != 1:
+            raise ValueError(f"an ensemble needs >= 2 members of one history M, got {histories}")
+        self.members, self.name, self.calibration = tuple(members), name, calibration
+        self.history = histories.pop()
+
+    def numpy_candidates_members(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """(E, K, N, 13) float64: each member's ``numpy_candidates``."""
+        return np.stack([m.numpy_candidates(x_hist, u_past, plans) for m in self.members])
+
+    def numpy_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """(K, N, 13): the members' mean (``members_mean``)."""
+        return members_mean(self.numpy_candidates_members(x_hist, u_past, plans))
+
+    def predict_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        check_arrays(x_hist, u_past, plans, self.history)
+        return self.numpy_candidates(x_hist, u_past, plans)
+
+    def predict_candidates_members(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        check_arrays(x_hist, u_past, plans, self.history)
+        return self.numpy_candidates_members(x_hist, u_past, plans)
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        for member in self.members:
+            member.prepare(m, k, n)
+
+
 class _Work:
     """Float32 work arrays for K candidates in columns, and the stacked weights' inputs."""
 
