@@ -26,7 +26,7 @@ import torch
 from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
 from ..fileio import read_json
-from ..models.checkpoints import checkpoint_meta
+from ..models.ensemble import model_meta
 from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
@@ -233,7 +233,7 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
       extrapolation."""
     if str(model) == PHYSICS:
         return []
-    meta = checkpoint_meta(model)
+    meta = model_meta(model)
     notes = []
     data = meta.get("data")
     if data and _simulated_without_excitation(Path(data) / VEHICLE_FILE):

@@ -116,14 +116,9 @@ def load_checkpoint(path: str | Path, *, map_location: str | torch.device = "cpu
 
 
 def checkpoint_meta(path: str | Path) -> dict[str, Any]:
-    """The configs embedded in a checkpoint (a ``.ckpt``, or a run folder's best; for an
-    ensemble folder its first member's: the members share one recipe), e.g. its ``preset`` or
-    ``window``, read with the same checks as ``load_checkpoint`` but without building the
-    network."""
-    from .ensemble import is_ensemble, read_manifest  # it imports this module
-
-    if is_ensemble(path):
-        path = read_manifest(path).members[0]
+    """The configs embedded in a checkpoint (a ``.ckpt``, or a run folder's best), e.g. its
+    ``preset`` or ``window``, read with the same checks as ``load_checkpoint`` but without
+    building the network (an ensemble folder: ``ensemble.model_meta``)."""
     return _read_checkpoint(checkpoint_path(path))[1]
 
 

@@ -35,7 +35,7 @@ from ..config import from_dict, to_dict
 from ..fileio import read_json, write_json
 from ..layout import GROUPS, QUAT, STATE_DIM
 from ..state import with_unit_quaternion
-from .checkpoints import LoadedModel, load_checkpoint
+from .checkpoints import LoadedModel, checkpoint_meta, load_checkpoint
 
 ENSEMBLE_FILE = "ensemble.json"  # an ensemble folder's manifest
 ENSEMBLE_FORMAT = 1  # bump when the manifest changes incompatibly
@@ -203,6 +203,12 @@ class EnsembleModel:
 def is_ensemble(path: str | Path) -> bool:
     """Whether ``path`` is an ensemble folder (holds ``ENSEMBLE_FILE``)."""
     return (Path(path).expanduser() / ENSEMBLE_FILE).is_file()
+
+
+def model_meta(path: str | Path) -> dict[str, Any]:
+    """``checkpoint_meta`` of a run (or ``.ckpt``), or of an ensemble folder's first member (the
+    members share one recipe)."""
+    return checkpoint_meta(read_manifest(path).members[0] if is_ensemble(path) else path)
 
 
 @dataclass(frozen=True)

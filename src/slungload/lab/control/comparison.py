@@ -26,7 +26,7 @@ from ...control.mpc import InputLimits, MPCConfig, mpc_maker
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...fileio import write_json
-from ...models.checkpoints import checkpoint_meta
+from ...models.ensemble import model_meta
 from ...models.prediction import PHYSICS, PredictionModel
 from ...reporting import machine
 from ...sim.config import SimConfig
@@ -66,7 +66,7 @@ def compare(
         raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
                          "where these would land; use another --out")  # fmt: skip
     # each network's training preset, for the report's smoke-run banner
-    presets = {str(m): checkpoint_meta(m).get("preset") for m in models if str(m) != PHYSICS}
+    presets = {str(m): model_meta(m).get("preset") for m in models if str(m) != PHYSICS}
     plans = _plans(plant, predictors, cfg.samples, base, limits, params)
     with torch_threads(threads):
         rows, logs = _fly_all(cfg.maneuvers, cfg.seeds, plans, plant, limits, cfg.steps, out_dir,
