@@ -353,3 +353,24 @@ def test_an_ensemble_exports_compiled_and_flies_onboard(trained_ensemble, tiny_r
     assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
     with pytest.raises(ValueError, match="compiled format only"):
         export_for_mpc(trained_ensemble, tmp_path, horizon=4)
+
+
+def test_the_novelty_flag_in_numpy_is_the_calibrations(trained_ensemble, tmp_path):
+    """The onboard ensemble's flag (numpy) equals ``Calibration.novel`` on the same members,
+    like and 10x spread apart; the risk-priced MPC counts flagged nominal plans."""
+    from slungload.deploy.candidates import export_for_mpc
+    from slungload.deploy.compiled.archive import load_columns
+    from slungload.models.prediction import load_prediction_model
+
+    model = load_prediction_model(trained_ensemble)
+    onboard = load_columns(export_for_mpc(trained_ensemble, tmp_path, horizon=4,
+                                          format="compiled").model)  # fmt: skip
+    ref = np.asarray(model.calibration.reference_std)  # (N, 13)
+    rng = np.random.default_rng(0)
+    centre = rng.standard_normal((1, 6, 7, 13))
+    for scale in (1.0, 10.0):
+        members = centre + scale * ref[None, None, :1] * rng.standard_normal((3, 6, 7, 13))
+        want = model.calibration.novel(spread(torch.from_numpy(members)).std).numpy()
+        np.testing.assert_array_equal(onboard.novel(members), want)
+        np.testing.assert_array_equal(model.novel(members), want)
+    assert onboard.novel(members).all()  # 10x the calibration's spread

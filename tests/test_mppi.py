@@ -305,3 +305,20 @@ def test_risk_prices_each_members_prediction_and_is_refused_without_members():
         mpc = MPPIController(ClimbEnsemble(), LIMITS, replace(cfg, risk=risk), PARAMS)
         thrust[risk] = np.mean([mpc.step(x, up).thrust for _ in range(4)]) - HOVER_T
     assert thrust[None] > thrust[0.0] > thrust[5.0] > 0
+
+
+class FlaggedEnsemble(ClimbEnsemble):
+    """Members whose every plan the calibration would flag."""
+
+    def novel(self, members):
+        assert members.shape[:2] == (2, 1)  # the members' prediction of the nominal plan
+        return np.ones(1, bool)
+
+
+def test_a_risk_priced_mpc_counts_the_nominal_plans_its_ensemble_flags():
+    x, up = hover_state(), hold(hover_state()[:3], 6)
+    flagged = MPPIController(FlaggedEnsemble(), LIMITS, replace(SMALL, risk=1.0), PARAMS)
+    plain = MPPIController(FlaggedEnsemble(), LIMITS, SMALL, PARAMS)  # the mean: not asked
+    for _ in range(3):
+        flagged.step(x, up), plain.step(x, up)
+    assert (flagged.stats.novel_steps, plain.stats.novel_steps) == (3, 0)

@@ -102,6 +102,7 @@ class _NumpyEntry:
             self.prepare = model.prepare
         if hasattr(model, "numpy_candidates_members"):  # an ensemble's members
             self.predict_candidates_members = model.numpy_candidates_members
+            self.novel = model.novel
 
 
 def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:

@@ -172,11 +172,9 @@ class MPCConfig:
     # the reference itself and a vertical cable; "payload" the vehicle's position, velocity and
     # cable direction that the load's reference path requires (``payload_first``).
     cost: str = "vehicle"
-    # With an ensemble (a model with ``predict_candidates_members``): None prices a candidate
-    # by the cost of the members' mean prediction, as a single network's; a number beta >= 0 by
-    # the mean of the members' costs + beta x their standard deviation (risk-averse sampling
-    # over the members: their disagreement costs through the squared terms at 0, and more with
-    # beta). Every member then predicts every candidate: E x one network's compute at equal K.
+    # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
+    # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
+    # Every member then predicts every candidate: E x one network's compute at equal K.
     risk: float | None = None
     seed: int = 0
 
@@ -214,6 +212,7 @@ class MPCStats:
     nonfinite_steps: int = 0  # steps where some (not all) samples predicted NaN/inf
     hover_steps: int = 0  # fallback steps that flew the hover command
     estimate_rejected: int = 0  # steps whose in-flight constants were not finite and positive
+    novel_steps: int = 0  # with ``MPCConfig.risk``: nominal plans flagged (``Calibration.novel``)
 
     @property
     def fallback_steps(self) -> int:
@@ -242,8 +241,7 @@ class CandidateModel(Protocol):
     ``models.prediction.PredictionModel`` contract's control entry point without torch. A
     model may also have ``prepare(M, K, N)`` (a GPU model captures its graph there): the
     controller calls it when built, so that what the model cannot run is an error then rather
-    than a fallback in flight. An ensemble also has ``predict_candidates_members`` (the same
-    call, (E, K, N, 13) out: each member's), which ``MPCConfig.risk`` prices."""
+    than a fallback in flight. An ensemble adds ``predict_candidates_members`` (E, K, N, 13)."""
 
     name: str
     history: int  # M: measured states the model needs (>= 2)
@@ -456,6 +454,8 @@ class MPPIController:
             self.target(ref),
         ).reshape(e, k)
         cost = costs[0] if not members else costs.mean(0) + self.cfg.risk * costs.std(0)
+        if members and hasattr(self.model, "novel"):  # sample 0 is the nominal plan
+            self.stats.novel_steps += bool(self.model.novel(states[:, :1])[0])
         finite = np.isfinite(cost) & np.isfinite(states).transpose(1, 0, 2, 3).reshape(k, -1).all(1)
         weights = mppi_weights(np.where(finite, cost, math.inf), self.cfg.temperature)
         if weights is None:

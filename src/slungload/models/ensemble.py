@@ -178,6 +178,13 @@ class EnsembleModel:
         out = self._numpy_candidates_members(x_hist, u_past, plans)
         return spread(torch.from_numpy(out)).mean.numpy()
 
+    def novel(self, members: Any) -> Any:
+        """Members' predictions (E, K, N, 13) numpy -> (K,) bool numpy: ``Calibration.novel``
+        of their spread; all False without a calibration (the MPC's count)."""
+        if self.calibration is None:
+            return np.zeros(members.shape[1], bool)
+        return self.calibration.novel(spread(torch.from_numpy(members)).std).numpy()
+
     def predict_windows_members(self, windows: Any) -> Tensor:
         """(E, W, N, 13): each member's ``predict_windows``."""
         return torch.stack([m.predict_windows(windows) for m in self.members])
