@@ -1,0 +1,66 @@
+"""Time the MPC over MAVLink in real time: state received -> command sent, per control period.
+
+    python examples/time_fly_sil.py MODEL.mpc.npz [--plant chain] [--samples 256]
+        [--maneuver fast_8_lap_xyz] [--duration 15] [--flights 3]
+
+Starts ``slungload sil --real-time`` (the simulator behind a MAVLink endpoint on 127.0.0.1) in a
+subprocess for each flight, flies the exported model through ``autopilot.bridge.fly`` (arming
+and switching to OFFBOARD itself), and prints per flight the median, p99 and largest latency
+and how many steps took longer than the control period. Run it with nothing else on the
+machine: the endpoint takes one core, the bridge another.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from slungload.autopilot.bridge import fly
+from slungload.autopilot.config import BridgeConfig
+from slungload.control.mppi import MPCConfig
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("model", help="an exported MPC model (.mpc.npz or .mpc.onnx)")
+    parser.add_argument("--plant", default="default", help="the simulated vehicle (default)")
+    parser.add_argument("--samples", type=int, default=256, help="K (default 256)")
+    parser.add_argument("--maneuver", default="fast_8_lap_xyz")
+    parser.add_argument("--duration", type=float, default=15.0, help="s of MPC flight (15)")
+    parser.add_argument("--flights", type=int, default=1)
+    args = parser.parse_args(argv)
+    period = BridgeConfig().period
+    for _ in range(args.flights):
+        port = free_port()
+        sil = subprocess.Popen(
+            [sys.executable, "-m", "slungload.cli", "sil", "--plant", args.plant, "--real-time",
+             "--connection", f"udpout:127.0.0.1:{port}", "--duration", str(args.duration + 30)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            cfg = replace(BridgeConfig(), connection=f"udpin:127.0.0.1:{port}", arm=True,
+                          offboard=True, maneuver=args.maneuver, duration=args.duration,
+                          mpc=replace(MPCConfig(), samples=args.samples))  # fmt: skip
+            result = fly(args.model, cfg)
+        finally:
+            sil.kill()
+            sil.wait()
+        ms = np.array(result.latency) * 1e3
+        print(f"{result.end}, {result.steps} steps: state -> command median "
+              f"{np.median(ms):.2f}, p99 {np.percentile(ms, 99):.2f}, max {ms.max():.2f} ms; "
+              f"over {period * 1e3:.0f} ms: {(ms > period * 1e3).sum()} of {len(ms)}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
