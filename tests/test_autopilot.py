@@ -298,6 +298,26 @@ def test_a_recorded_flight_imports(flown, tmp_path):
     assert done.params.mass_load > 0
 
 
+@pytest.mark.slow
+def test_flights_flown_through_the_bridge_import_and_train(tmp_path, run_cli):
+    """fly -> import -> train: three short lockstep flights recorded as .tlog become a dataset
+    (one flight per split) that trains (the compiled file: a fast bridge)."""
+    model = export_for_mpc("physics", tmp_path, horizon=10, format="compiled").model
+    logs = []
+    for seed in (1, 2, 3):
+        logs.append(tmp_path / f"f{seed}.tlog")
+        sil, fly = configs(free_port(), tlog=logs[-1], duration=4.0, maneuver="roll_35", seed=seed)
+        result, _, _ = fly_through(model, replace(sil, seed=seed), fly)
+        assert result.end == "flight complete" and result.steps == round(4.0 / 0.03)
+    code, _, err = run_cli("import", *logs, "--out", tmp_path / "ds")
+    assert code == 0, err
+    run = tmp_path / "run"
+    code, out, err = run_cli("train", "--data", tmp_path / "ds", "--preset", "quick",
+                             "--model", "physics-step", "--out", run, "--quiet")  # fmt: skip
+    assert code == 0, err
+    assert (run / "best.ckpt").is_file() and "epochs" in out
+
+
 def test_fly_says_when_nothing_answers(run_cli, model_file):
     port = free_port()
     code, _, err = run_cli("fly", model_file, "--connection", f"udpin:127.0.0.1:{port}",
