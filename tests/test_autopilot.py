@@ -186,6 +186,17 @@ def test_a_tenth_of_the_telemetry_dropped(model_file):
     assert_finite_on_the_wire(endpoint)
 
 
+def test_fifty_milliseconds_of_jitter_on_the_telemetry(model_file):
+    """Every ODOMETRY delayed by up to 50 ms (wall clock; some arrive out of order): the flight
+    completes and hands back, nothing non-finite on the wire."""
+    sil, fly = configs(free_port())
+    result, endpoint, _ = fly_through(model_file, replace(sil, jitter=0.05), fly)
+    assert endpoint.log.delayed > 2 * result.steps  # the vehicle's and the load's, each step
+    assert result.end == "flight complete" and not result.safety.counts
+    assert endpoint.log.modes[-1][1:] == ("position", "commanded")
+    assert_finite_on_the_wire(endpoint)
+
+
 def test_leaving_offboard_mid_flight_stops_the_commands(model_file):
     sil, fly = configs(free_port(), duration=3.0)
     switched = []

@@ -134,10 +134,12 @@ class SilConfig:
     heartbeat_period: float = _option(1.0, "s between heartbeats")
     duration: float = _option(math.inf, "s of simulated time to run")
     # faults, for tests: spans (s, simulated) without the vehicle's or the load's ODOMETRY,
-    # and a share of telemetry messages dropped
+    # a share of telemetry messages dropped, and each one delayed by a uniform draw in [0,
+    # jitter] s of wall clock (so that they may also arrive out of order)
     state_gap: tuple[float, float] | None = None
     load_gap: tuple[float, float] | None = None
     drop: float = 0.0
+    jitter: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("lockstep_wait", "of_loss_timeout", "stream_timeout", "heartbeat_period"):
@@ -147,6 +149,8 @@ class SilConfig:
             raise ValueError(f"hover throttle must be in (0, 1], got {self.hover_throttle}")
         if not 0.0 <= self.drop < 1.0:
             raise ValueError(f"drop must be in [0, 1), got {self.drop}")
+        if not 0.0 <= self.jitter < math.inf:
+            raise ValueError(f"jitter must be a finite number of s >= 0, got {self.jitter}")
 
 
 def option_help(config: type, name: str) -> str:

@@ -72,6 +72,7 @@ class SilLog:
     track: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     ignored: Counter = field(default_factory=Counter)
     acks: list[tuple[int, int]] = field(default_factory=list)  # (command, result)
+    delayed: int = 0  # telemetry messages held back by ``SilConfig.jitter``
 
 
 class SilEndpoint:
@@ -89,7 +90,8 @@ class SilEndpoint:
         self.plant = make_plant(sim, PlantParams.draw(sim, streams[1]))
         self.wind = ou_wind(sim, WIND_STEPS, streams[2])
         self.mocap = Mocap(sim, streams[3])
-        self.faults = np.random.default_rng(cfg.seed + 1)  # the dropped packets
+        self.faults = np.random.default_rng(cfg.seed + 1)  # the dropped and delayed packets
+        self.delayed: list[tuple[float, object, int | None]] = []  # (wall time due, msg, comp.)
         self.h = sim.control_dt
         self.newtons_per_throttle = sim.total_mass * sim.gravity / cfg.hover_throttle
         self.pid = PIDController(sim)
@@ -129,10 +131,12 @@ class SilEndpoint:
 
     def _receive(self, deadline: float, *, until_setpoint: bool) -> None:
         while not self.stopped.is_set():
+            self._flush()
             left = deadline - time.monotonic()
             if left <= 0:
                 return
-            msg = self.conn.recv_match(blocking=True, timeout=min(left, 0.05))
+            wait = 0.002 if self.delayed else 0.05  # held-back telemetry falls due meanwhile
+            msg = self.conn.recv_match(blocking=True, timeout=min(left, wait))
             if msg is not None and self._handle(msg) and until_setpoint:
                 return
 
@@ -179,6 +183,23 @@ class SilEndpoint:
     def _send(self, msg, *, lossy: bool = False, component: int | None = None) -> None:
         if lossy and self.cfg.drop and self.faults.random() < self.cfg.drop:
             return
+        if lossy and self.cfg.jitter:
+            due = time.monotonic() + self.faults.uniform(0.0, self.cfg.jitter)
+            self.delayed.append((due, msg, component))
+            self.log.delayed += 1
+            return
+        self._emit(msg, component)
+
+    def _flush(self) -> None:
+        """Send the held-back telemetry that has fallen due, in the order it falls due."""
+        now = time.monotonic()
+        due = sorted((d for d in self.delayed if d[0] <= now), key=lambda d: d[0])
+        if due:
+            self.delayed = [d for d in self.delayed if d[0] > now]
+            for _, msg, component in due:
+                self._emit(msg, component)
+
+    def _emit(self, msg, component: int | None) -> None:
         mav = self.conn.mav
         if component is not None:  # another component of this system (the load's mocap)
             own = mav.srcComponent
