@@ -209,17 +209,24 @@ sys.meta_path.insert(0, Blocked())
 """
 
 
-def test_the_example_loop_runs_on_an_exported_model_without_torch(exported, physics_files):
-    model = exported["physics-step"][1]
-    argv = [str(model), "--vehicle", str(physics_files[1]), "--samples", "16", "--steps", "12"]
-    code = BLOCK + (
+def run_example_blocked(block: str, argv: list[str], absent: tuple[str, ...]) -> str:
+    """The example loop in a fresh interpreter with ``block`` installed first; its output,
+    ending in the sorted list of the ``absent`` packages it imported anyway."""
+    code = block + (
         f"import runpy\nsys.argv = {['onboard_loop.py', *argv]!r}\n"
         f"runpy.run_path({str(EXAMPLE)!r}, run_name='__main__')\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'torch'))"
+        f"print(sorted(m for m in sys.modules if m.split('.')[0] in {absent!r}))"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "12 steps, K = 16, N = 6: vehicle RMSE" in done.stdout and "[]" in done.stdout
+    return done.stdout
+
+
+def test_the_example_loop_runs_on_an_exported_model_without_torch(exported, physics_files):
+    model = exported["physics-step"][1]
+    argv = [str(model), "--vehicle", str(physics_files[1]), "--samples", "16", "--steps", "12"]
+    out = run_example_blocked(BLOCK, argv, ("torch",))
+    assert "12 steps, K = 16, N = 6: vehicle RMSE" in out and "[]" in out
 
 
 def test_the_example_loop_tracks_with_the_physics_model(physics_files):

@@ -5,8 +5,6 @@ same rollouts), its sidecar checks, the loaders, and the onboard MPC flying it w
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,10 +12,10 @@ import torch
 from test_onboard import (
     ARCHITECTURES,
     BLOCK,
-    EXAMPLE,
     LIMITS,
     PARAMS,
     WINDOW,
+    run_example_blocked,
     small_predictor,
 )
 
@@ -217,14 +215,8 @@ def test_the_example_loop_flies_compiled_files_without_torch(compiled, tmp_path)
     vehicle = export_for_mpc("physics", tmp_path / "vehicle.mpc.npz", horizon=2, format="compiled")
     argv = [str(compiled["physics-step"][1]), "--vehicle", str(vehicle.model), "--samples", "16",
             "--steps", "12"]  # fmt: skip
-    code = BLOCK_BUT_NUMBA + (
-        f"import runpy\nsys.argv = {['onboard_loop.py', *argv]!r}\n"
-        f"runpy.run_path({str(EXAMPLE)!r}, run_name='__main__')\n"
-        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'onnxruntime')))"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert "12 steps, K = 16, N = 15: vehicle RMSE" in done.stdout and "[]" in done.stdout
+    out = run_example_blocked(BLOCK_BUT_NUMBA, argv, ("torch", "onnxruntime"))
+    assert "12 steps, K = 16, N = 15: vehicle RMSE" in out and "[]" in out
 
 
 def test_export_command_writes_the_compiled_format(run_cli, tiny_run, tmp_path):

@@ -84,9 +84,9 @@ def load_model(
 def load_exported(path: str | Path, *, threads: int = 1, providers: list[str] | None = None) -> Any:
     """An exported MPC model on its own runtime, without torch: a ``.mpc.onnx`` graph on ONNX
     Runtime (``threads``, ``providers``), a ``.mpc.npz`` compiled model on numpy + Numba."""
-    backend = ONNX if str(path).endswith(".onnx") else "compiled"
     if not str(path).endswith((".onnx", ".npz")):
         raise ValueError(
             f"{path}: not an exported MPC model (.mpc.onnx or .mpc.npz: slungload export --for-mpc)"
         )
+    backend = ONNX if str(path).endswith(".onnx") else "compiled"
     return load_model(path, backend=backend, threads=threads, providers=providers)

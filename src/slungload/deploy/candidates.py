@@ -168,17 +168,7 @@ def export_for_mpc(
         _check_model_path(out)
     if horizon < 2:
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
-    ensemble = not isinstance(run_or_ckpt, Predictor) and is_ensemble(run_or_ckpt)
-    if ensemble and format != COMPILED:
-        raise ValueError(
-            f"{run_or_ckpt}: an ensemble exports for the MPC in the compiled format only "
-            "(--format compiled)"
-        )
-    src = (
-        _ensemble_source(run_or_ckpt, horizon)
-        if ensemble
-        else _source(run_or_ckpt, horizon, params)
-    )
+    src = _export_source(run_or_ckpt, horizon, params, format)
     if format == COMPILED:
         return _export_compiled(src, out, horizon, start)
     if out.is_dir():
@@ -243,7 +233,6 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
             f"export_for_mpc: a compiled model is a .npz file ({COMPILED_SUFFIX}), not {out}"
         )
     check_sidecar_free(out)
-    vehicle = VehicleConstants.of(from_dict(VehicleParams, src.configs["params"]))
     meta: dict[str, Any] = {
         "name": src.name,
         "architecture": src.architecture,
@@ -252,7 +241,7 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
     if src.architecture == PHYSICS_MODEL:
         physics = src.net.physics
         meta.update(constants=physics.constants, prior_weight=physics.prior_weight)
-        data = arrays(None, vehicle)
+        data = arrays(None, VehicleConstants.of(from_dict(VehicleParams, src.configs["params"])))
     elif isinstance(src.net, EnsembleCandidatesNet):
         folds = [fold(net.model) for net in src.net.nets]
         meta.update(members=[folded_record(w) for w in folds], calibration=src.net.calibration)
@@ -302,6 +291,18 @@ class EnsembleCandidatesNet(nn.Module):
 
     def forward(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
         return spread(torch.stack([net(x_hist, u_past, plans) for net in self.nets])).mean
+
+
+def _export_source(run_or_ckpt, horizon: int, params: VehicleParams | None, format: str) -> _Source:
+    """What ``export_for_mpc`` exports: an ensemble folder (compiled format only) or one model."""
+    if isinstance(run_or_ckpt, Predictor) or not is_ensemble(run_or_ckpt):
+        return _source(run_or_ckpt, horizon, params)
+    if format != COMPILED:
+        raise ValueError(
+            f"{run_or_ckpt}: an ensemble exports for the MPC in the compiled format only "
+            "(--format compiled)"
+        )
+    return _ensemble_source(run_or_ckpt, horizon)
 
 
 def _ensemble_source(folder: str | Path, horizon: int) -> _Source:
