@@ -431,6 +431,32 @@ class TrainConfig:
             )
 
 
+@dataclass(frozen=True)
+class PreflightConfig:
+    """The check before flying (``evaluation.preflight``): does a network beat the physics
+    model in an MPC, judged on held-out flights.
+
+    horizon: the MPC's N, steps (the MPC's own default, ``control.mppi.MPCConfig``).
+    pays_below: the network pays when the upper end of its response-error ratio's interval
+    lies below this (a 10 % lead, with confidence). level, resamples: the interval's coverage
+    and its flight-bootstrap resamplings. knots: values per command channel a window's future
+    commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
+    response fit's regularisation, per window (standardised features)."""
+
+    horizon: int = 15
+    pays_below: float = 0.9
+    level: float = 0.95
+    resamples: int = 2000
+    knots: int = 5
+    ridge: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if self.horizon < 1 or not 0 < self.pays_below or not 0 < self.level < 1:
+            raise ValueError(f"PreflightConfig: bad values {self}")
+        if self.resamples < 100:
+            raise ValueError(f"PreflightConfig.resamples: at least 100, got {self.resamples}")
+
+
 def to_dict(cfg: Any) -> dict[str, Any]:
     """A JSON-friendly dict of a config dataclass (nested ones included)."""
     return dataclasses.asdict(cfg)

@@ -3,7 +3,7 @@
 A user error (bad path, bad file, bad option) prints one line and exits with status 2;
 ``--debug`` shows the traceback instead. The commands live by stage: ``data`` (simulate,
 maneuvers, inspect, split, import), ``train`` (train, identify), ``ensemble`` (ensemble,
-calibrate, uncertainty), ``evaluate`` (evaluate, reproduce, study), ``deploy`` (export,
+calibrate, uncertainty), ``evaluate`` (evaluate, check, reproduce, study), ``deploy`` (export,
 benchmark), ``control`` and ``autopilot`` (fly, sil), each with its parser beside it;
 ``common`` holds what they share.
 """
@@ -21,7 +21,7 @@ from .control import add_control, add_record
 from .data import add_inspect, add_maneuvers, add_simulate, add_split
 from .deploy import add_benchmark, add_export
 from .ensemble import add_calibrate, add_ensemble, add_uncertainty
-from .evaluate import add_evaluate, add_reproduce
+from .evaluate import add_check, add_evaluate, add_reproduce
 from .importing import add_import
 from .study import add_study, add_tune
 from .train import add_identify, add_train
@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_calibrate(sub)
     add_evaluate(sub)
     add_uncertainty(sub)
+    add_check(sub)
     add_reproduce(sub)
     add_export(sub)
     add_benchmark(sub)

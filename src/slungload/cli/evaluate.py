@@ -86,6 +86,51 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_check(sub: Any) -> None:
+    from ..config import PreflightConfig
+
+    cfg = PreflightConfig()
+    p = new_command(
+        sub,
+        "check",
+        "say before flying whether a network will beat the physics model in an MPC",
+        "From held-out flights alone: the part of each model's error that follows the "
+        "commands (what an MPC's choice among plans sees; errors every plan shares cancel), "
+        "network against physics at the MPC's horizon, with a flight-bootstrap interval. "
+        "Writes check.md, check.json and check.png to --out and the verdict to the run's "
+        "preflight.json, which `slungload control` reads to warn. Give flights whose commands "
+        "varied (`simulate --excite`, `record`, a pilot's): a PID's alone leave little to "
+        "measure (docs/control.md).",
+    )
+    p.add_argument("run", type=Path, metavar="RUN_DIR", help="run folder, .ckpt or ensemble")
+    p.add_argument("--data", type=Path, help="dataset folder (default: the run's own)")
+    p.add_argument("--split", default="test", choices=("test", "val"),
+                   help="held-out flights to judge on (default test)")  # fmt: skip
+    p.add_argument("--horizon", type=positive_int, default=cfg.horizon, metavar="N",
+                   help=f"the MPC's horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
+    p.add_argument("--pays-below", type=float, default=cfg.pays_below, metavar="R",
+                   help="the network pays when its response error's interval lies below R x "
+                   f"physics's (default {cfg.pays_below:g})")  # fmt: skip
+    p.add_argument("--out", type=Path, help="report folder (default RUN_DIR/check)")
+    p.set_defaults(func=cmd_check)
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..config import PreflightConfig
+    from ..evaluation.preflight import check, record_verdict, write_check
+
+    cfg = replace(PreflightConfig(), horizon=args.horizon, pays_below=args.pays_below)
+    result = check(args.run, args.data, split=args.split, cfg=cfg)
+    print(result.summary())
+    run_folder = args.run if args.run.is_dir() else args.run.parent
+    for path in write_check(result, args.out or run_folder / "check"):
+        print(f"wrote {path}")
+    print(f"wrote {record_verdict(result)}")
+    return 0
+
+
 def add_reproduce(sub: Any) -> None:
     p = new_command(
         sub,

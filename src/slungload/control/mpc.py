@@ -25,6 +25,7 @@ import torch
 
 from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
+from ..evaluation.preflight import verdict_note
 from ..fileio import read_json
 from ..models.ensemble import model_meta
 from ..models.prediction import PHYSICS, PredictionModel
@@ -231,7 +232,9 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
       plan looks alike to it (docs/control.md, "Which model to fly"); nothing is said of real
       flights, nor where the dataset is no longer where the run names it;
     - the horizon is longer than the one it was trained to predict over: the steps beyond are
-      extrapolation."""
+      extrapolation;
+    - its pre-flight check at this horizon (``slungload check``) says it will not beat the
+      physics model (``evaluation.preflight.verdict_note``)."""
     if str(model) == PHYSICS:
         return []
     meta = model_meta(model)
@@ -250,7 +253,8 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
             f"the MPC plans {horizon} steps ahead and {model} was trained to predict {trained}: "
             f"its predictions past step {trained} are extrapolation"
         )
-    return notes
+    checked = verdict_note(model, horizon)
+    return notes + ([checked] if checked else [])
 
 
 def _simulated_without_excitation(path: Path) -> bool:
