@@ -437,8 +437,9 @@ class PreflightConfig:
     model in an MPC, judged on held-out flights.
 
     horizon: the MPC's N, steps (the MPC's own default, ``control.mppi.MPCConfig``).
-    pays_below: the network pays when the upper end of its response-error ratio's interval
-    lies below this (a 10 % lead, with confidence). level, resamples: the interval's coverage
+    pays_below: the network may pay when the upper end of the interval of its response score
+    relative to physics's (the share of the commands' effect it leaves unexplained) lies
+    below this (a 10 % lead, with confidence). level, resamples: the interval's coverage
     and its flight-bootstrap resamplings. knots: values per command channel a window's future
     commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
     response fit's regularisation, per window (standardised features)."""

@@ -94,9 +94,11 @@ def add_check(sub: Any) -> None:
         sub,
         "check",
         "say before flying whether a network will beat the physics model in an MPC",
-        "From held-out flights alone: the part of each model's error that follows the "
-        "commands (what an MPC's choice among plans sees; errors every plan shares cancel), "
-        "network against physics at the MPC's horizon, with a flight-bootstrap interval. "
+        "From held-out flights alone: how well each model's predicted effect of the commands "
+        "follows their true effect (what an MPC's choice among plans depends on; errors every "
+        "plan shares cancel), network against physics at the MPC's horizon, with a "
+        "flight-bootstrap interval. 'does not pay' held in every case flown; 'may pay' is "
+        "necessary, not sufficient (docs/control.md). "
         "Writes check.md, check.json and check.png to --out and the verdict to the run's "
         "preflight.json, which `slungload control` reads to warn. Give flights whose commands "
         "varied (`simulate --excite`, `record`, a pilot's): a PID's alone leave little to "
@@ -109,8 +111,9 @@ def add_check(sub: Any) -> None:
     p.add_argument("--horizon", type=positive_int, default=cfg.horizon, metavar="N",
                    help=f"the MPC's horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
     p.add_argument("--pays-below", type=float, default=cfg.pays_below, metavar="R",
-                   help="the network pays when its response error's interval lies below R x "
-                   f"physics's (default {cfg.pays_below:g})")  # fmt: skip
+                   help="the network may pay when its response score's interval (the share of "
+                   "the commands' effect it leaves unexplained) lies below R x physics's "
+                   f"(default {cfg.pays_below:g})")  # fmt: skip
     p.add_argument("--out", type=Path, help="report folder (default RUN_DIR/check)")
     p.set_defaults(func=cmd_check)
 

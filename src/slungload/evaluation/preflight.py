@@ -15,7 +15,7 @@ of the true effect the predicted one leaves unexplained at its best scale (``une
 1 - rho^2) is the model's *response score*. A model that ignores its commands scores 1
 however well it predicts the flights; a bias every plan shares does not count.
 
-The verdict (``verdict_of``): the network **pays** when the flight-bootstrap interval of its
+The verdict (``verdict_of``): the network **may pay** when the flight-bootstrap interval of its
 load score relative to physics's lies below ``PreflightConfig.pays_below`` and its vehicle
 score is not clearly worse; otherwise it **does not pay**. ``slungload check`` writes the
 verdict beside the run (``VERDICTS_FILE``) and ``slungload control`` warns before flying a
@@ -47,7 +47,10 @@ from ..reporting import markdown_table
 from .windows import horizon_windows
 
 VERDICTS_FILE = "preflight.json"  # in the run (or ensemble) folder: verdicts by horizon
-PAYS, NOT = "pays", "does not pay"
+# "may pay": necessary, not sufficient (docs/BENCHMARKS.md, "The check before flying": where
+# the MPC itself limits the flight a better response buys nothing); "does not pay" held in
+# every case flown.
+PAYS, NOT = "may pay", "does not pay"
 GROUPS_CHECKED = {"load position": LOAD_POS, "vehicle position": POS}  # the MPC's targets
 
 
@@ -87,7 +90,7 @@ class PreflightResult:
     def summary(self) -> str:
         r = self.response["load position"]
         return (f"{self.model} at N = {self.horizon}: {self.verdict} (leaves {r.text()} x "
-                "physics's share of the commands' effect on the load unexplained; pays below "
+                "physics's share of the commands' effect on the load unexplained; may pay below "
                 f"{self.config.pays_below:g})")  # fmt: skip
 
 
@@ -220,9 +223,9 @@ def measure(
 
 
 def verdict_of(response: dict[str, Ratio], cfg: PreflightConfig) -> str:
-    """``PAYS`` where the network explains the commands' effect on the load clearly better
-    than physics (the ratio's upper end below ``cfg.pays_below``) and not clearly worse on
-    the vehicle (the lower end below 1); else ``NOT``."""
+    """``PAYS`` ("may pay") where the network explains the commands' effect on the load
+    clearly better than physics (the ratio's upper end below ``cfg.pays_below``) and not
+    clearly worse on the vehicle (the lower end below 1); else ``NOT``."""
     load, vehicle = response["load position"], response["vehicle position"]
     return PAYS if load.high < cfg.pays_below and vehicle.low < 1.0 else NOT
 
@@ -286,7 +289,7 @@ def record_verdict(result: PreflightResult) -> Path:
 
 def verdict_note(run: str | Path, horizon: int) -> str | None:
     """A warning for an MPC over ``run`` at ``horizon`` where its check says it does not pay
-    (None where it pays, was not checked at that horizon, or the file cannot be read)."""
+    (None where it may pay, was not checked at that horizon, or the file cannot be read)."""
     path = _verdicts_path(run)
     try:
         found = read_json(path).get(str(horizon)) if path.is_file() else None
@@ -297,7 +300,7 @@ def verdict_note(run: str | Path, horizon: int) -> str | None:
     value, low, high = found["ratio"]
     return (f"the pre-flight check of {run} ({path.name}, on {found['data']}) says it will not "
             f"beat the physics model in an MPC at N = {horizon}: its response score is "
-            f"{value:.2f} [{low:.2f}, {high:.2f}] x physics's (it pays below "
+            f"{value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may pay below "
             f"{found['pays_below']:g}); flying it anyway (docs/control.md)")  # fmt: skip
 
 
@@ -317,7 +320,7 @@ def render(result: PreflightResult) -> str:
         "N steps that a model's predicted effect leaves unexplained (each fitted on the start "
         "state and the commands, out of fold by flight; 0 is perfect, 1 a model that ignores "
         "its commands): what an MPC's choice among plans from one state depends on. The "
-        f"network pays when the load's ratio lies below {result.config.pays_below:g} and "
+        f"network may pay when the load's ratio lies below {result.config.pays_below:g} and "
         "the vehicle's is not clearly above 1.", "",
         markdown_table(["network / physics, steps 1..N",
                         f"response score [{100 * result.config.level:.0f} % flight bootstrap]",
