@@ -230,3 +230,34 @@ def test_the_command_writes_its_report_and_refuses_bad_input(
     assert code == 2 and "at least 3" in err
     code, _, err = run_cli("check", tmp_path / "nowhere", "--data", data)
     assert code == 2 and "nowhere" in err
+
+
+def test_which_datasets_count_as_unexcited(tmp_path: Path) -> None:
+    from slungload.fileio import write_json
+    from slungload.vehicle_file import simulated_without_excitation
+
+    sim = {"excitation": {"thrust_std": 0.0, "rate_std": [0.0, 0.0, 0.0], "tau": 0.15}}
+    cases = {
+        "pid": ({"sim": sim}, True),
+        "excited": ({"sim": {"excitation": {"thrust_std": 1.0, "rate_std": [0.5] * 3}}}, False),
+        "older": ({"sim": {}}, True),  # written before excitation existed
+        "recorded": ({"sim": sim, "recorded": [{"model": "x"}]}, False),
+        "real": ({"mass_quad": 1.35}, False),
+    }
+    for name, (content, expected) in cases.items():
+        write_json(tmp_path / name / "vehicle.json", content)
+        assert simulated_without_excitation(tmp_path / name) is expected, name
+    assert simulated_without_excitation(tmp_path / "nowhere") is False
+
+
+def test_a_network_trained_without_excitation_does_not_pay_whatever_its_score(
+    tiny_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import slungload.evaluation.preflight as preflight
+
+    names = [f"t{i}" for i in range(4)]
+    data = write_dataset(tmp_path / "data", {n: 50 for n in names},
+                         {"train": [], "val": [], "test": names}, physics=True)  # fmt: skip
+    monkeypatch.setattr(preflight, "simulated_without_excitation", lambda folder: True)
+    result = preflight.check(tiny_run.out, data, horizon=6, cfg=replace(CFG, horizon=6))
+    assert result.verdict == NOT and "without input excitation" in result.summary()

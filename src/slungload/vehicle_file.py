@@ -108,3 +108,26 @@ def load_vehicle(folder: str | Path) -> VehicleParams | None:
     if not path.is_file():
         return None
     return read_vehicle(path)
+
+
+def simulated_without_excitation(folder: str | Path) -> bool:
+    """Whether the dataset ``folder``'s vehicle.json says: simulated, commands never
+    perturbed, no MPC flights recorded into it (a network trained there learned to predict
+    from the state history, where the PID's commands are a function of it). False where it
+    says otherwise or cannot say."""
+    path = Path(folder) / VEHICLE_FILE
+    try:
+        found = json.loads(path.read_text()) if path.is_file() else None
+    except (OSError, ValueError):
+        return False
+    if not isinstance(found, dict) or not isinstance(found.get("sim"), dict):
+        return False  # real flights carry their pilot's own variation
+    if found.get("recorded"):
+        return False  # the MPC's own flights: their commands vary with its sampling
+    excitation = found["sim"].get("excitation") or {}  # none: before excitation existed
+    try:
+        rates = excitation.get("rate_std", 0.0)
+        stds = [excitation.get("thrust_std", 0.0), *(rates if isinstance(rates, list) else [rates])]
+        return all(float(x) == 0 for x in stds)
+    except (AttributeError, TypeError, ValueError):
+        return False

@@ -26,13 +26,12 @@ import torch
 from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
 from ..evaluation.preflight import verdict_note
-from ..fileio import read_json
 from ..models.ensemble import model_meta
 from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
 from ..sim.controller import Measurement
 from ..sim.maneuvers import Reference
-from ..vehicle_file import VEHICLE_FILE
+from ..vehicle_file import simulated_without_excitation
 from .mppi import (
     CandidateModel,
     ConstantsEstimate,
@@ -240,7 +239,7 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
     meta = model_meta(model)
     notes = []
     data = meta.get("data")
-    if data and _simulated_without_excitation(Path(data) / VEHICLE_FILE):
+    if data and simulated_without_excitation(data):
         notes.append(
             f"{model} was trained on {data}, simulated without input excitation: it predicts "
             "from the state history and barely from the commands, so the MPC cannot tell its "
@@ -255,22 +254,3 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
         )
     checked = verdict_note(model, horizon)
     return notes + ([checked] if checked else [])
-
-
-def _simulated_without_excitation(path: Path) -> bool:
-    """Whether the dataset's vehicle.json at ``path`` says: simulated, commands never
-    perturbed, no MPC flights recorded into it. False where it says otherwise or cannot say."""
-    try:
-        found = read_json(path) if path.is_file() else None
-    except (OSError, ValueError):
-        return False
-    if not isinstance(found, dict) or not isinstance(found.get("sim"), dict):
-        return False  # real flights carry their pilot's own variation
-    if found.get("recorded"):
-        return False  # the MPC's own flights: their commands vary with its sampling
-    excitation = found["sim"].get("excitation") or {}  # none: before excitation existed
-    try:
-        stds = np.r_[excitation.get("thrust_std", 0.0), excitation.get("rate_std", 0.0)]
-        return not np.any(stds.astype(float) != 0)
-    except (AttributeError, TypeError, ValueError):
-        return False

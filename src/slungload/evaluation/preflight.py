@@ -44,6 +44,7 @@ from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
 from ..reporting import markdown_table
+from ..vehicle_file import simulated_without_excitation
 from .windows import horizon_windows
 
 VERDICTS_FILE = "preflight.json"  # in the run (or ensemble) folder: verdicts by horizon
@@ -73,7 +74,9 @@ class PreflightResult:
     response / logged: per ``GROUPS_CHECKED`` name, the network's response score (the share
     of the commands' effect left unexplained over steps 1..N) / RMS error, relative to
     physics's (``Ratio``). curves: per model ("network", "physics") the load position's
-    response score per step (N,). verdict: ``PAYS`` or ``NOT``."""
+    response score per step (N,). verdict: ``PAYS`` or ``NOT``: ``verdict_of`` the scores,
+    or ``NOT`` for a network trained on simulated flights without input excitation
+    (``reason`` says so; ``vehicle_file.simulated_without_excitation``)."""
 
     model: str
     data: str
@@ -86,9 +89,12 @@ class PreflightResult:
     curves: dict[str, list[float]]
     verdict: str
     config: PreflightConfig
+    reason: str | None = None  # a "does not pay" the score did not give
 
     def summary(self) -> str:
         r = self.response["load position"]
+        if self.reason:
+            return f"{self.model} at N = {self.horizon}: {self.verdict} ({self.reason})"
         return (f"{self.model} at N = {self.horizon}: {self.verdict} (leaves {r.text()} x "
                 "physics's share of the commands' effect on the load unexplained; may pay below "
                 f"{self.config.pays_below:g})")  # fmt: skip
@@ -256,11 +262,16 @@ def check(
     windows = horizon_windows(dataset, history=history, horizons=(n,), split=split)[n]
     network = load_prediction_model(run)
     response, logged, curves = measure(network, PhysicsModel(dataset.params), windows, cfg)
-    verdict = verdict_of(response, cfg)
+    trained_on = meta.get("data")
+    unexcited = bool(trained_on) and simulated_without_excitation(trained_on)
+    reason = (f"trained on {trained_on}, simulated without input excitation: a network that "
+              "learned from a PID's flights alone fails in the states its MPC leads it into, "
+              "whatever its score (docs/control.md)") if unexcited else None  # fmt: skip
     return PreflightResult(
         model=str(run), data=str(folder), split=split, horizon=n,
         flights=len(windows.names), windows=len(windows), response=response, logged=logged,
-        curves=curves, verdict=verdict, config=cfg,
+        curves=curves, verdict=NOT if unexcited else verdict_of(response, cfg), config=cfg,
+        reason=reason,
     )  # fmt: skip
 
 
@@ -281,7 +292,7 @@ def record_verdict(result: PreflightResult) -> Path:
     found[str(result.horizon)] = {
         "verdict": result.verdict, "ratio": [r.value, r.low, r.high],
         "pays_below": result.config.pays_below, "data": result.data, "split": result.split,
-        "date": _dt.date.today().isoformat(),
+        "date": _dt.date.today().isoformat(), "reason": result.reason,
     }  # fmt: skip
     write_json(path, found)
     return path
@@ -298,10 +309,13 @@ def verdict_note(run: str | Path, horizon: int) -> str | None:
     if not isinstance(found, dict) or found.get("verdict") != NOT:
         return None
     value, low, high = found["ratio"]
+    why = found.get("reason") or (
+        f"its response score is {value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may pay "
+        f"below {found['pays_below']:g})"
+    )
     return (f"the pre-flight check of {run} ({path.name}, on {found['data']}) says it will not "
-            f"beat the physics model in an MPC at N = {horizon}: its response score is "
-            f"{value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may pay below "
-            f"{found['pays_below']:g}); flying it anyway (docs/control.md)")  # fmt: skip
+            f"beat the physics model in an MPC at N = {horizon}: {why}; flying it anyway "
+            "(docs/control.md)")  # fmt: skip
 
 
 # --- the report ----------------------------------------------------------------------------
