@@ -5,6 +5,7 @@ verdict beside the run and ``control``'s warning; the command's bad inputs."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -18,9 +19,6 @@ from slungload.control.mpc import model_notes
 from slungload.control.mppi import MPCConfig
 from slungload.data.dataset import load_dataset
 from slungload.evaluation.preflight import (
-    NOT,
-    PAYS,
-    VERDICTS_FILE,
     Ratio,
     bootstrap_ratio,
     input_basis,
@@ -28,9 +26,9 @@ from slungload.evaluation.preflight import (
     measure,
     record_verdict,
     unexplained,
-    verdict_note,
     verdict_of,
 )
+from slungload.evaluation.verdicts import NOT, PAYS, VERDICTS_FILE, verdict_note
 from slungload.evaluation.windows import horizon_windows
 from slungload.layout import LOAD_POS
 from slungload.models.prediction import PhysicsModel
@@ -261,3 +259,36 @@ def test_a_network_trained_without_excitation_does_not_pay_whatever_its_score(
     monkeypatch.setattr(preflight, "simulated_without_excitation", lambda folder: True)
     result = preflight.check(tiny_run.out, data, horizon=6, cfg=replace(CFG, horizon=6))
     assert result.verdict == NOT and "without input excitation" in result.summary()
+
+
+def test_an_export_carries_the_verdict_and_fly_warns(
+    tiny_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``export --for-mpc`` copies the run's verdicts into the sidecar; ``fly`` warns from
+    them at the MPC's horizon (the bridge itself replaced: no flight needed)."""
+    import shutil
+
+    import slungload.autopilot.bridge as bridge
+    from slungload.autopilot.config import BridgeConfig
+    from slungload.deploy.candidates import export_for_mpc
+    from slungload.deploy.sidecar import COMPILED, read_sidecar
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run.out, run)
+    found = {"verdict": NOT, "ratio": [1.1, 1.0, 1.2], "pays_below": 0.9, "data": "d"}
+    (run / VERDICTS_FILE).write_text(f'{{"15": {json.dumps(found)}}}')
+    out = export_for_mpc(run, tmp_path, horizon=4, format="compiled").model
+    assert read_sidecar(out, COMPILED)["preflight"] == {"15": found}
+
+    class Flown:
+        def __init__(self, *args, **kwargs) -> None:
+            pass
+
+        def run(self) -> str:
+            return "flown"
+
+    monkeypatch.setattr(bridge, "Bridge", Flown)
+    config = BridgeConfig()
+    assert config.mpc.horizon == 15
+    with pytest.warns(UserWarning, match="pre-flight check"):
+        assert bridge.fly(out, config) == "flown"

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -47,6 +48,7 @@ from ..control.mppi import (
     reference_ahead,
     yaw_of,
 )
+from ..evaluation.verdicts import note
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from . import px4
 from .config import BridgeConfig
@@ -416,4 +418,8 @@ def fly(
     from ..deploy.backends import load_exported
 
     exported = load_exported(model, threads=threads)
+    horizon = exported.horizon or config.mpc.horizon  # a compiled file flies the MPC's N
+    warning = note((exported.meta or {}).get("preflight") or {}, str(model), horizon)
+    if warning:
+        warnings.warn(warning, stacklevel=2)
     return Bridge(config, exported, exported.params, load_source=load_source, log=log).run()

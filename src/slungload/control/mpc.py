@@ -25,7 +25,7 @@ import torch
 
 from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.compiled.physics import history_constants
-from ..evaluation.preflight import verdict_note
+from ..evaluation.verdicts import verdict_note
 from ..models.ensemble import model_meta
 from ..models.prediction import PHYSICS, PredictionModel
 from ..physics import VehicleConstants
@@ -233,7 +233,7 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
     - the horizon is longer than the one it was trained to predict over: the steps beyond are
       extrapolation;
     - its pre-flight check at this horizon (``slungload check``) says it will not beat the
-      physics model (``evaluation.preflight.verdict_note``)."""
+      physics model (``evaluation.verdicts.verdict_note``)."""
     if str(model) == PHYSICS:
         return []
     meta = model_meta(model)

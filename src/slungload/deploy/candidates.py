@@ -29,6 +29,7 @@ from torch import Tensor, nn
 
 from .._version import __version__
 from ..config import VehicleParams, from_dict, to_dict
+from ..evaluation.verdicts import read_verdicts
 from ..fileio import atomic_path, write_json, write_npz
 from ..layout import STATE_DIM
 from ..models.ensemble import is_ensemble, read_manifest, spread
@@ -169,8 +170,10 @@ def export_for_mpc(
     if horizon < 2:
         raise ValueError(f"export_for_mpc: horizon must be >= 2, got {horizon}")
     src = _export_source(run_or_ckpt, horizon, params, format)
+    checks = (read_verdicts(run_or_ckpt) if isinstance(run_or_ckpt, str | Path)
+              and str(run_or_ckpt) != PHYSICS else {})  # fmt: skip
     if format == COMPILED:
-        return _export_compiled(src, out, horizon, start)
+        return _export_compiled(src, out, horizon, start, checks)
     if out.is_dir():
         out = out / f"{src.name}-n{horizon}{MPC_SUFFIX}"
     check_sidecar_free(out)
@@ -208,15 +211,19 @@ def export_for_mpc(
             "variant": src.variant,
             "configs": src.configs,
             "source": src.source,
+            "preflight": checks,
             "export": {**export_record(opset, diff), "checked_candidates": list(CHECK_CANDIDATES)},
         },
     )
     return MPCExportResult(out, sidecar, horizon, m, opset, diff, time.perf_counter() - start)
 
 
-def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPCExportResult:
+def _export_compiled(
+    src: _Source, out: Path, horizon: int, start: float, checks: dict[str, Any]
+) -> MPCExportResult:
     """``export_for_mpc``'s compiled format: the fold (or the discrete model's constants) as an
-    archive, checked through the very rollouts that will load it before it is kept."""
+    archive, checked through the very rollouts that will load it before it is kept; ``checks``:
+    the run's pre-flight verdicts, carried in the sidecar."""
     from .compiled.archive import (
         PHYSICS_MODEL,
         arrays,
@@ -272,6 +279,7 @@ def _export_compiled(src: _Source, out: Path, horizon: int, start: float) -> MPC
             "variant": src.variant,
             "configs": src.configs,
             "source": src.source,
+            "preflight": checks,
             "export": {**versions("torch", "numba", "numpy"), "max_abs_diff_vs_torch": diff,
                        "checked_candidates": list(CHECK_CANDIDATES), "checked_horizon": horizon},
         },

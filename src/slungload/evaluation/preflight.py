@@ -39,19 +39,15 @@ from torch import Tensor
 from ..config import PreflightConfig, VehicleParams, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
-from ..fileio import read_json, write_json, write_text
+from ..fileio import write_json, write_text
 from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
 from ..reporting import markdown_table
 from ..vehicle_file import simulated_without_excitation
+from .verdicts import NOT, PAYS, read_verdicts, verdicts_path
 from .windows import horizon_windows
 
-VERDICTS_FILE = "preflight.json"  # in the run (or ensemble) folder: verdicts by horizon
-# "may pay": necessary, not sufficient (docs/BENCHMARKS.md, "The check before flying": where
-# the MPC itself limits the flight a better response buys nothing); "does not pay" held in
-# every case flown.
-PAYS, NOT = "may pay", "does not pay"
 GROUPS_CHECKED = {"load position": LOAD_POS, "vehicle position": POS}  # the MPC's targets
 
 
@@ -278,16 +274,11 @@ def check(
 # --- the verdict beside the run, and what control says of it -------------------------------
 
 
-def _verdicts_path(run: str | Path) -> Path:
-    run = Path(run).expanduser()
-    return (run if run.is_dir() else run.parent) / VERDICTS_FILE
-
-
 def record_verdict(result: PreflightResult) -> Path:
     """Add ``result``'s verdict at its horizon to the run's ``VERDICTS_FILE`` (replacing an
     earlier one at that horizon)."""
-    path = _verdicts_path(result.model)
-    found = read_json(path) if path.is_file() else {}
+    path = verdicts_path(result.model)
+    found = read_verdicts(result.model)
     r = result.response["load position"]
     found[str(result.horizon)] = {
         "verdict": result.verdict, "ratio": [r.value, r.low, r.high],
@@ -296,26 +287,6 @@ def record_verdict(result: PreflightResult) -> Path:
     }  # fmt: skip
     write_json(path, found)
     return path
-
-
-def verdict_note(run: str | Path, horizon: int) -> str | None:
-    """A warning for an MPC over ``run`` at ``horizon`` where its check says it does not pay
-    (None where it may pay, was not checked at that horizon, or the file cannot be read)."""
-    path = _verdicts_path(run)
-    try:
-        found = read_json(path).get(str(horizon)) if path.is_file() else None
-    except (OSError, ValueError, AttributeError):
-        return None
-    if not isinstance(found, dict) or found.get("verdict") != NOT:
-        return None
-    value, low, high = found["ratio"]
-    why = found.get("reason") or (
-        f"its response score is {value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may pay "
-        f"below {found['pays_below']:g})"
-    )
-    return (f"the pre-flight check of {run} ({path.name}, on {found['data']}) says it will not "
-            f"beat the physics model in an MPC at N = {horizon}: {why}; flying it anyway "
-            "(docs/control.md)")  # fmt: skip
 
 
 # --- the report ----------------------------------------------------------------------------
