@@ -77,7 +77,7 @@ def test_the_defaults_follow_the_mpc() -> None:
 
 
 def test_the_basis_is_a_partition_of_unity() -> None:
-    for n, k in [(8, 5), (15, 5), (3, 5), (25, 2)]:
+    for n, k in [(8, 5), (15, 5), (3, 5), (25, 2), (1, 5)]:
         basis = input_basis(n, k)
         assert torch.allclose(basis.sum(dim=1), torch.ones(n, dtype=torch.float64))
 

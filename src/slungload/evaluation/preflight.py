@@ -43,7 +43,7 @@ from ..fileio import write_json, write_text
 from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
-from ..reporting import markdown_table
+from ..reporting import markdown_table, model_colors, save_figure
 from ..vehicle_file import simulated_without_excitation
 from .verdicts import NOT, PAYS, read_verdicts, verdicts_path
 from .windows import horizon_windows
@@ -53,7 +53,8 @@ GROUPS_CHECKED = {"load position": LOAD_POS, "vehicle position": POS}  # the MPC
 
 @dataclass(frozen=True)
 class Ratio:
-    """A network / physics ratio of RMS errors with its flight-bootstrap interval."""
+    """A network / physics ratio (of response scores or of RMS errors) with its
+    flight-bootstrap interval."""
 
     value: float
     low: float
@@ -97,7 +98,7 @@ class PreflightResult:
 
 
 def start_features(windows: Windows) -> Tensor:
-    """(W, 17) what a window's start state is matched on: the vehicle's velocity and attitude
+    """(W, 17) a window's start state as the fit sees it: the vehicle's velocity and attitude
     (quaternion with w >= 0), the load's offset from the vehicle and its estimated velocity,
     and the last command applied (a plant with lags carries it); translation-invariant."""
     m = windows.window.history
@@ -109,10 +110,13 @@ def start_features(windows: Windows) -> Tensor:
 
 def input_basis(n: int, knots: int) -> Tensor:
     """(n, knots) piecewise-linear hat functions over n steps: a plan's commands summarised
-    as ``knots`` values per channel, as an MPC's noise is drawn (its knots)."""
-    knots = max(2, min(knots, n))
+    as ``knots`` values per channel, the basis ``control.mppi`` draws its noise on (at most n
+    knots; one constant column for n = 1)."""
+    knots = min(knots, n)
+    if knots < 2:
+        return torch.ones(n, 1, dtype=torch.float64)
     centres = torch.linspace(0, n - 1, knots, dtype=torch.float64)
-    width = (n - 1) / (knots - 1) if n > 1 else 1.0
+    width = (n - 1) / (knots - 1)
     t = torch.arange(n, dtype=torch.float64)[:, None]
     return (1 - (t - centres[None]).abs() / width).clamp_min(0)
 
@@ -121,13 +125,13 @@ def _standardise(a: Tensor) -> Tensor:
     return (a - a.mean(dim=0)) / a.std(dim=0).clamp_min(1e-9)
 
 
-def input_part(errors: Tensor, windows: Windows, cfg: PreflightConfig) -> Tensor:
-    """(W, N, 3) the part of each window's ``errors`` (W, N, 3) that follows its commands,
-    out of fold: per held-out flight, a ridge regression fitted on the other flights of the
-    errors on the start state (``start_features``) and the future commands (each channel
-    through ``input_basis``), evaluated with the command terms alone (commands centred on
-    the fitting flights' mean)."""
-    w, n, _ = errors.shape
+def input_part(values: Tensor, windows: Windows, cfg: PreflightConfig) -> Tensor:
+    """(W, N, 3) the part of ``values`` (W, N, 3: a displacement per window and step) that
+    follows the window's commands, out of fold: per held-out flight, a ridge regression
+    fitted on the other flights of the values on the start state (``start_features``) and
+    the commands (each channel through ``input_basis``), evaluated with the command terms
+    alone (commands centred on the fitting flights' mean)."""
+    w, n, _ = values.shape
     basis = input_basis(n, cfg.knots)
     m = windows.window.history  # the plan's commands: u_{M-1} (applied at the last measured
     u = windows.inputs[:, m - 1 : m - 1 + n].double()  # state) ... u_{M+N-2}, (W, N, 4)
@@ -135,7 +139,7 @@ def input_part(errors: Tensor, windows: Windows, cfg: PreflightConfig) -> Tensor
     states = _standardise(start_features(windows))
     design = torch.cat([torch.ones(w, 1, dtype=torch.float64), states, commands], dim=1)
     first = 1 + states.shape[1]  # the command columns start here
-    target = errors.reshape(w, -1).double()
+    target = values.reshape(w, -1).double()
     out = torch.zeros_like(target)
     ridge = cfg.ridge * torch.eye(design.shape[1], dtype=torch.float64)
     ridge[0, 0] = 0.0
@@ -145,7 +149,7 @@ def input_part(errors: Tensor, windows: Windows, cfg: PreflightConfig) -> Tensor
         coef = torch.linalg.solve(a.T @ a + ridge * len(a), a.T @ b)
         centred = design[held, first:] - a[:, first:].mean(dim=0)
         out[held] = centred @ coef[first:]
-    return out.reshape(errors.shape)
+    return out.reshape(values.shape)
 
 
 def _flight_sums(values: Tensor, flight: Tensor, flights: int) -> np.ndarray:
@@ -329,17 +333,16 @@ def plot(result: PreflightResult, out: Path) -> Path:
     fig = Figure(figsize=(6, 4))
     ax = fig.subplots()
     steps = np.arange(1, result.horizon + 1) * 0.03
+    colors = model_colors(["physics", "network"])
     for name in ("physics", "network"):
-        ax.plot(steps, result.curves[name], label=name)
+        ax.plot(steps, result.curves[name], label=name, color=colors[name])
     ax.set_xlabel("time ahead (s)")
     ax.set_ylabel("share of the commands' effect unexplained")
     ax.set_ylim(0, 1.05)
     ax.set_title(f"load position, N = {result.horizon}: {result.verdict}")
     ax.legend()
     fig.tight_layout()
-    path = out / "check.png"
-    fig.savefig(path, dpi=120)
-    return path
+    return save_figure(fig, out / "check.png")
 
 
 def write_check(result: PreflightResult, out: str | Path) -> list[Path]:
