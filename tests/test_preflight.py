@@ -183,7 +183,7 @@ def test_the_verdict_beside_the_run_and_the_warning(tmp_path: Path, windows) -> 
     run.mkdir()
     ratio = Ratio(1.02, 0.95, 1.1)
     result = PreflightResult(model=str(run), data="d", split="test", horizon=N, flights=6,
-                             windows=len(windows), response={"load position": ratio},
+                             windows=len(windows), dt=0.03, response={"load position": ratio},
                              logged={"load position": ratio}, curves={}, verdict=NOT,
                              config=CFG)  # fmt: skip
     path = record_verdict(result)
@@ -257,7 +257,7 @@ def test_a_network_trained_without_excitation_does_not_pay_whatever_its_score(
     data = write_dataset(tmp_path / "data", {n: 50 for n in names},
                          {"train": [], "val": [], "test": names}, physics=True)  # fmt: skip
     monkeypatch.setattr(preflight, "simulated_without_excitation", lambda folder: True)
-    result = preflight.check(tiny_run.out, data, horizon=6, cfg=replace(CFG, horizon=6))
+    result = preflight.check(tiny_run.out, data, cfg=replace(CFG, horizon=6))
     assert result.verdict == NOT and "without input excitation" in result.summary()
 
 

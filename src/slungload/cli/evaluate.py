@@ -123,12 +123,12 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     from ..config import PreflightConfig
     from ..evaluation.preflight import check, record_verdict, write_check
+    from ..evaluation.verdicts import verdicts_path
 
     cfg = replace(PreflightConfig(), horizon=args.horizon, pays_below=args.pays_below)
     result = check(args.run, args.data, split=args.split, cfg=cfg)
     print(result.summary())
-    run_folder = args.run if args.run.is_dir() else args.run.parent
-    for path in write_check(result, args.out or run_folder / "check"):
+    for path in write_check(result, args.out or verdicts_path(args.run).parent / "check"):
         print(f"wrote {path}")
     print(f"wrote {record_verdict(result)}")
     return 0

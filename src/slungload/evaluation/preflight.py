@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..config import PreflightConfig, VehicleParams, WindowConfig
+from ..config import PreflightConfig, VehicleParams, WindowConfig, from_dict
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..fileio import write_json, write_text
@@ -81,6 +81,7 @@ class PreflightResult:
     horizon: int
     flights: int
     windows: int
+    dt: float  # s a step
     response: dict[str, Ratio]
     logged: dict[str, Ratio]
     curves: dict[str, list[float]]
@@ -126,11 +127,11 @@ def _standardise(a: Tensor) -> Tensor:
 
 
 def input_part(values: Tensor, windows: Windows, cfg: PreflightConfig) -> Tensor:
-    """(W, N, 3) the part of ``values`` (W, N, 3: a displacement per window and step) that
-    follows the window's commands, out of fold: per held-out flight, a ridge regression
-    fitted on the other flights of the values on the start state (``start_features``) and
-    the commands (each channel through ``input_basis``), evaluated with the command terms
-    alone (commands centred on the fitting flights' mean)."""
+    """(W, N, C) the part of ``values`` (W, N, C: displacements per window and step, each
+    column fitted on its own) that follows the window's commands, out of fold: per held-out
+    flight, a ridge regression fitted on the other flights of the values on the start state
+    (``start_features``) and the commands (each channel through ``input_basis``), evaluated
+    with the command terms alone (commands centred on the fitting flights' mean)."""
     w, n, _ = values.shape
     basis = input_basis(n, cfg.knots)
     m = windows.window.history  # the plan's commands: u_{M-1} (applied at the last measured
@@ -211,10 +212,13 @@ def measure(
     response, logged, curves = {}, {}, {}
     for group, cols in GROUPS_CHECKED.items():
         last = windows.states[:, m - 1, None, cols].double()
-        true = input_part(truth[..., cols] - last, windows, cfg)  # what the commands moved
+        # one fit for the true displacement (what the commands moved) and each model's
+        moved = input_part(torch.cat([truth[..., cols] - last,
+                                      *(pred[..., cols] - last for pred in preds.values())],
+                                     dim=-1), windows, cfg).split(3, dim=-1)  # fmt: skip
+        true = moved[0]
         effect, error = {}, {}
-        for name, pred in preds.items():
-            model = input_part(pred[..., cols] - last, windows, cfg)
+        for (name, pred), model in zip(preds.items(), moved[1:], strict=True):
             per_step = torch.stack(
                 [(model * true).sum(-1), model.square().sum(-1), true.square().sum(-1)], dim=-1
             )  # (W, N, 3); fmt: skip
@@ -240,23 +244,20 @@ def check(
     run: str | Path,
     data: str | Path | None = None,
     *,
-    horizon: int | None = None,
     split: str = "test",
     cfg: PreflightConfig | None = None,
 ) -> PreflightResult:
     """The pre-flight check of a run folder, ``.ckpt`` or ensemble folder (its members' mean)
-    on a dataset's ``split`` (default: the run's own dataset) at MPC horizon ``horizon``
-    (default ``cfg.horizon``), against the physics model with the dataset's constants."""
+    on a dataset's ``split`` (default: the run's own dataset) at the MPC horizon
+    ``cfg.horizon``, against the physics model with the dataset's constants."""
     cfg = cfg or PreflightConfig()
-    n = int(horizon or cfg.horizon)
-    if n < 1:
-        raise ValueError(f"check: the horizon must be a positive step count, got {n}")
+    n = cfg.horizon
     meta = model_meta(run)
     folder = data if data is not None else meta.get("data")
     if folder is None:
         raise ValueError(f"{run}: no dataset folder recorded in the run; pass --data")
     history = int(meta["window"]["history"])
-    params = VehicleParams(**meta["params"])
+    params = from_dict(VehicleParams, meta["params"])
     dataset = load_dataset(folder, window=WindowConfig(history=history, horizon=n, stride=1),
                            params=params)  # fmt: skip
     windows = horizon_windows(dataset, history=history, horizons=(n,), split=split)[n]
@@ -269,7 +270,8 @@ def check(
               "whatever its score (docs/control.md)") if unexcited else None  # fmt: skip
     return PreflightResult(
         model=str(run), data=str(folder), split=split, horizon=n,
-        flights=len(windows.names), windows=len(windows), response=response, logged=logged,
+        flights=len(windows.names), windows=len(windows), dt=dataset.params.dt,
+        response=response, logged=logged,
         curves=curves, verdict=NOT if unexcited else verdict_of(response, cfg), config=cfg,
         reason=reason,
     )  # fmt: skip
@@ -332,7 +334,7 @@ def plot(result: PreflightResult, out: Path) -> Path:
 
     fig = Figure(figsize=(6, 4))
     ax = fig.subplots()
-    steps = np.arange(1, result.horizon + 1) * 0.03
+    steps = np.arange(1, result.horizon + 1) * result.dt
     colors = model_colors(["physics", "network"])
     for name in ("physics", "network"):
         ax.plot(steps, result.curves[name], label=name, color=colors[name])
