@@ -54,12 +54,12 @@ def configs(port: int, **bridge) -> tuple[SilConfig, BridgeConfig]:
     return sil, replace(fly, **bridge)
 
 
-def fly_through(model_file: Path, sil_cfg: SilConfig, fly_cfg: BridgeConfig, on_log=None):
+def fly_through(model_file, sil_cfg: SilConfig, fly_cfg: BridgeConfig, on_log=None):
     """One flight: the endpoint in a thread, the bridge here; (bridge result, endpoint, log)."""
     endpoint = SilEndpoint(sil_cfg)
     thread = threading.Thread(target=endpoint.run, daemon=True)
     thread.start()
-    model = load_exported(model_file)
+    model = model_file if hasattr(model_file, "params") else load_exported(model_file)
     lines: list[str] = []
 
     def log(line: str) -> None:
@@ -114,6 +114,87 @@ def test_a_lockstep_flight_on_a_compiled_file(tmp_path):
     assert result.end == "flight complete" and result.steps == round(0.6 / 0.03)
     assert not result.safety.counts and result.mpc.fallback_steps == 0
     assert_finite_on_the_wire(endpoint)
+
+
+def test_in_lockstep_the_sil_flies_the_flight_control_flies(tmp_path):
+    """`sil --maneuver M --seed S --start-on-offboard` and `fly` from the simulator's start,
+    with its warm-up as --settle, its arena as --box and its limits as the MPC's box: the
+    flight `slungload control` flies in process (``closed_loop.fly``, same model, MPC and
+    seed), to the float32 rounding of MAVLink's fields; a SIL whose clock runs before OFFBOARD
+    (the PID holding the vehicle meanwhile) does not give it."""
+    from slungload.control.closed_loop import fly
+    from slungload.control.mpc import SamplingMPC
+    from slungload.control.mppi import InputLimits
+    from slungload.sim.dataset import vehicle_params
+    from slungload.sim.maneuvers import ARENA_BOX
+    from slungload.sim.plants import plant_config
+
+    model = load_exported(export_for_mpc("physics", tmp_path / "p.mpc.npz", horizon=10,
+                                         format="compiled").model)  # fmt: skip
+    sim, maneuver, seed, steps = plant_config("default"), "fast_8_lap_xyz", 101, 30
+    mpc = MPCConfig(samples=16, horizon=10)
+    limits = InputLimits.from_sim(sim)
+    control = SamplingMPC(model, limits, replace(mpc, seed=seed), vehicle_params(sim))
+    here = fly(maneuver, seed, control, label="mpc", config=sim, steps=steps)
+    assert here.stopped is None
+
+    def through_sil(start_on_offboard: bool) -> np.ndarray:
+        port = free_port()
+        sil = replace(configs(port)[0], maneuver=maneuver, seed=seed, steps=steps,
+                      start_on_offboard=start_on_offboard, lockstep_wait=10.0,
+                      hover_throttle=sim.total_mass * sim.gravity / sim.max_thrust)  # fmt: skip
+        start = SilEndpoint(sil).start
+        _, bridge = configs(port)
+        bridge = replace(bridge, maneuver=maneuver, seed=seed, duration=steps * sim.control_dt,
+                         settle=sim.warmup, origin=(*map(float, start), 0.0), box=ARENA_BOX,
+                         newtons_per_throttle=sim.max_thrust, rate_max=sim.max_rate, mpc=mpc,
+                         max_state_age=5.0, max_load_age=5.0)  # fmt: skip
+        result, _, _ = fly_through(model, sil, bridge)
+        assert result.end == "flight complete" and not result.safety.counts
+        return np.array(result.states)
+
+    there = through_sil(True)
+    assert there.shape == here.states.shape  # warm-up and recorded steps alike
+    assert np.abs(there - here.states).max() < 1e-5  # m, m/s: float32 on the wire
+    running = through_sil(False)
+    assert np.abs(running[: len(there)] - there[: len(running)]).max() > 1e-3
+
+
+def test_the_bridge_reference_is_the_simulators_from_the_same_start():
+    """From the simulator's start, heading 0, its warm-up as the settle and its arena as the
+    box, the bridge's reference of every maneuver is the one the simulator's controller gets,
+    row for row; a heading turns it, and --duration cuts it after the settle."""
+    from slungload.autopilot.reference import flight_reference as bridge_reference
+    from slungload.sim.flight import flight_setup
+    from slungload.sim.maneuvers import ARENA_BOX, MANEUVERS
+    from slungload.sim.plants import plant_config
+
+    sim = plant_config("default")
+    for name in MANEUVERS:
+        setup = flight_setup(name, 7, sim)
+        ours = bridge_reference(setup.plant.p, 0.0, sim.control_dt, name, 7, None, sim.warmup,
+                                ARENA_BOX)  # fmt: skip
+        for field in ("position", "velocity", "acceleration", "yaw"):
+            np.testing.assert_array_equal(getattr(ours, field), getattr(setup.reference, field),
+                                          err_msg=f"{name} {field}")  # fmt: skip
+    turned = bridge_reference(np.zeros(3), np.pi / 2, 0.03, "xy_step", 7, 1.5, 0.3)
+    assert len(turned.yaw) == 10 + 50 and np.allclose(turned.yaw[:10], np.pi / 2)
+    plain = bridge_reference(np.zeros(3), 0.0, 0.03, "xy_step", 7, 1.5, 0.3)
+    np.testing.assert_allclose(turned.position[:, 0], -plain.position[:, 1], atol=1e-12)
+
+
+def test_the_new_options_refuse_bad_values(run_cli, model_file, capsys):
+    with pytest.raises(ValueError, match="origin needs four"):
+        BridgeConfig(origin=(0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="box needs"):
+        BridgeConfig(box=(1.0, -1.0, 0.0, -1.0, 1.0, 2.0))
+    with pytest.raises(ValueError, match="settle"):
+        BridgeConfig(settle=-1.0)
+    with pytest.raises(ValueError, match="steps"):
+        SilConfig(steps=0)
+    with pytest.raises(SystemExit) as exit_:  # argparse's own refusal
+        run_cli("fly", model_file, "--origin", "0,0,1")
+    assert exit_.value.code == 2 and "X,Y,Z,YAW" in capsys.readouterr().err
 
 
 def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():

@@ -57,6 +57,7 @@ from .safety import SafetyLog, check_state
 from .tlog import TlogWriter
 
 mavlink = px4.mavlink
+MODE_ANSWER_WAIT = 0.3  # s without waiting set-points while a mode command awaits its answer
 # the user's own source of the load's position (e.g. a ROS 2 subscriber): None, or
 # (position (3,) m world z up, age s)
 LoadSource = Callable[[], "tuple[np.ndarray, float] | None"]
@@ -97,7 +98,8 @@ class Bridge:
         self.clock = clock
         self.say = log or (lambda line: None)
         n = getattr(model, "horizon", None) or cfg.mpc.horizon  # a compiled file's: any N
-        self.mpc_cfg = replace(cfg.mpc, horizon=n, knots=min(cfg.mpc.knots, n))
+        # the MPC's noise seeded by the flight's seed, as `slungload control` seeds a flight
+        self.mpc_cfg = replace(cfg.mpc, horizon=n, knots=min(cfg.mpc.knots, n), seed=cfg.seed)
         self.hover_thrust = (params.mass_quad + params.mass_load) * params.gravity
         self.result = BridgeResult(end="")
         self.phase = "connecting"
@@ -112,6 +114,8 @@ class Bridge:
         self.mode, self.armed = -1, False
         self.hover_param: float | None = None
         self.acks: dict[int, int] = {}
+        self.asked_mode: int | None = None  # the main mode of the DO_SET_MODE awaiting its ACK
+        self.quiet_until = -math.inf  # no waiting set-point before this (an answer is due)
         self.epoch: float | None = None  # s: the autopilot's time 0 on the Unix clock
         self.tlog = TlogWriter(cfg.tlog) if cfg.tlog else None
 
@@ -183,7 +187,7 @@ class Bridge:
         if now - self.wait_start > cfg.wait_offboard:
             self._end("no OFFBOARD")
             return
-        if self.vehicle is not None:
+        if self.vehicle is not None and now >= self.quiet_until:
             self._send_hover(now)  # the stream PX4 needs before it accepts OFFBOARD
         streamed = now - self.wait_start >= cfg.stream_before_switch
         if streamed and now >= self.next_request and self.vehicle is not None:
@@ -194,6 +198,9 @@ class Bridge:
             elif cfg.offboard and self.mode != px4.OFFBOARD:
                 self.say("asking for OFFBOARD")
                 self._set_mode(px4.OFFBOARD, 0)
+                # no hover set-point until the answer: the first after an accepted switch is
+                # the MPC's (a pause well inside PX4's 2 Hz stream rule)
+                self.quiet_until = now + MODE_ANSWER_WAIT
 
     def _fly(self, now: float, fresh: bool) -> None:
         cfg = self.cfg
@@ -201,13 +208,16 @@ class Bridge:
             return
         state = self._state()
         if not hasattr(self, "reference"):
-            self.origin = state[POS].copy()
-            yaw = float(yaw_of(state[QUAT]))
-            self.yaw0 = yaw if math.isfinite(yaw) else 0.0
-            self.reference = flight_reference(
-                self.origin, self.yaw0, cfg.period, cfg.maneuver, cfg.seed, cfg.duration
-            )
-            self.flight_steps = len(self.reference.yaw) - 1
+            if cfg.origin is not None:
+                self.origin, self.yaw0 = np.array(cfg.origin[:3], float), float(cfg.origin[3])
+            else:
+                self.origin = state[POS].copy()
+                yaw = float(yaw_of(state[QUAT]))
+                self.yaw0 = yaw if math.isfinite(yaw) else 0.0
+            self.reference = flight_reference(self.origin, self.yaw0, cfg.period, cfg.maneuver,
+                                              cfg.seed, cfg.duration, cfg.settle,
+                                              cfg.box)  # fmt: skip
+            self.flight_steps = len(self.reference.yaw)
         fault = check_state(
             state, now - self.vehicle_at, now - self.load_at, self.origin, cfg
         )  # fmt: skip
@@ -304,6 +314,12 @@ class Bridge:
             self.hover_param = float(msg.param_value)
         elif kind == "COMMAND_ACK":
             self.acks[msg.command] = msg.result
+            if msg.command == mavlink.MAV_CMD_DO_SET_MODE and self.asked_mode is not None:
+                # PX4 acknowledges a mode command once it has switched: fly at once, not at
+                # the next heartbeat (which confirms it; one saying otherwise ends the flight)
+                if msg.result == mavlink.MAV_RESULT_ACCEPTED and self.phase == "waiting":
+                    self.mode, self.next_tick = self.asked_mode, now
+                self.asked_mode, self.quiet_until = None, -math.inf
 
     def _new_vehicle(self, pose, autopilot_time: float, now: float) -> None:
         self.vehicle, self.vehicle_at, self.vehicle_time = pose, now, autopilot_time
@@ -340,6 +356,7 @@ class Bridge:
             self.result.sent += 1
 
     def _set_mode(self, main: int, sub: int) -> None:
+        self.asked_mode = main
         flag = float(mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
         self._command(mavlink.MAV_CMD_DO_SET_MODE, flag, float(main), float(sub))
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from ..control.mppi import MPCConfig
+from ..sim.maneuvers import ARENA_BOX
 
 HANDBACK = ("position", "hold", "land")  # px4.HANDBACK_MODES
 
@@ -50,12 +51,29 @@ class BridgeConfig:
     # the reference: a maneuver's offsets from where OFFBOARD starts (None: hold that point)
     maneuver: str | None = _option(
         None,
-        "maneuver to fly from where OFFBOARD starts (slungload maneuvers; default: hold that "
-        "point)",
+        "maneuver to fly from --origin or where OFFBOARD starts (slungload maneuvers; "
+        "default: hold that point)",
     )
-    seed: int = _option(0, "the maneuver's draw")
+    seed: int = _option(0, "the maneuver's draw and the MPC's noise (as `control` seeds a flight)")
     duration: float | None = _option(
-        None, "s of MPC flight, then hand back (default: the maneuver's length, or 10 s holding)"
+        None,
+        "s of the maneuver (or of holding) after --settle, then hand back (default: the "
+        "maneuver's length, or 10 s holding)",
+    )
+    settle: float = _option(
+        0.0, "s holding the start before the maneuver (control flies the simulator's warm-up: 1 s)"
+    )
+    origin: tuple[float, float, float, float] | None = _option(
+        None,
+        "X,Y,Z,YAW: fly from this point, m in the package's world frame (z up), and heading, "
+        "rad (default: where OFFBOARD started, at the vehicle's heading)",
+    )
+    box: tuple[float, float, float, float, float, float] | None = _option(
+        None,
+        "X0,Y0,Z0,X1,Y1,Z1: the flying volume, m (world frame, z up): the maneuver's positions "
+        "are kept inside it (default: none; the simulator's arena: "
+        + ",".join(f"{v:g}" for v in ARENA_BOX)
+        + ")",
     )
     # the handshake
     arm: bool = _option(False, "arm the vehicle (else the pilot does)")
@@ -99,6 +117,18 @@ class BridgeConfig:
             raise ValueError(f"handback must be one of {HANDBACK}, got {self.handback!r}")
         if self.duration is not None and not self.duration > 0:
             raise ValueError(f"duration must be > 0 s, got {self.duration}")
+        if not self.settle >= 0:
+            raise ValueError(f"settle must be >= 0 s, got {self.settle}")
+        if self.origin is not None and (
+            len(self.origin) != 4 or not all(math.isfinite(float(v)) for v in self.origin)
+        ):
+            raise ValueError(f"origin needs four finite numbers X,Y,Z,YAW, got {self.origin}")
+        if self.box is not None and (
+            len(self.box) != 6
+            or not all(lo < hi for lo, hi in zip(self.box[:3], self.box[3:], strict=True))
+        ):
+            raise ValueError(f"box needs X0,Y0,Z0,X1,Y1,Z1 with each low below its high, got "
+                             f"{self.box}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -110,6 +140,19 @@ class SilConfig:
         0,
         "the flight's draws (plant imperfections, wind, sensor noise), as a simulated flight of "
         "this seed",
+    )
+    maneuver: str | None = _option(
+        None,
+        "draw the wind over this maneuver's flight of --seed as `slungload control` draws it "
+        "(default: a 10-minute draw); with --start-on-offboard the flight control flies",
+    )
+    steps: int | None = _option(
+        None, "recorded steps of that flight, as control's --steps (default: the maneuver's)"
+    )
+    start_on_offboard: bool = _option(
+        False,
+        "the simulated clock stands, the vehicle in its start state, until OFFBOARD is first "
+        "taken (a flight that starts as control's does)",
     )
     effects: bool = _option(True, "the simulator's unmodelled effects on (wind, noise, lags)")
     connection: str = _option(
@@ -151,6 +194,8 @@ class SilConfig:
             raise ValueError(f"drop must be in [0, 1), got {self.drop}")
         if not 0.0 <= self.jitter < math.inf:
             raise ValueError(f"jitter must be a finite number of s >= 0, got {self.jitter}")
+        if self.steps is not None and self.steps < 1:
+            raise ValueError(f"steps must be >= 1, got {self.steps}")
 
 
 def option_help(config: type, name: str) -> str:

@@ -14,24 +14,32 @@ HOLD_DURATION = 10.0  # s, a hold flown when no duration is given
 
 def flight_reference(
     start: np.ndarray, yaw: float, h: float, maneuver: str | None, seed: int,
-    duration: float | None,
+    duration: float | None, settle: float = 0.0,
+    box: tuple[float, float, float, float, float, float] | None = None,
 ) -> Reference:  # fmt: skip
-    """The reference (T + 1 rows, h s apart) from ``start`` (3,) m, world z up, at heading
-    ``yaw`` rad: ``maneuver``'s offsets (drawn as ``sim.flight.simulate_flight`` draws that
-    maneuver for ``seed``: the first stream of the seed's sequence), turned with the heading,
-    or ``start`` held. T: ``duration`` / h, else the maneuver's length, else ``HOLD_DURATION``."""
+    """The reference, one row per control period of the flight (h s apart), from ``start``
+    (3,) m, world z up, at heading ``yaw`` rad: ``settle`` s holding ``start``, then
+    ``maneuver``'s offsets (drawn as ``sim.flight.simulate_flight`` draws that maneuver for
+    ``seed``: the first stream of the seed's sequence) for T periods, turned with the heading,
+    or ``start`` held. T: ``duration`` / h, else the maneuver's length, else
+    ``HOLD_DURATION``. Positions are kept inside ``box`` (lowest x, y, z, highest x, y, z, m)
+    when given. With heading 0, ``settle`` the simulator's warm-up and ``box`` its arena
+    (``sim.maneuvers.ARENA_BOX``) it is the reference ``simulate_flight`` gives its controller
+    from ``start``."""
+    warm = round(settle / h)
     if maneuver is None:
-        steps = round((duration or HOLD_DURATION) / h)
-        pos = np.tile(np.asarray(start, float), (steps + 1, 1))
+        steps = warm + round((duration or HOLD_DURATION) / h)
+        pos = np.tile(np.asarray(start, float), (steps, 1))
         zero = np.zeros_like(pos)
-        return Reference(pos, zero, zero.copy(), np.full(steps + 1, float(yaw)))
+        return Reference(pos, zero, zero.copy(), np.full(steps, float(yaw)))
     stream = np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[0])
     man = make_maneuver(maneuver, stream)
     steps = round(duration / h) if duration is not None else man.steps
-    ref = sample_reference(man, h * np.arange(steps + 1), np.zeros(3), arena=False)
+    times = (np.arange(warm + steps) - warm) * h  # as sim.flight's: the maneuver starts at 0
+    ref = sample_reference(man, times, np.zeros(3), arena=False)
     c, s = math.cos(yaw), math.sin(yaw)
     turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # the maneuver's x: heading
-    return Reference(
-        start + ref.position @ turn.T, ref.velocity @ turn.T, ref.acceleration @ turn.T,
-        ref.yaw + yaw,
-    )  # fmt: skip
+    pos = start + ref.position @ turn.T
+    if box is not None:
+        pos = np.clip(pos, box[:3], box[3:])
+    return Reference(pos, ref.velocity @ turn.T, ref.acceleration @ turn.T, ref.yaw + yaw)

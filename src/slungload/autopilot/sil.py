@@ -32,7 +32,11 @@ ODOMETRY is the motion capture's, ``sim.sensors.Mocap``), RC.
 Time: the simulation's (``t`` s; ODOMETRY's ``time_usec`` is ``BOOT`` + t). With ``lockstep``
 the simulation advances one control period per set-point received (or after ``lockstep_wait``
 wall s without one: the bridge is late or gone), else at the wall clock's pace. Every rule
-above counts in simulated time.
+above counts in simulated time. With ``start_on_offboard`` the clock stands (the plant in its
+start state, the same measurement re-sent, heartbeats on the wall clock) until OFFBOARD is
+first taken; with ``maneuver`` the wind is drawn over that flight as ``slungload control``
+draws it for the seed: together the bridge flies the flight ``control`` flies
+(``BridgeConfig.origin`` and ``settle`` give it the same reference).
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ from ..control.mppi import yaw_of
 from ..sim.aero import ou_wind
 from ..sim.controller import PIDController
 from ..sim.families import make_plant
+from ..sim.flight import flight_setup
 from ..sim.plant import PlantParams
 from ..sim.plants import plant_config
 from ..sim.sensors import Mocap
@@ -84,12 +89,17 @@ class SilEndpoint:
         sim = plant_config(cfg.plant)
         if not cfg.effects:
             sim = sim.with_effects(type(sim.effects).none())
-        # the streams of a simulated flight of this seed (sim.flight): the same draws
-        streams = [np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(6)]
-        self.sim = sim = sim.drawn(streams[5])
-        self.plant = make_plant(sim, PlantParams.draw(sim, streams[1]))
-        self.wind = ou_wind(sim, WIND_STEPS, streams[2])
-        self.mocap = Mocap(sim, streams[3])
+        if cfg.maneuver is not None:  # the draws of `slungload control`'s flight (sim.flight)
+            setup = flight_setup(cfg.maneuver, cfg.seed, sim, cfg.steps)
+            self.sim, self.plant, self.wind, self.mocap = (setup.flown, setup.plant, setup.wind,
+                                                           setup.mocap)  # fmt: skip
+        else:  # the streams of a simulated flight of this seed (sim.flight): the same draws
+            streams = [np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(6)]
+            self.sim = sim.drawn(streams[5])
+            self.plant = make_plant(self.sim, PlantParams.draw(self.sim, streams[1]))
+            self.wind = ou_wind(self.sim, WIND_STEPS, streams[2])
+            self.mocap = Mocap(self.sim, streams[3])
+        sim = self.sim
         self.faults = np.random.default_rng(cfg.seed + 1)  # the dropped and delayed packets
         self.delayed: list[tuple[float, object, int | None]] = []  # (wall time due, msg, comp.)
         self.h = sim.control_dt
@@ -97,8 +107,11 @@ class SilEndpoint:
         self.pid = PIDController(sim)
         self.t, self.k = 0.0, 0
         self.mode, self.armed = px4.POSITION, True
-        self.hold = self.plant.p
+        self.hold = self.start = self.plant.p
         self.hold_yaw = 0.0
+        # the clock stands until OFFBOARD is first taken (``start_on_offboard``)
+        self.paused = cfg.start_on_offboard
+        self.wall_heartbeat = 0.0  # monotonic s of the next heartbeat while paused
         self.setpoint: tuple[float, np.ndarray] | None = None
         self.setpoint_t = -math.inf
         self.next_heartbeat = 0.0
@@ -113,14 +126,16 @@ class SilEndpoint:
         cfg = self.cfg
         self.conn = px4.connect(cfg.connection, system=cfg.system,
                                 component=px4.AUTOPILOT_COMPONENT)  # fmt: skip
-        wall0 = time.monotonic()
+        self.wall0 = time.monotonic()
         try:
             while not self.stopped.is_set() and self.t < cfg.duration:
                 self._telemetry()
-                if cfg.lockstep:
+                if self.paused:  # telemetry and heartbeats at the wall clock's pace
+                    self._receive(time.monotonic() + self.h, until_setpoint=cfg.lockstep)
+                elif cfg.lockstep:
                     self._receive(time.monotonic() + cfg.lockstep_wait, until_setpoint=True)
                 else:
-                    self._receive(wall0 + (self.k + 1) * self.h, until_setpoint=False)
+                    self._receive(self.wall0 + (self.k + 1) * self.h, until_setpoint=False)
                 self._advance()
         finally:
             self.conn.close()
@@ -130,7 +145,14 @@ class SilEndpoint:
         self.stopped.set()
 
     def _receive(self, deadline: float, *, until_setpoint: bool) -> None:
+        paused = self.paused
         while not self.stopped.is_set():
+            if paused and not self.paused:  # the flight starts: its first period, as any other
+                paused = False
+                lockstep = self.cfg.lockstep
+                deadline = (
+                    time.monotonic() + self.cfg.lockstep_wait if lockstep else self.wall0 + self.h
+                )
             self._flush()
             left = deadline - time.monotonic()
             if left <= 0:
@@ -141,7 +163,10 @@ class SilEndpoint:
                 return
 
     def _advance(self) -> None:
-        """One control period: the set-point in OFFBOARD, the hold otherwise."""
+        """One control period: the set-point in OFFBOARD, the hold otherwise (none while the
+        clock stands)."""
+        if self.paused:
+            return
         if self.mode == px4.OFFBOARD and self.t - self.setpoint_t > self.cfg.of_loss_timeout:
             self._set_mode(px4.POSITION, "offboard loss (COM_OF_LOSS_T)")
         if self.mode == px4.OFFBOARD and self.armed and self.setpoint is not None:
@@ -152,25 +177,32 @@ class SilEndpoint:
             thrust, rates = self.pid.command(self.hold, np.zeros(3), np.zeros(3), self.hold_yaw,
                                              p, v, frames.rotation_matrix(q))  # fmt: skip
         self.log.track.append((self.t, self.plant.p, self.plant.p_load))
-        self.plant.advance(thrust, rates, self.wind[self.k % WIND_STEPS])
+        self.plant.advance(thrust, rates, self.wind[self.k % len(self.wind)])
         self.k += 1
         self.t = self.k * self.h
 
     # --- out ------------------------------------------------------------------------------------
     def _telemetry(self) -> None:
         cfg, plant = self.cfg, self.plant
-        p, v, q, p_load = self.mocap.measure(plant.p, plant.v, plant.q, plant.p_load)
-        self.measured = (p, v, q, p_load)
-        if self.t >= self.next_heartbeat:
+        if not (self.paused and hasattr(self, "measured")):  # one measurement per period
+            self.measured = self.mocap.measure(plant.p, plant.v, plant.q, plant.p_load)
+        p, v, q, p_load = self.measured
+        if self.paused:  # the simulated clock stands: heartbeats on the wall clock
+            if time.monotonic() >= self.wall_heartbeat:
+                self.wall_heartbeat = time.monotonic() + cfg.heartbeat_period
+                self._heartbeat()
+        elif self.t >= self.next_heartbeat:
             self.next_heartbeat = self.t + cfg.heartbeat_period
             self._heartbeat()
         usec = round((BOOT + self.t) * 1e6)
-        if not _within(self.t, self.state_gap):
-            self._send(px4.odometry_message(usec, p, v, q, plant.rates), lossy=True)
+        # the load's first: a bridge that steps on the vehicle's state has the load's of the
+        # same period (a real motion capture keeps no such order: the bridge takes the latest)
         if not _within(self.t, self.load_gap):
             zero = np.zeros(3)
             msg = px4.odometry_message(usec, p_load, zero, np.array([1.0, 0, 0, 0]), zero)
             self._send(msg, lossy=True, component=cfg.load_component)
+        if not _within(self.t, self.state_gap):
+            self._send(px4.odometry_message(usec, p, v, q, plant.rates), lossy=True)
 
     def _heartbeat(self) -> None:
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
@@ -277,6 +309,10 @@ class SilEndpoint:
         if main != px4.OFFBOARD:  # hold where the mode begins
             self.hold, self.pid = self.plant.p, PIDController(self.sim)
             self.hold_yaw = float(yaw_of(self.plant.q))
+        elif self.paused:  # the flight starts: the clock runs from here
+            self.paused = False
+            self.wall0 = time.monotonic()
+            self.next_heartbeat = self.t + self.cfg.heartbeat_period
         self.mode = main
         self.log.modes.append((self.t, px4.mode_name(main), why))
         self.say(f"t = {self.t:.2f} s: {px4.mode_name(main)} ({why})")

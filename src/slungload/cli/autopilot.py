@@ -15,15 +15,35 @@ from ..control.mppi import MPCConfig
 from .common import choices, given, new_command, plants_help
 
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
-               "hover_throttle", "newtons_per_throttle", "rate_max", "maneuver", "seed",
-               "duration", "arm", "offboard", "stream_before_switch", "wait_offboard", "dry_run",
-               "max_state_age", "max_load_age", "max_tilt", "fence_radius", "fence_height",
-               "hover_time", "handback", "tlog", "connect_timeout")  # fmt: skip
-SIL_OPTIONS = ("seed", "connection", "system", "load_component", "lockstep_wait",
-               "hover_throttle", "of_loss_timeout", "heartbeat_period", "duration")  # fmt: skip
+               "hover_throttle", "newtons_per_throttle", "min_thrust_share", "max_throttle",
+               "rate_max", "maneuver", "seed", "duration", "settle", "origin", "box", "arm",
+               "offboard", "stream_before_switch", "wait_offboard", "dry_run", "max_state_age",
+               "max_load_age", "max_tilt", "fence_radius", "fence_height", "hover_time",
+               "handback", "tlog", "connect_timeout")  # fmt: skip
+SIL_OPTIONS = ("seed", "maneuver", "steps", "start_on_offboard", "connection", "system",
+               "load_component", "lockstep_wait", "hover_throttle", "of_loss_timeout",
+               "heartbeat_period", "duration")  # fmt: skip
+
+
 # the options whose default is None: their type
+def _floats(count: int, names: str):
+    """An argparse type: ``count`` comma-separated floats, named ``names`` in the error."""
+
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.split(","))
+        except ValueError:
+            values = ()
+        if len(values) != count:
+            raise argparse.ArgumentTypeError(f"expected {names} ({count} numbers), got {text!r}")
+        return values
+
+    return parse
+
+
 _NONE_TYPES = {"hover_throttle": float, "newtons_per_throttle": float, "maneuver": str,
-               "duration": float, "tlog": Path}  # fmt: skip
+               "duration": float, "tlog": Path, "origin": _floats(4, "X,Y,Z,YAW"),
+               "box": _floats(6, "X0,Y0,Z0,X1,Y1,Z1"), "steps": int}  # fmt: skip
 
 
 def _add_options(p: argparse.ArgumentParser, config: type, names: tuple[str, ...]) -> None:
@@ -64,8 +84,12 @@ def add_fly(sub: Any) -> None:
         "(docs/deployment.md).",
     )
     p.add_argument("model", type=Path, help="the exported model (slungload export --for-mpc)")
+    from ..control.mppi import COSTS  # numpy only
+
     p.add_argument("--samples", type=int, help=f"MPC samples per step (default "
                    f"{MPCConfig.samples})")  # fmt: skip
+    p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "
+                   f"(default {MPCConfig.cost})")  # fmt: skip
     _add_options(p, BridgeConfig, FLY_OPTIONS)
     p.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     p.set_defaults(func=cmd_fly)
@@ -77,8 +101,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    if args.samples is not None:
-        changes["mpc"] = replace(MPCConfig(), samples=args.samples)
+    mpc = given(samples=args.samples, cost=args.cost)
+    if mpc:
+        changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)
     result = fly(args.model, config, threads=args.threads, log=print)
     latency = np.array(result.latency) * 1e3
@@ -121,6 +146,8 @@ def cmd_sil(args: argparse.Namespace) -> int:
     changes = _changes(args, SIL_OPTIONS) | given(plant=args.plant)
     changes |= {"lockstep": not args.real_time, "effects": not args.no_effects}
     endpoint = SilEndpoint(replace(SilConfig(), **changes), log=print)
+    x, y, z = (float(v) for v in endpoint.start)
+    print(f"the vehicle starts at {x!r},{y!r},{z!r} (m, world frame, z up: fly's --origin)")
     log = endpoint.run()
     print(f"{len(log.track)} periods simulated, {len(log.setpoints)} set-points taken, "
           f"ignored: {dict(log.ignored) or 'none'}")  # fmt: skip

@@ -43,11 +43,13 @@ class Flight:
 
 
 @dataclass(frozen=True)
-class _Setup:
+class FlightSetup:
     """What a flight is before its first step: its seed's streams (maneuver, plant, wind,
     sensors, excitation, load; the later ones do not change the earlier), the maneuver, the
     recorded steps, the times (T,) s of every control step (warm-up negative), the vehicle and
-    load flown, the plant in its start state, and the reference at ``times``."""
+    load flown, the plant in its start state, the reference at ``times``, the wind (T, 3) m/s
+    of every step and the motion capture (its noise stream unused yet). The simulated PX4
+    (``autopilot.sil``) starts a flight of a maneuver and seed from the same draws."""
 
     streams: tuple[np.random.Generator, ...]
     maneuver: Maneuver
@@ -56,12 +58,21 @@ class _Setup:
     flown: SimConfig
     plant: Plant
     reference: Reference
+    wind: np.ndarray
+    mocap: Mocap
 
 
-def _setup(maneuver: str | Maneuver, seed, cfg: SimConfig, steps: int | None) -> _Setup:
+def flight_setup(
+    maneuver: str | Maneuver,
+    seed: int | np.random.SeedSequence = 0,
+    config: SimConfig | None = None,
+    steps: int | None = None,
+) -> FlightSetup:
+    """The flight ``simulate_flight`` flies for the same arguments, before its first step."""
+    cfg = config or SimConfig()
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     streams = tuple(np.random.default_rng(s) for s in ss.spawn(6))
-    s_man, s_plant, _, _, _, s_load = streams
+    s_man, s_plant, s_wind, s_sens, _, s_load = streams
     man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
     n = int(steps if steps is not None else man.steps)
     if n < 1:
@@ -73,7 +84,8 @@ def _setup(maneuver: str | Maneuver, seed, cfg: SimConfig, steps: int | None) ->
     ref = sample_reference(man, times, plant.p)  # from the start point, where it hovers
     for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
         a.flags.writeable = False  # every step sees the same reference: no controller edits it
-    return _Setup(streams, man, n, times, flown, plant, ref)
+    wind = ou_wind(cfg, warm + n, s_wind)
+    return FlightSetup(streams, man, n, times, flown, plant, ref, wind, Mocap(cfg, s_sens))
 
 
 def flight_reference(
@@ -86,7 +98,7 @@ def flight_reference(
     """The reference ``simulate_flight`` gives its controller for the same arguments, warm-up
     rows included (position, velocity, acceleration (T, 3), yaw (T,)): what a flown log is
     scored against beyond the positions it records."""
-    return _setup(maneuver, seed, config or SimConfig(), steps).reference
+    return flight_setup(maneuver, seed, config, steps).reference
 
 
 def simulate_flight(
@@ -117,15 +129,13 @@ def simulate_flight(
     not of shape (3,), naming the step, before the command reaches the plant.
     """
     cfg = config or SimConfig()
-    setup = _setup(maneuver, seed, cfg, steps)
+    setup = flight_setup(maneuver, seed, cfg, steps)
     man, n, times, flown, plant, ref = (setup.maneuver, setup.steps, setup.times, setup.flown,
                                         setup.plant, setup.reference)  # fmt: skip
-    _, _, s_wind, s_sens, s_exc, _ = setup.streams
+    wind, mocap, s_exc = setup.wind, setup.mocap, setup.streams[4]
     h = cfg.control_dt
-    warm = round(cfg.warmup / h)
-    total = warm + n
-    wind = ou_wind(cfg, total, s_wind)
-    mocap = Mocap(cfg, s_sens)
+    total = len(times)
+    warm = total - n
     # The PID is built for the nominal vehicle: like a real one it does not know the load.
     ctrl = PIDController(cfg.nominal) if controller is None else controller
     attach = getattr(ctrl, "attach", None)

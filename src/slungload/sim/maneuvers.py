@@ -18,6 +18,8 @@ MIN_STEPS = 197  # shortest flight, steps (the paper's range)
 MAX_STEPS = 799  # longest flight, steps
 ARENA_XY = 2.0  # m, |x|, |y| limit of the references
 ARENA_Z = (1.0, 2.2)  # m, vehicle height limits of the references (load stays above the floor)
+# the box the references stay in: lowest x, y, z, then highest, m
+ARENA_BOX = (-ARENA_XY, -ARENA_XY, ARENA_Z[0], ARENA_XY, ARENA_XY, ARENA_Z[1])
 
 PositionFn = Callable[[np.ndarray], np.ndarray]  # t (T,) s -> offset from the hover point (T, 3) m
 
@@ -248,9 +250,7 @@ def sample_reference(
     t = np.maximum(times, 0.0)
     pos = hover + maneuver.offset(t)
     if arena:
-        lo = np.array([-ARENA_XY, -ARENA_XY, ARENA_Z[0]])
-        hi = np.array([ARENA_XY, ARENA_XY, ARENA_Z[1]])
-        pos = np.clip(pos, lo, hi)
+        pos = np.clip(pos, ARENA_BOX[:3], ARENA_BOX[3:])
     if maneuver.feedforward:
         p_plus, p_minus = maneuver.offset(t + eps), maneuver.offset(np.maximum(t - eps, 0.0))
         vel = (p_plus - p_minus) / (2.0 * eps)
