@@ -24,7 +24,7 @@ from slungload.loss import LOSS_VARIANTS, compute_loss
 from slungload.models.checkpoints import load_checkpoint
 from slungload.run_config import PRESETS, Preset
 from slungload.state import LOAD_POS, POS, VEL
-from slungload.training.batches import EpochBatches
+from slungload.training.batches import EpochBatches, WindowData, bootstrap_flights
 from slungload.training.module import _warmup_cosine
 
 torch.set_num_threads(1)
@@ -186,6 +186,29 @@ def test_epoch_batches_are_seeded_by_epoch_and_shard_evenly() -> None:
     assert torch.equal(torch.cat(list(ordered)), torch.arange(10))
     more = EpochBatches(5, 4, num_samples=12)  # more windows per epoch than exist
     assert torch.bincount(torch.cat(list(more)), minlength=5).min() >= 2
+
+
+def test_a_bootstrap_draws_whole_flights_with_replacement(dataset) -> None:
+    train = dataset.splits["train"]
+    flights = torch.unique(train.flight)
+    per_flight = torch.bincount(train.flight, minlength=len(train.names))
+
+    def times_drawn(w) -> torch.Tensor:
+        counts = torch.bincount(w.flight, minlength=len(train.names))
+        drawn = counts // per_flight.clamp(min=1)
+        assert torch.equal(counts, drawn * per_flight)  # each flight's windows come whole
+        return drawn
+
+    draws = [times_drawn(bootstrap_flights(train, seed)) for seed in range(20)]
+    assert all(int(d.sum()) == len(flights) for d in draws)  # as many flights as there are
+    assert torch.equal(times_drawn(bootstrap_flights(train, 3)), draws[3])  # seeded
+    assert any(not torch.equal(d, draws[0]) for d in draws[1:])
+    assert any(int(d.max()) >= 2 for d in draws)  # with replacement
+    config = dataclasses.replace(TrainConfig(), bootstrap=True, seed=3)
+    data = WindowData(train, dataset.splits["val"], config)
+    assert torch.equal(times_drawn(data.train_windows), draws[3])
+    with pytest.raises(ValueError, match="at least 2"):
+        bootstrap_flights(train[train.flight == flights[0]], 0)
 
 
 # --- determinism and resume ----------------------------------------------------------------

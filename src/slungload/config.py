@@ -406,6 +406,10 @@ class TrainConfig:
     # to the training flights before training (``slungload identify``): the physics loss and a
     # physics-step network's f then use the fitted model instead of the nominal one.
     fit_constants: bool = False
+    # Train on a bootstrap resample of the training flights: as many flights as the split
+    # holds, drawn with replacement from ``seed`` (a flight drawn twice weighs twice), so that
+    # an ensemble's members differ by their data as well as by their initialisation.
+    bootstrap: bool = False
 
     def __post_init__(self) -> None:
         for name in ("max_epochs", "batch_size"):

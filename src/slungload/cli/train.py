@@ -71,6 +71,12 @@ def add_train(sub: Any) -> None:
         action="store_true",
         help="fit the physics model's constants to the training flights first (as `identify`)",
     )
+    p.add_argument(
+        "--bootstrap",
+        action="store_true",
+        help="train on a resample of the training flights drawn with replacement from the "
+        "seed (with --ensemble: members that differ by their data too)",
+    )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_window_options(p)
@@ -174,8 +180,10 @@ def run_from_args(args: argparse.Namespace):
             train = replace(train, seed=args.seed)
         if args.epochs is not None:
             train = replace(train, max_epochs=args.epochs)
+        if args.bootstrap:
+            train = replace(train, bootstrap=True)
         return replace(run, train=train)
-    return RunConfig.from_preset(
+    run = RunConfig.from_preset(
         args.preset,
         variant=args.variant,
         seed=RUN.seed if args.seed is None else args.seed,
@@ -192,6 +200,7 @@ def run_from_args(args: argparse.Namespace):
         loss=LossWeights(steps=args.steps),
         window=WindowConfig(history=args.history, horizon=args.horizon, stride=args.stride),
     )
+    return replace(run, train=replace(run.train, bootstrap=True)) if args.bootstrap else run
 
 
 def cmd_train(args: argparse.Namespace) -> int:

@@ -2,7 +2,8 @@
 
 ``WindowTensors`` gathers a whole batch of windows at once, ``EpochBatches`` draws each
 epoch's index batches from ``(seed, epoch)`` and shards them over DDP processes, and
-``WindowData`` (a LightningDataModule) serves the training and validation loaders from them.
+``WindowData`` (a LightningDataModule) serves the training and validation loaders from them,
+the training windows of a bootstrap resample of their flights with ``TrainConfig.bootstrap``.
 ``augment_yaw`` turns a training batch about the vertical (``TrainConfig.augment_yaw``).
 """
 
@@ -91,6 +92,22 @@ class EpochBatches(Sampler[Tensor]):
         return math.ceil(share / self.batch_size)
 
 
+def bootstrap_flights(windows: Windows, seed: int) -> Windows:
+    """The windows of a bootstrap resample of their flights (``TrainConfig.bootstrap``): as
+    many flights as ``windows`` comes from, drawn with replacement from ``seed``; a flight
+    drawn k times gives its windows k times. ValueError for fewer than 2 flights."""
+    flights = torch.unique(windows.flight)
+    if len(flights) < 2:
+        raise ValueError(
+            f"a bootstrap of the training flights needs at least 2 of them; the training "
+            f"windows come from {len(flights)}"
+        )
+    state = np.random.SeedSequence([seed, len(flights)]).generate_state(1)[0]
+    gen = torch.Generator().manual_seed(int(state))
+    drawn = flights[torch.randint(len(flights), (len(flights),), generator=gen)]
+    return windows[torch.cat([torch.nonzero(windows.flight == f).flatten() for f in drawn])]
+
+
 class WindowData(L.LightningDataModule):
     """Training and validation loaders over ``Windows`` tensors, in the main process.
 
@@ -108,6 +125,8 @@ class WindowData(L.LightningDataModule):
                 "write the split lists with slungload split (by recording; --blocks cuts one "
                 "or two recordings in time), or import with --split blocks"
             )
+        if config.bootstrap:
+            train = bootstrap_flights(train, config.seed)
         self.train_windows, self.config = train, config
         if val_windows is not None and val_windows < len(val):
             gen = torch.Generator().manual_seed(config.seed)
