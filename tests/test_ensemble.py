@@ -308,7 +308,7 @@ def test_control_prices_an_ensembles_members_with_risk(
 
 
 def test_members_mean_in_numpy_is_the_spreads_mean():
-    from slungload.deploy.compiled.columns import members_mean
+    from slungload.deploy.members import members_mean
 
     gen = torch.Generator().manual_seed(4)
     members = torch.randn(3, 5, 7, 13, generator=gen, dtype=torch.float64)
@@ -351,8 +351,41 @@ def test_an_ensemble_exports_compiled_and_flies_onboard(trained_ensemble, tiny_r
     x = arrays[0][-1]
     ref = ReferenceAhead(np.tile(x[:3], (n, 1)), np.zeros((n, 3)), np.zeros(n))
     assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
-    with pytest.raises(ValueError, match="compiled format only"):
-        export_for_mpc(trained_ensemble, tmp_path, horizon=4)
+
+
+def test_an_ensemble_exports_to_onnx_and_flies_onboard(trained_ensemble, tiny_run, tmp_path):
+    """The ONNX graph of an ensemble gives every member's states on ONNX Runtime: each within
+    the export tolerance of the compiled file's, their mean the same numpy mean, the
+    calibration and its novelty flag carried; the onboard MPC prices the members."""
+    from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+    from slungload.deploy.backends import load_exported
+    from slungload.deploy.candidates import export_for_mpc
+    from slungload.deploy.members import members_mean
+
+    onnx = export_for_mpc(trained_ensemble, tmp_path / "E.mpc.onnx", horizon=4)
+    assert onnx.max_abs_diff <= 1e-4
+    compiled = load_exported(export_for_mpc(trained_ensemble, tmp_path / "C.mpc.npz", horizon=4,
+                                            format="compiled").model)  # fmt: skip
+    model = load_exported(onnx.model)
+    assert model.meta["member_count"] == 2 and model.calibration == compiled.calibration
+    w = tiny_run.dataset.splits["test"][:1]
+    m = model.history
+    arrays = [w.states[0, :m].double().numpy(), w.inputs[0, : m - 1].double().numpy(),
+              w.inputs[0, m - 1 : -1].double().expand(3, -1, -1).contiguous().numpy()]  # fmt: skip
+    members = model.predict_candidates_members(*arrays)
+    assert members.shape == (2, 3, 4, 13)
+    assert np.abs(members - compiled.predict_candidates_members(*arrays)).max() <= 1e-4
+    np.testing.assert_array_equal(model.predict_candidates(*arrays), members_mean(members))
+    spread_out = members + np.random.default_rng(0).standard_normal(members.shape)
+    for ms in (members, spread_out):
+        np.testing.assert_array_equal(model.novel(ms), compiled.novel(ms))
+    mpc = MPPIController.from_file(onnx.model, InputLimits(4.0, 30.0, 4.0),
+                                   MPCConfig(samples=8, knots=2, risk=1.0))  # fmt: skip
+    x = arrays[0][-1]
+    ref = ReferenceAhead(np.tile(x[:3], (4, 1)), np.zeros((4, 3)), np.zeros(4))
+    assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
+    single = load_exported(export_for_mpc(tiny_run.out, tmp_path, horizon=4).model)
+    assert not hasattr(single, "predict_candidates_members")  # one network is no ensemble
 
 
 def test_the_novelty_flag_in_numpy_is_the_calibrations(trained_ensemble, tmp_path):

@@ -52,6 +52,7 @@ from .sidecar import (
     COMPILED_SUFFIX,
     FORMAT_VERSIONS,
     FORMATS,
+    MEMBER_STATES,
     MPC,
     MPC_SUFFIX,
     PLANS,
@@ -177,11 +178,14 @@ def export_for_mpc(
     if out.is_dir():
         out = out / f"{src.name}-n{horizon}{MPC_SUFFIX}"
     check_sidecar_free(out)
+    ensemble = isinstance(src.net, EnsembleCandidatesNet)
+    members = len(src.net.nets) if ensemble else None
+    graph, output = (MembersNet(src.net.nets), MEMBER_STATES) if ensemble else (src.net, STATES)
     with atomic_path(out) as tmp:
         trace_to_onnx(
-            src.net, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
-            ([X_HIST, U_PAST, PLANS], [STATES]),
-            {PLANS: {0: "candidates"}, STATES: {0: "candidates"}},
+            graph, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
+            ([X_HIST, U_PAST, PLANS], [output]),
+            {PLANS: {0: "candidates"}, output: {1 if ensemble else 0: "candidates"}},
         )  # fmt: skip
         session = ort.InferenceSession(str(tmp), onboard.session_options(1), providers=onboard.CPU)
         diff = max(_parity(src, session, k) for k in CHECK_CANDIDATES)
@@ -205,7 +209,8 @@ def export_for_mpc(
             "architecture": src.architecture,
             "history": m,
             "horizon": horizon,
-            **mpc_io_spec(m, horizon),
+            **mpc_io_spec(m, horizon, members),
+            **({"member_count": members, "calibration": src.net.calibration} if ensemble else {}),
             "layout": mpc_layout(),
             "params": src.configs["params"],
             "variant": src.variant,
@@ -288,6 +293,18 @@ def _export_compiled(
     return MPCExportResult(out, sidecar_path(out), horizon, src.history, None, diff, seconds)
 
 
+class MembersNet(nn.Module):
+    """Every member's candidates, stacked (E, K, N, 13): an ensemble's ONNX graph (the mean,
+    and the spread, are taken in numpy: ``members.members_mean``)."""
+
+    def __init__(self, nets: nn.ModuleList) -> None:
+        super().__init__()
+        self.nets = nets
+
+    def forward(self, x_hist: Tensor, u_past: Tensor, plans: Tensor) -> Tensor:
+        return torch.stack([net(x_hist, u_past, plans) for net in self.nets])
+
+
 class EnsembleCandidatesNet(nn.Module):
     """An ensemble's candidates (``CandidatesNet`` members): their mean
     (``models.ensemble.spread``), what the compiled export is checked against."""
@@ -302,14 +319,9 @@ class EnsembleCandidatesNet(nn.Module):
 
 
 def _export_source(run_or_ckpt, horizon: int, params: VehicleParams | None, format: str) -> _Source:
-    """What ``export_for_mpc`` exports: an ensemble folder (compiled format only) or one model."""
+    """What ``export_for_mpc`` exports: an ensemble folder or one model."""
     if isinstance(run_or_ckpt, Predictor) or not is_ensemble(run_or_ckpt):
         return _source(run_or_ckpt, horizon, params)
-    if format != COMPILED:
-        raise ValueError(
-            f"{run_or_ckpt}: an ensemble exports for the MPC in the compiled format only "
-            "(--format compiled)"
-        )
     return _ensemble_source(run_or_ckpt, horizon)
 
 
@@ -392,10 +404,13 @@ def _parity(src: _Source, predict: Callable, k: int) -> float:
     """max |predict - the eager model| on plausible inputs with K = k; predict: an ONNX
     Runtime session or a numpy candidates call."""
     x_hist, u_past, plans = src.inputs(k, k)
+    net = src.net
     if isinstance(predict, ort.InferenceSession):
         got = predict.run(None, {X_HIST: x_hist, U_PAST: u_past, PLANS: plans})[0]
+        if isinstance(net, EnsembleCandidatesNet):  # the graph gives every member
+            net = MembersNet(net.nets)
     else:
         got = predict(*(a.astype(np.float64) for a in (x_hist, u_past, plans)))
     with torch.no_grad():
-        want = src.net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
+        want = net(*(torch.from_numpy(a) for a in (x_hist, u_past, plans))).numpy()
     return float(np.abs(got - want).max())

@@ -37,9 +37,11 @@ import onnxruntime as ort
 from ..config import VehicleParams, from_dict
 from ..layout import INPUT_DIM, STATE_DIM
 from .inputs import check_inputs, unbatch
+from .members import members_mean, members_novel
 from .sidecar import (
     FUTURE_INPUT,
     HISTORY_INPUT,
+    MEMBER_STATES,
     MPC,
     PLANS,
     STATES,
@@ -92,23 +94,39 @@ class OnnxCandidateModel:
             raise FileNotFoundError(f"exported model {self.path} does not exist")
         self.meta = read_sidecar(self.path, MPC)
         self.session = _session(self.path, threads, providers)
+        members = self.meta.get("member_count")  # an ensemble's graph: every member's states
         check_session(
             self.path,
             self.session,
             self.meta,
-            mpc_io_spec(self.meta["history"], self.meta["horizon"]),
+            mpc_io_spec(self.meta["history"], self.meta["horizon"], members),
         )
         self.history: int = self.meta["history"]
         self.horizon: int = self.meta["horizon"]
         self.name: str = self.meta.get("name", self.path.stem)
         self.params = from_dict(VehicleParams, self.meta["params"])
+        self._output = STATES
+        if members is not None:  # the MPC's ensemble calls (``control.mppi.CandidateModel``)
+            self._output, self.calibration = MEMBER_STATES, self.meta.get("calibration")
+            self.predict_candidates_members = self._run
+            self.novel = self._novel
+
+    def _novel(self, members: np.ndarray) -> np.ndarray:
+        """(E, K, N, 13) -> (K,) bool: ``members.members_novel``."""
+        return members_novel(members, self.calibration)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
     ) -> np.ndarray:
         """(K, N, 13) float64 predictions of K plans (K, N, 4) from the history x_hist (M, 13)
-        and u_past (M-1, 4); package layout. A wrong shape raises ValueError; a failure inside
-        ONNX Runtime raises RuntimeError (the MPC falls back on either)."""
+        and u_past (M-1, 4); package layout (an ensemble: its members' mean,
+        ``members.members_mean``; each member's: ``predict_candidates_members``). A
+        wrong shape raises ValueError; a failure inside ONNX Runtime raises RuntimeError (the
+        MPC falls back on either)."""
+        states = self._run(x_hist, u_past, plans)
+        return members_mean(states) if self._output == MEMBER_STATES else states
+
+    def _run(self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray) -> np.ndarray:
         m, n = self.history, self.horizon
         x_hist, u_past, plans = (np.asarray(a) for a in (x_hist, u_past, plans))
         if (
@@ -128,7 +146,7 @@ class OnnxCandidateModel:
             PLANS: np.ascontiguousarray(plans, dtype=np.float32),
         }
         try:
-            (states,) = self.session.run([STATES], feeds)
+            (states,) = self.session.run([self._output], feeds)
         except Exception as exc:  # ORT's own exception types
             raise RuntimeError(f"{self.path.name}: ONNX Runtime failed ({exc})") from exc
         return states.astype(np.float64)

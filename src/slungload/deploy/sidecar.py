@@ -56,6 +56,7 @@ MPC_SUFFIX, COMPILED_SUFFIX = ".mpc.onnx", ".mpc.npz"
 # the graphs' input and output names
 HISTORY_INPUT, FUTURE_INPUT, STATES_OUTPUT = "history", "future_inputs", "states"
 X_HIST, U_PAST, PLANS, STATES = "x_hist", "u_past", "plans", "states"
+MEMBER_STATES = "member_states"  # an ensemble's candidates graph: every member's states
 
 
 class OnnxModelError(ValueError):
@@ -110,8 +111,14 @@ def window_io_spec(history: int | str, horizon: int) -> dict[str, Any]:
     }
 
 
-def mpc_io_spec(history: int, horizon: int) -> dict[str, Any]:
-    """The ``mpc`` graph's inputs and outputs (``"candidates"``: the dynamic K)."""
+def mpc_io_spec(history: int, horizon: int, members: int | None = None) -> dict[str, Any]:
+    """The ``mpc`` graph's inputs and outputs (``"candidates"``: the dynamic K); an ensemble
+    of ``members`` networks gives each member's states (E, K, N, 13) instead of one."""
+    if members is not None:
+        spec = mpc_io_spec(history, horizon)
+        spec["outputs"] = [{"name": MEMBER_STATES, "dtype": "float32",
+                            "shape": [members, "candidates", horizon, STATE_DIM]}]  # fmt: skip
+        return spec
     return {
         "inputs": [
             {"name": X_HIST, "shape": [history, STATE_DIM], "dtype": "float32"},

@@ -38,6 +38,7 @@ from threadpoolctl import ThreadpoolController
 from ...config import ADAPT_PRIOR_WEIGHT, VehicleParams
 from ...layout import AUX_DIM, INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM
 from ...vehicle_constants import VehicleConstants
+from ..members import members_mean, members_novel
 from .kernels import attention_cols, bias_gelu, encode_rows, jit, lstm_cols_add, lstm_cols_bias
 from .physics import (
     estimate_load_state,
@@ -137,24 +138,6 @@ class PhysicsColumns:
         warm_up(self, max(m, 2), k, n, self.vehicle)
 
 
-def _aligned(members: np.ndarray) -> np.ndarray:
-    """Members (E, ..., 13) with each quaternion turned to the first member's hemisphere."""
-    q = members[..., QUAT]
-    out = members.copy()
-    out[..., QUAT] = q * np.where((q * q[:1]).sum(-1, keepdims=True) < 0, -1.0, 1.0)
-    return out
-
-
-def members_mean(members: np.ndarray) -> np.ndarray:
-    """The members' mean (E, ..., 13) -> (..., 13) with a unit quaternion, each member's
-    quaternion first turned to the first member's hemisphere: ``models.ensemble.spread``'s
-    mean in numpy (a test holds the two equal)."""
-    mean = _aligned(members).mean(0)
-    norm = np.linalg.norm(mean[..., QUAT], axis=-1, keepdims=True)
-    mean[..., QUAT] /= np.maximum(norm, 1e-12)
-    return mean
-
-
 class EnsembleColumns:
     """An ensemble's rollouts (``NetworkColumns`` members of one history M): the members'
     mean as the MPC's ``predict_candidates``, each member's as ``predict_candidates_members``
@@ -204,16 +187,8 @@ class EnsembleColumns:
             member.prepare(m, k, n)
 
     def novel(self, members: np.ndarray) -> np.ndarray:
-        """Members' predictions (E, K, N, 13) -> (K,) bool: the spread beyond what the
-        calibration's windows showed (``models.ensemble.Calibration.novel`` in numpy, a test
-        holds the two equal); all False without a calibration."""
-        if self.calibration is None:
-            return np.zeros(members.shape[1], bool)
-        std = _aligned(members).std(0, ddof=1)  # (K, N, 13)
-        ref = np.asarray(self.calibration["reference_std"], np.float64)
-        ref = ref[np.minimum(np.arange(std.shape[-2]), len(ref) - 1)]
-        score = (std / np.maximum(ref, 1e-12)).mean(axis=(-2, -1))
-        return score > self.calibration["novelty_threshold"]
+        """``members_novel`` under this ensemble's calibration."""
+        return members_novel(members, self.calibration)
 
 
 class _Work:
