@@ -61,6 +61,12 @@ def add_flight_options(
                        "the mean of its members' costs + BETA x their standard deviation "
                        "(each member predicts each candidate: E x the compute; docs/control.md) "
                        "(default: the cost of the members' mean)")  # fmt: skip
+    if hasattr(cfg, "offset_free"):
+        p.add_argument("--offset-free", type=float, metavar="GAIN",
+                       help="offset-free MPC: the last step's velocity prediction error, "
+                       "integrated with this gain, taken as a constant acceleration over the "
+                       "horizon (a model biased on this plant; docs/control.md) (default "
+                       f"{cfg.offset_free:g}: off)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -136,7 +142,8 @@ def cmd_control(args: argparse.Namespace) -> int:
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
-                                         cost=args.cost, risk=args.risk)  # fmt: skip
+                                         cost=args.cost, risk=args.risk,
+                                         offset_free=args.offset_free)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     result = compare(args.model, args.out, config, threads=args.threads,
