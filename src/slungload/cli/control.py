@@ -61,6 +61,11 @@ def add_flight_options(
                        "the mean of its members' costs + BETA x their standard deviation "
                        "(each member predicts each candidate: E x the compute; docs/control.md) "
                        "(default: the cost of the members' mean)")  # fmt: skip
+    if hasattr(cfg, "with_physics"):
+        p.add_argument("--with-physics", action="store_true",
+                       help="price each --model's plans under it and under the physics model: "
+                       "their mean cost + --risk x their spread (--risk 1: the worse of the "
+                       "two; docs/control.md)")  # fmt: skip
     if hasattr(cfg, "offset_free"):
         p.add_argument("--offset-free", type=float, metavar="GAIN",
                        help="offset-free MPC: the last step's velocity prediction error, "
@@ -143,7 +148,8 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
                                          cost=args.cost, risk=args.risk,
-                                         offset_free=args.offset_free)  # fmt: skip
+                                         offset_free=args.offset_free,
+                                         with_physics=args.with_physics or None)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     result = compare(args.model, args.out, config, threads=args.threads,

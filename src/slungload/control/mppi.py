@@ -383,6 +383,7 @@ class MPPIController:
         self.stats.steps += 1
         if self.cfg.offset_free and self._predicted is not None and np.isfinite(state).all():
             error = state[VEL] - self._predicted[VEL]  # what the corrected model still missed
+            error[:2] = 0.0  # vertical only: the horizontal misses of a slung load are its swing
             self.disturbance = self.disturbance + self.cfg.offset_free * error
         self.history.push_state(state)
         x_hist, u_past = self.history.window(self.plan[0])

@@ -22,7 +22,8 @@ from typing import Any
 from ...config import VehicleParams
 from ...control.closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
 from ...control.controllers import PID, reference_maker
-from ...control.mpc import InputLimits, MPCConfig, mpc_maker
+from ...control.mpc import InputLimits, MPCConfig, candidate_model, mpc_maker
+from ...control.paired import PhysicsPaired
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...fileio import write_json
@@ -56,6 +57,12 @@ def compare(
     limits = InputLimits.from_sim(plant)
     predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=cfg.backend)]
     predictors += [load_model(m, backend=cfg.backend) for m in models]
+    if cfg.with_physics:  # each network priced together with the physics model
+        if cfg.risk is None or not models:
+            raise ValueError("--with-physics prices each --model's plans under it and physics "
+                             "by --risk: give both")  # fmt: skip
+        physics = candidate_model(predictors[0])
+        predictors[1:] = [PhysicsPaired(candidate_model(p), physics) for p in predictors[1:]]
     if cfg.risk is not None and not any(
         hasattr(p, "predict_candidates_members") for p in predictors
     ):

@@ -89,6 +89,7 @@ class ComparisonConfig:
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     offset_free: float = MPCConfig.offset_free  # the disturbance gain (``MPCConfig``), 0: off
+    with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
