@@ -90,9 +90,6 @@ def add_fly(sub: Any) -> None:
                    f"{MPCConfig.samples})")  # fmt: skip
     p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "
                    f"(default {MPCConfig.cost})")  # fmt: skip
-    p.add_argument("--offset-free", type=float, metavar="GAIN", help="the MPC's disturbance "
-                   "gain (MPCConfig.offset_free; docs/control.md) (default "
-                   f"{MPCConfig.offset_free:g}: off)")  # fmt: skip
     _add_options(p, BridgeConfig, FLY_OPTIONS)
     p.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     p.set_defaults(func=cmd_fly)
@@ -104,7 +101,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    mpc = given(samples=args.samples, cost=args.cost, offset_free=args.offset_free)
+    mpc = given(samples=args.samples, cost=args.cost)
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)

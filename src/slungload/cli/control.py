@@ -66,12 +66,6 @@ def add_flight_options(
                        help="price each --model's plans under it and under the physics model: "
                        "their mean cost + --risk x their spread (--risk 1: the worse of the "
                        "two; docs/control.md)")  # fmt: skip
-    if hasattr(cfg, "offset_free"):
-        p.add_argument("--offset-free", type=float, metavar="GAIN",
-                       help="offset-free MPC: the last step's velocity prediction error, "
-                       "integrated with this gain, taken as a constant acceleration over the "
-                       "horizon (a model biased on this plant; docs/control.md) (default "
-                       f"{cfg.offset_free:g}: off)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -148,7 +142,6 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
                                          cost=args.cost, risk=args.risk,
-                                         offset_free=args.offset_free,
                                          with_physics=args.with_physics or None)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon)

@@ -57,7 +57,7 @@ import numpy as np
 
 from .. import frames
 from ..config import NETWORK_CONSTANTS, VehicleParams
-from ..layout import INPUT_DIM, LOAD_POS, POS, QUAT, STATE_DIM, VEL
+from ..layout import INPUT_DIM, QUAT, STATE_DIM
 from .cost import (
     COSTS,
     ReferenceAhead,
@@ -176,12 +176,6 @@ class MPCConfig:
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
     # Every member then predicts every candidate: E x one network's compute at equal K.
     risk: float | None = None
-    # Offset-free correction (0: off): the velocity error of the last step's prediction,
-    # integrated with this gain, is taken as a constant unmodelled acceleration over the
-    # horizon (the predicted vehicle velocity, vehicle and load positions shifted by it): a model
-    # biased on a plant it was not trained on (a height it keeps losing) stops steering by the
-    # bias. The disturbance model of offset-free MPC (Pannocchia and Rawlings).
-    offset_free: float = 0.0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -198,8 +192,6 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
             )
-        if not 0.0 <= self.offset_free <= 1.0:
-            raise ValueError(f"MPCConfig.offset_free must be in [0, 1], got {self.offset_free}")
         if self.risk is not None and not 0.0 <= self.risk < math.inf:
             raise ValueError(
                 f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"
@@ -266,22 +258,6 @@ class ConstantsEstimate(Protocol):
     def __call__(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]: ...
 
 
-def offset_corrected(states: np.ndarray, disturbance: np.ndarray, dt: float) -> np.ndarray:
-    """Predictions (..., N, 13) under a constant velocity change ``disturbance`` (3,) m/s per
-    step (``MPCConfig.offset_free``): step i's vehicle velocity gains (i + 1) x it, the
-    vehicle's and the load's positions dt x the sum of those gains; the attitude is left
-    alone."""
-    n = states.shape[-2]
-    gain = np.arange(1, n + 1, dtype=np.float64)[:, None]  # (N, 1)
-    dv = gain * disturbance  # (N, 3)
-    dp = dt * np.cumsum(dv, axis=0)
-    out = states.copy()
-    out[..., VEL] += dv
-    out[..., POS] += dp
-    out[..., LOAD_POS] += dp
-    return out
-
-
 def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
     """Weights (K,) summing to 1 over the finite costs (non-finite ones get 0); None when no
     cost is finite."""
@@ -335,9 +311,6 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
-        # offset-free: the disturbance (3,) m/s per step, the predicted next state (13,) or None
-        self.disturbance = np.zeros(3)
-        self._predicted: np.ndarray | None = None
         if cfg.risk is not None and not hasattr(model, "predict_candidates_members"):
             raise ValueError(
                 f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
@@ -381,10 +354,6 @@ class MPPIController:
         if state.shape != (STATE_DIM,):
             raise ValueError(f"step: state must be ({STATE_DIM},), got {state.shape}")
         self.stats.steps += 1
-        if self.cfg.offset_free and self._predicted is not None and np.isfinite(state).all():
-            error = state[VEL] - self._predicted[VEL]  # what the corrected model still missed
-            error[:2] = 0.0  # vertical only: the horizontal misses of a slung load are its swing
-            self.disturbance = self.disturbance + self.cfg.offset_free * error
         self.history.push_state(state)
         x_hist, u_past = self.history.window(self.plan[0])
         if self.estimate is not None:
@@ -397,7 +366,6 @@ class MPPIController:
         if reason is None:
             self._fallback_run = 0
         else:
-            self._predicted = None
             plan = self._fallback(reason, state, reference, rotation)
         u = plan[0].copy()
         self.history.push_input(u)
@@ -475,8 +443,6 @@ class MPPIController:
             return None, "prediction of the wrong shape"
         states = np.asarray(states, dtype=np.float64).reshape(-1, *samples.shape[:2], STATE_DIM)
         e, k, n = states.shape[:3]
-        if self.cfg.offset_free:
-            states = offset_corrected(states, self.disturbance, self.params.dt)
         costs = trajectory_cost(
             states.reshape(e * k, n, STATE_DIM),
             np.tile(samples, (e, 1, 1)),
@@ -499,9 +465,6 @@ class MPPIController:
         plan = np.einsum("k,knd->nd", weights, samples)
         if not self.limits.contains(plan):
             return None, "plan outside the limits"
-        if self.cfg.offset_free:  # the applied plan's next state, to first order in the weights
-            first = np.where(finite[:, None], states[:, :, 0].mean(0), 0.0)
-            self._predicted = weights @ first
         return plan, None
 
     def _fallback(self, reason: str, state, ref: ReferenceAhead, rotation) -> np.ndarray:

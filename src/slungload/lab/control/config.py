@@ -88,7 +88,6 @@ class ComparisonConfig:
     plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
-    offset_free: float = MPCConfig.offset_free  # the disturbance gain (``MPCConfig``), 0: off
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
 
     def __post_init__(self) -> None:
@@ -104,7 +103,7 @@ class ComparisonConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots); ``risk``
         prices an ensemble's candidates only (``comparison``)."""
         return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
-                         risk=self.risk, offset_free=self.offset_free)  # fmt: skip
+                         risk=self.risk)  # fmt: skip
 
 
 @dataclass(frozen=True)
