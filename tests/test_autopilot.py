@@ -197,6 +197,33 @@ def test_the_new_options_refuse_bad_values(run_cli, model_file, capsys):
     assert exit_.value.code == 2 and "X,Y,Z,YAW" in capsys.readouterr().err
 
 
+def test_a_lockstep_flight_priced_with_physics(tmp_path):
+    """`fly --with-physics --risk 1`: the compiled file's model and the physics model of its
+    constants as two members (numpy only); a --risk without members is refused before any
+    link is opened."""
+    from slungload.autopilot.bridge import fly
+
+    compiled = export_for_mpc("physics", tmp_path / "p.mpc.npz", horizon=10,
+                              format="compiled").model  # fmt: skip
+    sil, bridge = configs(free_port(), duration=0.6, with_physics=True,
+                          mpc=MPCConfig(samples=16, horizon=8, risk=1.0))  # fmt: skip
+    endpoint = SilEndpoint(sil)
+    thread = threading.Thread(target=endpoint.run, daemon=True)
+    thread.start()
+    try:
+        result = fly(compiled, bridge)
+    finally:
+        endpoint.stop()
+        thread.join(5.0)
+    assert result.end == "flight complete" and result.steps == round(0.6 / 0.03)
+    assert not result.safety.counts and result.mpc.fallback_steps == 0
+    assert_finite_on_the_wire(endpoint)
+    with pytest.raises(ValueError, match="one network"):
+        fly(compiled, replace(bridge, with_physics=False))
+    with pytest.raises(ValueError, match="give --risk"):
+        replace(bridge, mpc=MPCConfig())
+
+
 def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():
     port = free_port()
     endpoint = SilEndpoint(configs(port)[0])

@@ -439,4 +439,15 @@ def fly(
     warning = note((exported.meta or {}).get("preflight") or {}, str(model), horizon)
     if warning:
         warnings.warn(warning, stacklevel=2)
-    return Bridge(config, exported, exported.params, load_source=load_source, log=log).run()
+    flown = exported
+    if config.with_physics:  # the physics model of the file's constants beside it
+        from ..control.paired import PhysicsPaired
+        from ..deploy.compiled.columns import PhysicsColumns
+        from ..vehicle_constants import VehicleConstants
+
+        physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
+        flown = PhysicsPaired(exported, physics)
+    if config.mpc.risk is not None and not hasattr(flown, "predict_candidates_members"):
+        raise ValueError(f"--risk prices members: {model} is one network; export an ensemble, "
+                         "or add --with-physics")  # fmt: skip
+    return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

@@ -48,6 +48,11 @@ class BridgeConfig:
     max_throttle: float = _option(1.0, "highest normalised thrust")
     rate_max: float = _option(4.0, "body-rate limit, rad/s, each axis")
     mpc: MPCConfig = field(default_factory=MPCConfig)  # K, weights (N from the model file)
+    with_physics: bool = _option(
+        False,
+        "price each plan under the model and under the physics model (the file's constants): "
+        "their mean cost + --risk x their spread (control.paired; docs/control.md)",
+    )
     # the reference: a maneuver's offsets from where OFFBOARD starts (None: hold that point)
     maneuver: str | None = _option(
         None,
@@ -115,6 +120,8 @@ class BridgeConfig:
             raise ValueError("min thrust share must be in [0, 1) and max throttle in (0, 1]")
         if self.handback not in HANDBACK:
             raise ValueError(f"handback must be one of {HANDBACK}, got {self.handback!r}")
+        if self.with_physics and self.mpc.risk is None:
+            raise ValueError("with_physics prices the plans by the MPC's risk: give --risk")
         if self.duration is not None and not self.duration > 0:
             raise ValueError(f"duration must be > 0 s, got {self.duration}")
         if not self.settle >= 0:

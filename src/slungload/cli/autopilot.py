@@ -17,9 +17,9 @@ from .common import choices, given, new_command, plants_help
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
                "hover_throttle", "newtons_per_throttle", "min_thrust_share", "max_throttle",
                "rate_max", "maneuver", "seed", "duration", "settle", "origin", "box", "arm",
-               "offboard", "stream_before_switch", "wait_offboard", "dry_run", "max_state_age",
-               "max_load_age", "max_tilt", "fence_radius", "fence_height", "hover_time",
-               "handback", "tlog", "connect_timeout")  # fmt: skip
+               "offboard", "with_physics", "stream_before_switch", "wait_offboard", "dry_run",
+               "max_state_age", "max_load_age", "max_tilt", "fence_radius", "fence_height",
+               "hover_time", "handback", "tlog", "connect_timeout")  # fmt: skip
 SIL_OPTIONS = ("seed", "maneuver", "steps", "start_on_offboard", "connection", "system",
                "load_component", "lockstep_wait", "hover_throttle", "of_loss_timeout",
                "heartbeat_period", "duration")  # fmt: skip
@@ -90,6 +90,9 @@ def add_fly(sub: Any) -> None:
                    f"{MPCConfig.samples})")  # fmt: skip
     p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "
                    f"(default {MPCConfig.cost})")  # fmt: skip
+    p.add_argument("--risk", type=float, metavar="BETA", help="price each plan by the mean "
+                   "of its members' costs + BETA x their spread: an ensemble's members, or the "
+                   "model and physics with --with-physics (docs/control.md)")  # fmt: skip
     _add_options(p, BridgeConfig, FLY_OPTIONS)
     p.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     p.set_defaults(func=cmd_fly)
@@ -101,7 +104,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    mpc = given(samples=args.samples, cost=args.cost)
+    mpc = given(samples=args.samples, cost=args.cost, risk=args.risk)
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)
