@@ -140,8 +140,11 @@ def test_in_lockstep_the_sil_flies_the_flight_control_flies(tmp_path):
 
     def through_sil(start_on_offboard: bool) -> np.ndarray:
         port = free_port()
+        # a long lockstep wait keeps a slow bridge's flight identical; the running clock's
+        # flight keeps the short one (its heartbeats come with simulated time)
+        wait = 10.0 if start_on_offboard else configs(port)[0].lockstep_wait
         sil = replace(configs(port)[0], maneuver=maneuver, seed=seed, steps=steps,
-                      start_on_offboard=start_on_offboard, lockstep_wait=10.0,
+                      start_on_offboard=start_on_offboard, lockstep_wait=wait,
                       hover_throttle=sim.total_mass * sim.gravity / sim.max_thrust)  # fmt: skip
         start = SilEndpoint(sil).start
         _, bridge = configs(port)
