@@ -45,6 +45,7 @@ from ..control.mppi import (
     InputLimits,
     MPCStats,
     MPPIController,
+    check_members,
     reference_ahead,
     yaw_of,
 )
@@ -447,7 +448,5 @@ def fly(
 
         physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
         flown = PhysicsPaired(exported, physics)
-    if config.mpc.risk is not None and not hasattr(flown, "predict_candidates_members"):
-        raise ValueError(f"--risk prices members: {model} is one network; export an ensemble, "
-                         "or add --with-physics")  # fmt: skip
+    check_members(flown, config.mpc)  # before any link is opened
     return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

@@ -112,6 +112,7 @@ class SilEndpoint:
         # the clock stands until OFFBOARD is first taken (``start_on_offboard``)
         self.paused = cfg.start_on_offboard
         self.wall_heartbeat = 0.0  # monotonic s of the next heartbeat while paused
+        self.measured: tuple[np.ndarray, ...] | None = None  # the period's mocap p, v, q, p_load
         self.setpoint: tuple[float, np.ndarray] | None = None
         self.setpoint_t = -math.inf
         self.next_heartbeat = 0.0
@@ -184,7 +185,7 @@ class SilEndpoint:
     # --- out ------------------------------------------------------------------------------------
     def _telemetry(self) -> None:
         cfg, plant = self.cfg, self.plant
-        if not (self.paused and hasattr(self, "measured")):  # one measurement per period
+        if not (self.paused and self.measured is not None):  # one measurement per period
             self.measured = self.mocap.measure(plant.p, plant.v, plant.q, plant.p_load)
         p, v, q, p_load = self.measured
         if self.paused:  # the simulated clock stands: heartbeats on the wall clock

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..autopilot.config import HANDBACK, BridgeConfig, SilConfig, option_help
-from ..control.mppi import MPCConfig
+from ..control.mppi import COSTS, MPCConfig
 from .common import choices, given, new_command, plants_help
 
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
@@ -25,7 +25,6 @@ SIL_OPTIONS = ("seed", "maneuver", "steps", "start_on_offboard", "connection", "
                "heartbeat_period", "duration")  # fmt: skip
 
 
-# the options whose default is None: their type
 def _floats(count: int, names: str):
     """An argparse type: ``count`` comma-separated floats, named ``names`` in the error."""
 
@@ -41,6 +40,7 @@ def _floats(count: int, names: str):
     return parse
 
 
+# the options whose default is None: their type
 _NONE_TYPES = {"hover_throttle": float, "newtons_per_throttle": float, "maneuver": str,
                "duration": float, "tlog": Path, "origin": _floats(4, "X,Y,Z,YAW"),
                "box": _floats(6, "X0,Y0,Z0,X1,Y1,Z1"), "steps": int}  # fmt: skip
@@ -84,8 +84,6 @@ def add_fly(sub: Any) -> None:
         "(docs/deployment.md).",
     )
     p.add_argument("model", type=Path, help="the exported model (slungload export --for-mpc)")
-    from ..control.mppi import COSTS  # numpy only
-
     p.add_argument("--samples", type=int, help=f"MPC samples per step (default "
                    f"{MPCConfig.samples})")  # fmt: skip
     p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "

@@ -271,6 +271,16 @@ def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
     return w / w.sum()
 
 
+def check_members(model: CandidateModel, cfg: MPCConfig) -> None:
+    """ValueError where ``cfg.risk`` prices members and ``model`` has none."""
+    if cfg.risk is not None and not hasattr(model, "predict_candidates_members"):
+        raise ValueError(
+            f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
+            f"train --ensemble K) or a network paired with physics (--with-physics), and "
+            f"{getattr(model, 'name', 'the model')!r} is one network"
+        )
+
+
 class MPPIController:
     """The sampling MPC (see the module): ``step(state, reference) -> Command``, once per
     measurement, in order; one controller per flight.
@@ -311,11 +321,7 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
-        if cfg.risk is not None and not hasattr(model, "predict_candidates_members"):
-            raise ValueError(
-                f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
-                f"train --ensemble K), and {getattr(model, 'name', 'the model')!r} is one network"
-            )
+        check_members(model, cfg)
         prepare = getattr(model, "prepare", None)  # see ``CandidateModel``
         if prepare is not None:
             prepare(self.history.m, cfg.samples, cfg.horizon)

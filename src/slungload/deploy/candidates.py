@@ -180,7 +180,7 @@ def export_for_mpc(
     check_sidecar_free(out)
     ensemble = isinstance(src.net, EnsembleCandidatesNet)
     members = len(src.net.nets) if ensemble else None
-    graph, output = (MembersNet(src.net.nets), MEMBER_STATES) if ensemble else (src.net, STATES)
+    graph, output = onnx_graph(src.net), MEMBER_STATES if ensemble else STATES
     with atomic_path(out) as tmp:
         trace_to_onnx(
             graph, src.inputs(CHECK_CANDIDATES[0], 0), tmp, opset,
@@ -318,6 +318,12 @@ class EnsembleCandidatesNet(nn.Module):
         return spread(torch.stack([net(x_hist, u_past, plans) for net in self.nets])).mean
 
 
+def onnx_graph(net: nn.Module) -> nn.Module:
+    """What the candidates graph traces of ``net``: an ensemble's members stacked
+    (``MembersNet``), any other model as it is."""
+    return MembersNet(net.nets) if isinstance(net, EnsembleCandidatesNet) else net
+
+
 def _export_source(run_or_ckpt, horizon: int, params: VehicleParams | None, format: str) -> _Source:
     """What ``export_for_mpc`` exports: an ensemble folder or one model."""
     if isinstance(run_or_ckpt, Predictor) or not is_ensemble(run_or_ckpt):
@@ -407,8 +413,7 @@ def _parity(src: _Source, predict: Callable, k: int) -> float:
     net = src.net
     if isinstance(predict, ort.InferenceSession):
         got = predict.run(None, {X_HIST: x_hist, U_PAST: u_past, PLANS: plans})[0]
-        if isinstance(net, EnsembleCandidatesNet):  # the graph gives every member
-            net = MembersNet(net.nets)
+        net = onnx_graph(net)  # an ensemble's graph gives every member
     else:
         got = predict(*(a.astype(np.float64) for a in (x_hist, u_past, plans)))
     with torch.no_grad():
