@@ -6,16 +6,20 @@
 Starts ``slungload sil --real-time`` (the simulator behind a MAVLink endpoint on 127.0.0.1) in a
 subprocess for each flight, flies the exported model through ``autopilot.bridge.fly`` (arming
 and switching to OFFBOARD itself), and prints per flight the median, p99 and largest latency
-and how many steps took longer than the control period. Run it with nothing else on the
+and how many steps took longer than the control period, and the interpreter's full garbage
+collections in its process (the bridge collects once at its start and leaves what is alive
+then out of the later ones: with it in, one takes tens of ms). Run it with nothing else on the
 machine: the endpoint takes one core, the bridge another.
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import socket
 import subprocess
 import sys
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -29,6 +33,22 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+class FullCollections:
+    """The durations (ms) of the interpreter's generation-2 collections while installed."""
+
+    def __init__(self) -> None:
+        self.ms: list[float] = []
+        self._start = 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if info["generation"] != 2:
+            return
+        if phase == "start":
+            self._start = time.perf_counter()
+        else:
+            self.ms.append((time.perf_counter() - self._start) * 1e3)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -48,18 +68,24 @@ def main(argv: list[str] | None = None) -> None:
              "--connection", f"udpout:127.0.0.1:{port}", "--duration", str(args.duration + 30)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip
+        collections = FullCollections()
+        gc.callbacks.append(collections)
         try:
             cfg = replace(BridgeConfig(), connection=f"udpin:127.0.0.1:{port}", arm=True,
                           offboard=True, maneuver=args.maneuver, duration=args.duration,
                           mpc=replace(MPCConfig(), samples=args.samples))  # fmt: skip
             result = fly(args.model, cfg)
         finally:
+            gc.callbacks.remove(collections)
             sil.kill()
             sil.wait()
         ms = np.array(result.latency) * 1e3
+        full = ", ".join(f"{t:.1f}" for t in collections.ms)
         print(f"{result.end}, {result.steps} steps: state -> command median "
               f"{np.median(ms):.2f}, p99 {np.percentile(ms, 99):.2f}, max {ms.max():.2f} ms; "
-              f"over {period * 1e3:.0f} ms: {(ms > period * 1e3).sum()} of {len(ms)}")  # fmt: skip
+              f"over {period * 1e3:.0f} ms: {(ms > period * 1e3).sum()} of {len(ms)}; "
+              f"full collections (ms; the model's imports and the bridge's own at its start "
+              f"included): {full}")  # fmt: skip
 
 
 if __name__ == "__main__":

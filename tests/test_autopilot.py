@@ -5,6 +5,7 @@ for the onboard MPC (ONNX, N = 10): the bridge runs on numpy + onnxruntime + pym
 
 from __future__ import annotations
 
+import gc
 import math
 import socket
 import subprocess
@@ -88,7 +89,16 @@ def flown(model_file, tmp_path_factory):
     """A short lockstep flight, holding where OFFBOARD started, recorded."""
     tlog = tmp_path_factory.mktemp("tlog") / "flight.tlog"
     sil, fly = configs(free_port(), tlog=tlog, duration=1.5)  # import keeps >= 1 s pieces
-    return (*fly_through(model_file, sil, fly), tlog)
+    frozen: list[int] = []  # the objects left out of the collector while the MPC flies
+
+    def on_log(line: str, _) -> None:
+        if "the MPC flies" in line:
+            frozen.append(gc.get_freeze_count())
+
+    flight = fly_through(model_file, sil, fly, on_log=on_log)
+    assert frozen and frozen[0] > 10_000  # no full collection walks the model, numpy, ...
+    assert gc.get_freeze_count() == 0  # ... and the caller's heap is left as it was
+    return (*flight, tlog)
 
 
 def test_a_lockstep_flight_ends_handed_back_with_nothing_non_finite_sent(flown):
