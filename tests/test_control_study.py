@@ -694,3 +694,28 @@ def test_the_unseen_loads_flown_lie_where_the_loads_study_trains_and_beyond():
         assert within(mass, study.train_mass) and within(length, study.train_length)
     mass, length = flown[-1]
     assert within(mass, study.beyond_mass) and within(length, study.beyond_length)
+
+
+def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
+    # --with-physics: the learned MPC's plans priced under the network and physics, flown,
+    # matched at equal compute and reported as that pair; a folder of the network alone
+    # refuses it (its settings and Ks were chosen for another controller)
+    config = replace(TINY, shifts=(), horizons=(3,), oracle_horizons=(3,))
+    paired = replace(config, with_physics=True, risk=1.0)
+    kinds = ("physics", "learned")
+    alone = run_study(tiny_run.out, tmp_path / "alone", config, controllers=kinds, progress=None)
+    rows = run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
+
+    def learned(rows):
+        return next(r for r in rows if r["controller"] == "mpc-learned N=3")
+
+    physics = [r["load_rmse"] for r in (alone + rows) if r["controller"] == "mpc-physics N=3"]
+    assert physics[0] == pytest.approx(physics[1])  # the same physics MPC either way
+    assert learned(rows)["load_rmse"] != pytest.approx(learned(alone)["load_rmse"])
+    report = write_study_report(rows, paired, tmp_path / "paired", str(tiny_run.out)).read_text()
+    assert "priced under it and under the physics model" in report
+    assert "priced under" not in write_study_report(alone, config, tmp_path / "alone").read_text()
+    with pytest.raises(ValueError, match="risk, with_physics differ"):
+        run_study(tiny_run.out, tmp_path / "alone", paired, controllers=kinds, progress=None)
+    with pytest.raises(ValueError, match="give both or neither"):
+        replace(config, with_physics=True)

@@ -87,7 +87,8 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      shift_horizons=args.shift_horizons and tuple(args.shift_horizons),
                      oracle_samples=args.oracle_samples, samples=args.samples,
                      backend=args.backend, steps=args.steps, plant=args.plant,
-                     cost=args.cost)  # fmt: skip
+                     cost=args.cost, risk=args.risk,
+                     with_physics=args.with_physics or None)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     warn_model_notes(args.model, max(config.horizons))
     learned = args.model[0] if args.model else None

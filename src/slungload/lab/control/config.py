@@ -69,7 +69,7 @@ COST_GRID: tuple[dict[str, float], ...] = (
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
-    "tune", "backend", "cost",
+    "tune", "backend", "cost", "risk", "with_physics",
 )  # fmt: skip
 
 
@@ -129,10 +129,15 @@ class StudyConfig:
     # model's, the shifts are of it
     plant: str = DEFAULT_PLANT
     cost: str = MPCConfig.cost  # every MPC's cost (``control.mppi.COSTS``)
+    # the learned MPC's plans priced under the network and the physics model by ``risk``
+    # (``control.paired``): tuned, timed and matched at equal compute as that pair
+    risk: float | None = MPCConfig.risk
+    with_physics: bool = False
 
-    def mpc(self, **fields: Any) -> MPCConfig:
-        """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost."""
-        return MPCConfig(cost=self.cost, **fields)
+    def mpc(self, *, members: bool = False, **fields: Any) -> MPCConfig:
+        """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
+        ``members``: over a model of members (the paired learned one), priced by ``risk``."""
+        return MPCConfig(cost=self.cost, risk=self.risk if members else None, **fields)
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -153,6 +158,10 @@ class StudyConfig:
         if set(self.shift_horizons) - set(self.horizons):
             raise ValueError(f"shift horizons {list(self.shift_horizons)} must be among the "
                              f"horizons {list(self.horizons)}")  # fmt: skip
+        if self.with_physics != (self.risk is not None):
+            raise ValueError("the study prices the learned MPC's plans with the physics model "
+                             "by a risk (--with-physics --risk BETA): give both or neither "
+                             "(it flies no ensemble)")  # fmt: skip
 
 
 @dataclass(frozen=True)

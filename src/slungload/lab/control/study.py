@@ -40,8 +40,16 @@ import numpy as np
 from ...config import VehicleParams
 from ...control.closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
 from ...control.controllers import REFERENCE, reference_maker
-from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, knots_for, mpc_maker
+from ...control.mpc import (
+    InputLimits,
+    MPCConfig,
+    SamplingMPC,
+    candidate_model,
+    knots_for,
+    mpc_maker,
+)
 from ...control.mppi import ReferenceAhead
+from ...control.paired import PhysicsPaired
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...deploy.sidecar import sha256
@@ -115,7 +123,7 @@ def run_study(
     nominal = named_plant(cfg.plant)
     params = vehicle_params(nominal)
     limits = InputLimits.from_sim(nominal)
-    models = _models(learned, params, cfg.backend)
+    models = _models(learned, params, cfg)
     with torch_threads(threads):
         # the oracle flies the learned MPC's settings: they are needed for it too, but an
         # oracle alone only reads them (two processes tuning at once could disagree)
@@ -179,7 +187,7 @@ def _worker_plans(
     settings its parent wrote."""
     nominal = named_plant(cfg.plant)
     params = vehicle_params(nominal)
-    models = _models(learned, params, cfg.backend)
+    models = _models(learned, params, cfg)
     path = Path(out) / "settings.json"
     settings = read_json(path) if path.exists() else {}
     plans = _plan(cfg, settings, models, params, InputLimits.from_sim(nominal), nominal,
@@ -198,14 +206,21 @@ def _fly_job(job: _Job) -> str:
     return lines[0] if lines else ""
 
 
-def _models(
-    learned: str | Path | None, params: VehicleParams, backend: str
-) -> dict[str, PredictionModel]:
-    """The physics model and, given a run folder, the learned one, on ``backend``."""
-    models = {PHYSICS: load_model(PHYSICS, params, backend=backend)}
+def _models(learned: str | Path | None, params: VehicleParams, cfg: StudyConfig) -> dict[str, Any]:
+    """The physics model and, given a run folder, the learned one, on ``cfg.backend``; with
+    ``cfg.with_physics`` the learned one is the network paired with the physics model."""
+    models: dict[str, Any] = {PHYSICS: load_model(PHYSICS, params, backend=cfg.backend)}
     if learned is not None:
-        models["learned"] = load_model(learned, backend=backend)
+        models["learned"] = load_model(learned, backend=cfg.backend)
+        if cfg.with_physics:
+            models["learned"] = PhysicsPaired(candidate_model(models["learned"]),
+                                              candidate_model(models[PHYSICS]))  # fmt: skip
     return models
+
+
+def _paired(model: Any) -> bool:
+    """Whether ``model`` has members to price by the study's risk (the paired learned one)."""
+    return hasattr(model, "predict_candidates_members")
 
 
 def study_plant(cfg: StudyConfig, plant: str) -> SimConfig:
@@ -228,7 +243,8 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
             for n in horizons:
                 tuned = tuples_from_json(settings["mpc"][kind][str(n)])
                 mpc = cfg.mpc(**tuned, horizon=n, knots=knots_for(n),
-                                samples=settings["samples"][kind][str(n)])  # fmt: skip
+                              samples=settings["samples"][kind][str(n)],
+                              members=_paired(models[kind]))  # fmt: skip
                 plans.append(Flown(plant, mpc_label(kind, n),
                                    mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
@@ -330,7 +346,8 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
             def mpc_of(kind: str, n: int = n) -> Callable[[int], SamplingMPC]:
                 tuned = tuples_from_json(mpc[kind][str(n)])
                 return lambda k: mpc_maker(models[kind], limits, cfg.mpc(
-                    **tuned, horizon=n, knots=knots_for(n), samples=k), params)(0)  # fmt: skip
+                    **tuned, horizon=n, knots=knots_for(n), samples=k,
+                    members=_paired(models[kind])), params)(0)  # fmt: skip
 
             samples[PHYSICS][str(n)] = equal_compute_samples(
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
@@ -388,7 +405,8 @@ def _best(
     nominal = named_plant(cfg.plant)
     best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
-        mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples)
+        mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples,
+                      members=_paired(model))  # fmt: skip
         rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
                                limits, nominal.cable_length)

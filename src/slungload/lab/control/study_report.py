@@ -304,7 +304,7 @@ def write_study_report(
         ),  # fmt: skip
         _settings_line(config, settings, sorted({r["seed"] for r in rows})),
         "",
-        _learned_line(settings, learned),
+        _learned_line(settings, learned, config),
         "",
         _settings_table(settings),
         "",
@@ -429,12 +429,21 @@ def _flown(labels, pairs: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
     return [(a, b) for a, b in pairs if a in flown and b in flown]
 
 
-def _learned_line(settings: dict[str, Any], learned: str | None) -> str:
-    """The learned network flown: the one the folder's settings were tuned for, else as given."""
+def _learned_line(settings: dict[str, Any], learned: str | None, config: StudyConfig) -> str:
+    """The learned network flown (the one the folder's settings were tuned for, else as
+    given), and how its plans were priced."""
     network = settings.get("learned_network")
     if network:
-        return f"The learned network: `{network['checkpoint']}` (SHA-256 {network['sha256'][:12]})."
-    return f"The learned model: `{learned}`." if learned else "No learned model was flown."
+        line = f"The learned network: `{network['checkpoint']}` (SHA-256 {network['sha256'][:12]})."
+    elif learned:
+        line = f"The learned model: `{learned}`."
+    else:
+        return "No learned model was flown."
+    if config.with_physics:
+        line += (f" Its plans priced under it and under the physics model (`--with-physics`): "
+                 f"their mean cost + {config.risk:g} x their spread; tuned, timed and matched "
+                 "as that pair.")  # fmt: skip
+    return line
 
 
 def _past_limit(rows, labels: Sequence[str], limit: float = UNSAFE_SWING) -> str:
