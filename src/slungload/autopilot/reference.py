@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from ..sim.maneuvers import Reference, make_maneuver, sample_reference
+from ..sim.streams import seed_streams
 
 HOLD_DURATION = 10.0  # s, a hold flown when no duration is given
 
@@ -20,7 +21,7 @@ def flight_reference(
     """The reference, one row per control period of the flight (h s apart), from ``start``
     (3,) m, world z up, at heading ``yaw`` rad: ``settle`` s holding ``start``, then
     ``maneuver``'s offsets (drawn as ``sim.flight.simulate_flight`` draws that maneuver for
-    ``seed``: the first stream of the seed's sequence) for T periods, turned with the heading,
+    ``seed``: its maneuver stream, ``sim.streams``) for T periods, turned with the heading,
     or ``start`` held. T: ``duration`` / h, else the maneuver's length, else
     ``HOLD_DURATION``. Positions are kept inside ``box`` (lowest x, y, z, highest x, y, z, m)
     when given. With heading 0, ``settle`` the simulator's warm-up and ``box`` its arena
@@ -32,8 +33,7 @@ def flight_reference(
         pos = np.tile(np.asarray(start, float), (steps, 1))
         zero = np.zeros_like(pos)
         return Reference(pos, zero, zero.copy(), np.full(steps, float(yaw)))
-    stream = np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[0])
-    man = make_maneuver(maneuver, stream)
+    man = make_maneuver(maneuver, seed_streams(seed)[0])
     steps = round(duration / h) if duration is not None else man.steps
     times = (np.arange(warm + steps) - warm) * h  # as sim.flight's: the maneuver starts at 0
     ref = sample_reference(man, times, np.zeros(3), arena=False)

@@ -52,13 +52,10 @@ import numpy as np
 
 from .. import frames
 from ..control.mppi import yaw_of
-from ..sim.aero import ou_wind
 from ..sim.controller import PIDController
-from ..sim.families import make_plant
-from ..sim.flight import flight_setup
-from ..sim.plant import PlantParams
+from ..sim.flight import flight_setup, vehicle_draws
 from ..sim.plants import plant_config
-from ..sim.sensors import Mocap
+from ..sim.streams import seed_streams
 from . import px4
 from .config import SilConfig
 
@@ -93,12 +90,10 @@ class SilEndpoint:
             setup = flight_setup(cfg.maneuver, cfg.seed, sim, cfg.steps)
             self.sim, self.plant, self.wind, self.mocap = (setup.flown, setup.plant, setup.wind,
                                                            setup.mocap)  # fmt: skip
-        else:  # the streams of a simulated flight of this seed (sim.flight): the same draws
-            streams = [np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed).spawn(6)]
-            self.sim = sim.drawn(streams[5])
-            self.plant = make_plant(self.sim, PlantParams.draw(self.sim, streams[1]))
-            self.wind = ou_wind(self.sim, WIND_STEPS, streams[2])
-            self.mocap = Mocap(self.sim, streams[3])
+        else:  # a simulated flight's draws for this seed but the maneuver's (sim.flight)
+            self.sim, self.plant, self.wind, self.mocap = vehicle_draws(
+                seed_streams(cfg.seed), sim, WIND_STEPS
+            )
         sim = self.sim
         self.faults = np.random.default_rng(cfg.seed + 1)  # the dropped and delayed packets
         self.delayed: list[tuple[float, object, int | None]] = []  # (wall time due, msg, comp.)

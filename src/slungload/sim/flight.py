@@ -16,6 +16,7 @@ from .families import make_plant
 from .maneuvers import Maneuver, Reference, make_maneuver, sample_reference
 from .plant import Plant, PlantParams
 from .sensors import Mocap
+from .streams import seed_streams
 
 
 @dataclass(frozen=True)
@@ -70,22 +71,30 @@ def flight_setup(
 ) -> FlightSetup:
     """The flight ``simulate_flight`` flies for the same arguments, before its first step."""
     cfg = config or SimConfig()
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-    streams = tuple(np.random.default_rng(s) for s in ss.spawn(6))
-    s_man, s_plant, s_wind, s_sens, _, s_load = streams
-    man = make_maneuver(maneuver, s_man) if isinstance(maneuver, str) else maneuver
+    streams = seed_streams(seed)
+    man = make_maneuver(maneuver, streams[0]) if isinstance(maneuver, str) else maneuver
     n = int(steps if steps is not None else man.steps)
     if n < 1:
         raise ValueError(f"a flight needs at least one step, got {n}")
     warm = round(cfg.warmup / cfg.control_dt)
     times = (np.arange(warm + n) - warm) * cfg.control_dt  # recording starts at t = 0
-    flown = cfg.drawn(s_load)  # the vehicle and load of this flight (cfg when none vary)
-    plant = make_plant(flown, PlantParams.draw(flown, s_plant))
+    flown, plant, wind, mocap = vehicle_draws(streams, cfg, warm + n)
     ref = sample_reference(man, times, plant.p)  # from the start point, where it hovers
     for a in (ref.position, ref.velocity, ref.acceleration, ref.yaw):
         a.flags.writeable = False  # every step sees the same reference: no controller edits it
-    wind = ou_wind(cfg, warm + n, s_wind)
-    return FlightSetup(streams, man, n, times, flown, plant, ref, wind, Mocap(cfg, s_sens))
+    return FlightSetup(streams, man, n, times, flown, plant, ref, wind, mocap)
+
+
+def vehicle_draws(
+    streams: tuple[np.random.Generator, ...], config: SimConfig, wind_steps: int
+) -> tuple[SimConfig, Plant, np.ndarray, Mocap]:
+    """What a flight draws besides its maneuver, from its streams (``seed_streams``): the
+    vehicle and load flown (``config`` when none vary), the plant in its start state, the
+    wind (``wind_steps``, 3) m/s and the motion capture."""
+    _, s_plant, s_wind, s_sens, _, s_load = streams  # sim.streams.FLIGHT_STREAMS
+    flown = config.drawn(s_load)
+    plant = make_plant(flown, PlantParams.draw(flown, s_plant))
+    return flown, plant, ou_wind(config, wind_steps, s_wind), Mocap(config, s_sens)
 
 
 def flight_reference(
