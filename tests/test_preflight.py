@@ -205,7 +205,10 @@ def test_control_warns_from_the_check(tiny_run, tmp_path: Path) -> None:
     assert not any("pre-flight" in n for n in model_notes(run, 4))
     (run / VERDICTS_FILE).write_text('{"4": {"verdict": "does not pay", "ratio": [1.1, 1.0, '
                                      '1.2], "pays_below": 0.9, "data": "d"}}')  # fmt: skip
-    assert any("pre-flight check" in n for n in model_notes(run, 4))
+    (alone,) = [n for n in model_notes(run, 4) if "pre-flight check" in n]
+    (paired,) = [n for n in model_notes(run, 4, paired=True) if "pre-flight check" in n]
+    assert "--with-physics lets the physics model veto" in alone  # what to do about it
+    assert "prices its plans too" in paired and "veto" not in paired  # already done
 
 
 def test_the_command_writes_its_report_and_refuses_bad_input(

@@ -98,14 +98,15 @@ def plan_changes(args: argparse.Namespace) -> dict[str, Any]:
                  seeds=None if args.seeds is None else seed_range(args.seeds))  # fmt: skip
 
 
-def warn_model_notes(models: Sequence[Path], horizon: int) -> None:
-    """What a user should know before flying each model at ``horizon`` (``mpc.model_notes``),
-    as warnings; a model that cannot be read is left to the command, which says so."""
+def warn_model_notes(models: Sequence[Path], horizon: int, *, paired: bool = False) -> None:
+    """What a user should know before flying each model at ``horizon`` (``mpc.model_notes``;
+    ``paired``: priced with physics too), as warnings; a model that cannot be read is left to
+    the command, which says so."""
     from ..control.mpc import ModelNote, model_notes
 
     for model in models:
         try:
-            notes = model_notes(model, horizon)
+            notes = model_notes(model, horizon, paired=paired)
         except (OSError, ValueError):
             continue
         for note in notes:
@@ -144,7 +145,7 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          cost=args.cost, risk=args.risk,
                                          with_physics=args.with_physics or None)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
-    warn_model_notes(args.model, config.horizon)
+    warn_model_notes(args.model, config.horizon, paired=config.with_physics)
     result = compare(args.model, args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
     print(result.out / "report.md")

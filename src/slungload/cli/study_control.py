@@ -90,7 +90,7 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      cost=args.cost, risk=args.risk,
                      with_physics=args.with_physics or None)  # fmt: skip
     config = replace(StudyConfig(), **changes)
-    warn_model_notes(args.model, max(config.horizons))
+    warn_model_notes(args.model, max(config.horizons), paired=config.with_physics)
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
                      threads=args.threads, workers=args.workers,

@@ -220,9 +220,10 @@ class ModelNote(UserWarning):
     """Something a user should know before flying a model (``model_notes``)."""
 
 
-def model_notes(model: str | Path, horizon: int) -> list[str]:
+def model_notes(model: str | Path, horizon: int, *, paired: bool = False) -> list[str]:
     """What a user should know before an MPC over ``model`` (a run folder, or "physics") plans
-    ``horizon`` steps ahead, where its run says so:
+    ``horizon`` steps ahead (``paired``: priced with the physics model too, ``control.paired``),
+    where its run says so:
 
     - it was trained on simulated flights whose commands carried no excitation (the dataset's
       vehicle.json holds the simulator's settings, ``sim``, with every ``excitation`` standard
@@ -252,5 +253,5 @@ def model_notes(model: str | Path, horizon: int) -> list[str]:
             f"the MPC plans {horizon} steps ahead and {model} was trained to predict {trained}: "
             f"its predictions past step {trained} are extrapolation"
         )
-    checked = verdict_note(model, horizon)
+    checked = verdict_note(model, horizon, paired=paired)
     return notes + ([checked] if checked else [])

@@ -37,9 +37,12 @@ def read_verdicts(run: str | Path) -> dict[str, Any]:
     return found if isinstance(found, dict) else {}
 
 
-def note(verdicts: Mapping[str, Any], what: str, horizon: int) -> str | None:
+def note(
+    verdicts: Mapping[str, Any], what: str, horizon: int, *, paired: bool = False
+) -> str | None:
     """A warning for an MPC over ``what`` at ``horizon`` where ``verdicts`` (``read_verdicts``'
-    shape) say it does not pay there; None where it may pay or was not checked there."""
+    shape) say it does not pay there; None where it may pay or was not checked there.
+    ``paired``: the MPC prices its plans with the physics model too (``--with-physics``)."""
     found = verdicts.get(str(horizon))
     if not isinstance(found, dict) or found.get("verdict") != NOT:
         return None
@@ -51,11 +54,14 @@ def note(verdicts: Mapping[str, Any], what: str, horizon: int) -> str | None:
         )
     except (KeyError, TypeError, ValueError):
         why = "see its check.md"
-    return (f"the pre-flight check of {what} (on {found.get('data', '?')}) says it will not beat "
-            f"the physics model in an MPC at N = {horizon}: {why}; flying it anyway "
-            "(docs/control.md)")  # fmt: skip
+    said = (f"the pre-flight check of {what} (on {found.get('data', '?')}) says it will not "
+            f"beat the physics model in an MPC at N = {horizon}: {why}")  # fmt: skip
+    if paired:
+        return f"{said}; the physics model prices its plans too (--with-physics)"
+    return (f"{said}; flying it anyway (--with-physics lets the physics model veto the plans "
+            "only it believes in; docs/control.md)")  # fmt: skip
 
 
-def verdict_note(run: str | Path, horizon: int) -> str | None:
+def verdict_note(run: str | Path, horizon: int, *, paired: bool = False) -> str | None:
     """``note`` from the run's own ``VERDICTS_FILE``."""
-    return note(read_verdicts(run), str(run), horizon)
+    return note(read_verdicts(run), str(run), horizon, paired=paired)
