@@ -8,7 +8,7 @@ subprocess for each flight, flies the exported model through ``autopilot.bridge.
 and switching to OFFBOARD itself), and prints per flight the median, p99 and largest latency
 and how many steps took longer than the control period, and the interpreter's full garbage
 collections in its process (the bridge collects once at its start and leaves what is alive
-then out of the later ones: with it in, one takes tens of ms). Run it with nothing else on the
+then out of the later ones: with it in, one takes 30-90 ms). Run it with nothing else on the
 machine: the endpoint takes one core, the bridge another.
 """
 

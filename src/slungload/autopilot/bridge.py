@@ -128,8 +128,9 @@ class Bridge:
         try:
             self._connect()
             self.mpc = self._controller()
-            # a full collection of the interpreter's ~70,000 objects takes 10-30 ms, a missed
-            # period when one falls inside the loop: everything alive now is left out of it
+            # a full collection of the ~130,000 objects loaded by now takes 30-90 ms, a missed
+            # period; none falls due in a short flight, but minutes of logged steps bring one:
+            # everything alive now is left out of it
             gc.collect()
             gc.freeze()
             self.phase = "flying" if cfg.dry_run else "waiting"
