@@ -129,8 +129,8 @@ class Bridge:
             self._connect()
             self.mpc = self._controller()
             # a full collection of the ~130,000 objects loaded by now takes 30-90 ms, a missed
-            # period; none falls due in a short flight, but minutes of logged steps bring one:
-            # everything alive now is left out of it
+            # period; none fell due in 15 s flights, and should a long one bring one, what is
+            # alive now is left out of it
             gc.collect()
             gc.freeze()
             self.phase = "flying" if cfg.dry_run else "waiting"
