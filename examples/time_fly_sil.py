@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
 import socket
 import subprocess
 import sys
@@ -59,12 +60,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--maneuver", default="fast_8_lap_xyz")
     parser.add_argument("--duration", type=float, default=15.0, help="s of MPC flight (15)")
     parser.add_argument("--flights", type=int, default=1)
+    parser.add_argument("--fifo", type=int, metavar="PRIORITY",
+                        help="run the endpoint and the bridge under the real-time FIFO "
+                        "scheduler at this priority, 1-99 (Linux, root or CAP_SYS_NICE; as "
+                        "`chrt -f PRIORITY slungload fly ...`)")  # fmt: skip
     args = parser.parse_args(argv)
+    chrt = []
+    if args.fifo:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.fifo))
+        chrt = ["chrt", "-f", str(args.fifo)]
     period = BridgeConfig().period
     for _ in range(args.flights):
         port = free_port()
         sil = subprocess.Popen(
-            [sys.executable, "-m", "slungload.cli", "sil", "--plant", args.plant, "--real-time",
+            [*chrt, sys.executable, "-m", "slungload.cli", "sil", "--plant", args.plant, "--real-time",
              "--connection", f"udpout:127.0.0.1:{port}", "--duration", str(args.duration + 30)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import socket
 import subprocess
 import sys
@@ -208,6 +209,42 @@ def test_the_new_options_refuse_bad_values(run_cli, model_file, capsys):
     with pytest.raises(SystemExit) as exit_:  # argparse's own refusal
         run_cli("fly", model_file, "--origin", "0,0,1")
     assert exit_.value.code == 2 and "X,Y,Z,YAW" in capsys.readouterr().err
+
+
+def test_the_fifo_scheduler_is_asked_for_and_given_back(tmp_path, model_file, run_cli,
+                                                        monkeypatch):  # fmt: skip
+    """--fifo-priority: the loop under the real-time scheduler, the one before restored after;
+    an OS that refuses it ends the command before anything is connected."""
+    with pytest.raises(ValueError, match="1-99"):
+        BridgeConfig(fifo_priority=0)
+    if not hasattr(os, "sched_setscheduler"):
+        pytest.skip("no real-time scheduler on this OS")
+    with monkeypatch.context() as m:
+
+        def refuse(*_):
+            raise PermissionError(1, "Operation not permitted")
+
+        m.setattr(os, "sched_setscheduler", refuse)
+        code, _, err = run_cli("fly", model_file, "--fifo-priority", "10")
+        assert code == 2 and "refused the real-time FIFO scheduler" in err
+    before = os.sched_getscheduler(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except PermissionError:
+        pytest.skip("this OS refuses the FIFO scheduler to this user")
+    os.sched_setscheduler(0, before, os.sched_param(0))
+    compiled = export_for_mpc("physics", tmp_path, horizon=10, format="compiled").model
+    sil, fly = configs(free_port(), duration=0.3, mpc=MPCConfig(samples=16, horizon=8),
+                       fifo_priority=1)  # fmt: skip
+    seen: list[int] = []
+
+    def on_log(line: str, _) -> None:
+        if "the MPC flies" in line:
+            seen.append(os.sched_getscheduler(0))
+
+    result, _, _ = fly_through(compiled, sil, fly, on_log=on_log)
+    assert result.end == "flight complete"
+    assert seen == [os.SCHED_FIFO] and os.sched_getscheduler(0) == before
 
 
 def test_a_lockstep_flight_priced_with_physics(tmp_path):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import time
 import warnings
 from collections import Counter
@@ -124,25 +125,30 @@ class Bridge:
     # --- the loop -------------------------------------------------------------------------
     def run(self) -> BridgeResult:
         cfg = self.cfg
-        self.conn = px4.connect(cfg.connection, system=cfg.target_system, component=cfg.component)
+        restore = real_time(cfg.fifo_priority)
         try:
-            self._connect()
-            self.mpc = self._controller()
-            # a full collection of the ~130,000 objects loaded by now takes 30-90 ms, a missed
-            # period; none fell due in 15 s flights, and should a long one bring one, what is
-            # alive now is left out of it
-            gc.collect()
-            gc.freeze()
-            self.phase = "flying" if cfg.dry_run else "waiting"
-            self.wait_start = self.next_tick = self.clock()
-            self.next_heartbeat = self.next_request = 0.0
-            while self.phase != "done":
-                self._cycle()
+            self.conn = px4.connect(cfg.connection, system=cfg.target_system,
+                                    component=cfg.component)  # fmt: skip
+            try:
+                self._connect()
+                self.mpc = self._controller()
+                # a full collection of the ~130,000 objects loaded by now takes 30-90 ms, a
+                # missed period; none fell due in 15 s flights, and should a long one bring
+                # one, what is alive now is left out of it
+                gc.collect()
+                gc.freeze()
+                self.phase = "flying" if cfg.dry_run else "waiting"
+                self.wait_start = self.next_tick = self.clock()
+                self.next_heartbeat = self.next_request = 0.0
+                while self.phase != "done":
+                    self._cycle()
+            finally:
+                gc.unfreeze()
+                if self.tlog:
+                    self.tlog.close()
+                self.conn.close()
         finally:
-            gc.unfreeze()
-            if self.tlog:
-                self.tlog.close()
-            self.conn.close()
+            restore()
         self.result.mpc = self.mpc.stats
         return self.result
 
@@ -427,6 +433,25 @@ class Bridge:
         top = cfg.max_throttle * self.thrust_map.newtons_per_throttle
         limits = InputLimits(cfg.min_thrust_share * hover, top, cfg.rate_max)
         return MPPIController(self.model, limits, self.mpc_cfg, self.params)
+
+
+def real_time(priority: int | None) -> Callable[[], None]:
+    """Put the calling thread under the real-time FIFO scheduler at ``priority`` (None: leave
+    it); returns what puts the scheduler it had back. Beside other work on the same cores the
+    normal scheduler lets periods run late (docs/BENCHMARKS.md, the MPC over MAVLink)."""
+    if priority is None:
+        return lambda: None
+    if not hasattr(os, "sched_setscheduler"):
+        raise ValueError("a FIFO priority needs Linux's real-time scheduler, which this OS "
+                         "lacks; leave --fifo-priority out")  # fmt: skip
+    before = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError:
+        raise ValueError(f"the OS refused the real-time FIFO scheduler at priority {priority}: "
+                         "run as root or give python CAP_SYS_NICE (setcap cap_sys_nice+ep), "
+                         "or leave --fifo-priority out") from None  # fmt: skip
+    return lambda: os.sched_setscheduler(0, *before)
 
 
 def fly(

@@ -100,6 +100,12 @@ class BridgeConfig:
     handback: str = _option(
         "position", "mode to hand back to: position, hold (AUTO.LOITER) or land (AUTO.LAND)"
     )
+    # the OS: a loop that must answer every period, beside whatever else the computer runs
+    fifo_priority: int | None = _option(
+        None,
+        "run the control loop under Linux's real-time FIFO scheduler at this priority, 1-99 "
+        "(root or CAP_SYS_NICE; default: the normal scheduler)",
+    )
     # the log
     tlog: Path | None = _option(None, "MAVLink telemetry log to write (.tlog)")
     connect_timeout: float = _option(10.0, "s to wait for the autopilot's heartbeat")
@@ -118,6 +124,8 @@ class BridgeConfig:
             raise ValueError(f"newtons per throttle must be > 0 N, got {self.newtons_per_throttle}")
         if not 0.0 <= self.min_thrust_share < 1.0 or not 0.0 < self.max_throttle <= 1.0:
             raise ValueError("min thrust share must be in [0, 1) and max throttle in (0, 1]")
+        if self.fifo_priority is not None and not 1 <= self.fifo_priority <= 99:
+            raise ValueError(f"FIFO priority must be 1-99, got {self.fifo_priority}")
         if self.handback not in HANDBACK:
             raise ValueError(f"handback must be one of {HANDBACK}, got {self.handback!r}")
         if self.with_physics and self.mpc.risk is None:

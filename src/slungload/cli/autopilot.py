@@ -19,7 +19,7 @@ FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_
                "rate_max", "maneuver", "seed", "duration", "settle", "origin", "box", "arm",
                "offboard", "with_physics", "stream_before_switch", "wait_offboard", "dry_run",
                "max_state_age", "max_load_age", "max_tilt", "fence_radius", "fence_height",
-               "hover_time", "handback", "tlog", "connect_timeout")  # fmt: skip
+               "hover_time", "handback", "fifo_priority", "tlog", "connect_timeout")  # fmt: skip
 SIL_OPTIONS = ("seed", "maneuver", "steps", "start_on_offboard", "connection", "system",
                "load_component", "lockstep_wait", "hover_throttle", "of_loss_timeout",
                "heartbeat_period", "duration")  # fmt: skip
@@ -43,7 +43,8 @@ def _floats(count: int, names: str):
 # the options whose default is None: their type
 _NONE_TYPES = {"hover_throttle": float, "newtons_per_throttle": float, "maneuver": str,
                "duration": float, "tlog": Path, "origin": _floats(4, "X,Y,Z,YAW"),
-               "box": _floats(6, "X0,Y0,Z0,X1,Y1,Z1"), "steps": int}  # fmt: skip
+               "box": _floats(6, "X0,Y0,Z0,X1,Y1,Z1"), "steps": int,
+               "fifo_priority": int}  # fmt: skip
 
 
 def _add_options(p: argparse.ArgumentParser, config: type, names: tuple[str, ...]) -> None:
