@@ -194,7 +194,9 @@ class Bridge:
         cfg = self.cfg
         if self.mode == px4.OFFBOARD and self.armed:
             self.say("OFFBOARD and armed: the MPC flies")
-            self.mpc = self._controller()
+            # the MPC built before the wait has only given hover commands, which change
+            # nothing in it: its first step is the flight's (building one here, 30 ms,
+            # would make the first period late)
             self.phase = "flying"
             self._fly(now, self.vehicle is not None)
             return
