@@ -73,8 +73,9 @@ def main(argv: list[str] | None = None) -> None:
     for _ in range(args.flights):
         port = free_port()
         sil = subprocess.Popen(
-            [*chrt, sys.executable, "-m", "slungload.cli", "sil", "--plant", args.plant, "--real-time",
-             "--connection", f"udpout:127.0.0.1:{port}", "--duration", str(args.duration + 30)],
+            [*chrt, sys.executable, "-m", "slungload.cli", "sil", "--plant", args.plant,
+             "--real-time", "--connection", f"udpout:127.0.0.1:{port}", "--duration",
+             str(args.duration + 30)],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         )  # fmt: skip
         collections = FullCollections()
