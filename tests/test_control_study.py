@@ -710,7 +710,10 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
         return next(r for r in rows if r["controller"] == "mpc-learned N=3")
 
     physics = [r["load_rmse"] for r in (alone + rows) if r["controller"] == "mpc-physics N=3"]
-    assert physics[0] == pytest.approx(physics[1])  # the same physics MPC either way
+    ks = [json.loads((tmp_path / d / "settings.json").read_text())["samples"]["physics"]["3"]
+          for d in ("alone", "paired")]  # fmt: skip
+    if ks[0] == ks[1]:  # equal compute is timed: on a busy machine the two can differ
+        assert physics[0] == pytest.approx(physics[1])  # the same physics MPC either way
     assert learned(rows)["load_rmse"] != pytest.approx(learned(alone)["load_rmse"])
     report = write_study_report(rows, paired, tmp_path / "paired", str(tiny_run.out)).read_text()
     assert "priced under it and under the physics model" in report

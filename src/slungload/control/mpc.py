@@ -39,6 +39,7 @@ from .mppi import (
     MPCConfig,
     MPCStats,
     MPPIController,
+    has_members,
     knots_for,
     reference_ahead,
     trajectory_cost,
@@ -70,7 +71,7 @@ class TorchCandidates:
         self.history = model.history
         if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
             self.prepare = model.prepare
-        if hasattr(model, "predict_candidates_members"):  # an ensemble's members
+        if has_members(model):  # an ensemble's members
             self.predict_candidates_members = self._members
 
     def predict_candidates(

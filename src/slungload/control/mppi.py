@@ -51,13 +51,14 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import NamedTuple
 
 import numpy as np
 
 from .. import frames
 from ..config import NETWORK_CONSTANTS, VehicleParams
 from ..layout import INPUT_DIM, QUAT, STATE_DIM
+from .contract import CandidateModel, ConstantsEstimate, check_members, has_members
 from .cost import (
     COSTS,
     ReferenceAhead,
@@ -81,6 +82,8 @@ __all__ = [
     "MPPIController",
     "ReferenceAhead",
     "VehicleTarget",
+    "check_members",
+    "has_members",
     "knots_for",
     "mppi_weights",
     "payload_first",
@@ -235,29 +238,6 @@ class Command(NamedTuple):
     rates: np.ndarray  # (3,) rad/s
 
 
-@runtime_checkable
-class CandidateModel(Protocol):
-    """A prediction model for the controller, numpy in and out (float64 arrays): the
-    ``models.prediction.PredictionModel`` contract's control entry point without torch. A
-    model may also have ``prepare(M, K, N)`` (a GPU model captures its graph there): the
-    controller calls it when built, so that what the model cannot run is an error then rather
-    than a fallback in flight. An ensemble adds ``predict_candidates_members`` (E, K, N, 13)."""
-
-    name: str
-    history: int  # M: measured states the model needs (>= 2)
-
-    def predict_candidates(
-        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
-    ) -> np.ndarray: ...
-
-
-class ConstantsEstimate(Protocol):
-    """The controller's in-flight estimate of the load: (x_hist (M, 13), u_past (M-1, 4)) ->
-    (cable length m, load mass kg); ``mpc.window_estimate`` is the package's."""
-
-    def __call__(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[float, float]: ...
-
-
 def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
     """Weights (K,) summing to 1 over the finite costs (non-finite ones get 0); None when no
     cost is finite."""
@@ -269,16 +249,6 @@ def mppi_weights(cost: np.ndarray, temperature: float) -> np.ndarray | None:
     w = np.zeros_like(cost)
     w[finite] = np.exp(-(cost[finite] - c_min) / (temperature * spread))
     return w / w.sum()
-
-
-def check_members(model: CandidateModel, cfg: MPCConfig) -> None:
-    """ValueError where ``cfg.risk`` prices members and ``model`` has none."""
-    if cfg.risk is not None and not hasattr(model, "predict_candidates_members"):
-        raise ValueError(
-            f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
-            f"train --ensemble K) or a network paired with physics (--with-physics), and "
-            f"{getattr(model, 'name', 'the model')!r} is one network"
-        )
 
 
 class MPPIController:

@@ -23,6 +23,7 @@ from ...config import VehicleParams
 from ...control.closed_loop import Arena, FlightLog, flight_metrics, fly, log_path, write_log
 from ...control.controllers import PID, reference_maker
 from ...control.mpc import InputLimits, MPCConfig, candidate_model, mpc_maker
+from ...control.mppi import has_members
 from ...control.paired import PhysicsPaired
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
@@ -63,9 +64,7 @@ def compare(
                              "by --risk: give both")  # fmt: skip
         physics = candidate_model(predictors[0])
         predictors[1:] = [PhysicsPaired(candidate_model(p), physics) for p in predictors[1:]]
-    if cfg.risk is not None and not any(
-        hasattr(p, "predict_candidates_members") for p in predictors
-    ):
+    if cfg.risk is not None and not any(has_members(p) for p in predictors):
         raise ValueError("--risk prices an ensemble's candidates, and no --model is an ensemble")
     base = cfg.mpc
     out_dir = Path(out) if out is not None else None
@@ -104,7 +103,7 @@ def _plans(
     plans: list[_Plan] = [(PID, None, reference_maker(PID, cfg))]
     for k in samples:
         for model in predictors:
-            risk = base.risk if hasattr(model, "predict_candidates_members") else None
+            risk = base.risk if has_members(model) else None
             mpc_cfg = replace(base, samples=int(k), risk=risk)
             label = f"mpc-{model.name}" + ("" if risk is None else f" risk {risk:g}")
             plans.append((label, int(k), mpc_maker(model, limits, mpc_cfg, params)))

@@ -48,7 +48,7 @@ from ...control.mpc import (
     knots_for,
     mpc_maker,
 )
-from ...control.mppi import ReferenceAhead
+from ...control.mppi import ReferenceAhead, has_members
 from ...control.paired import PhysicsPaired
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
@@ -218,11 +218,6 @@ def _models(learned: str | Path | None, params: VehicleParams, cfg: StudyConfig)
     return models
 
 
-def _paired(model: Any) -> bool:
-    """Whether ``model`` has members to price by the study's risk (the paired learned one)."""
-    return hasattr(model, "predict_candidates_members")
-
-
 def study_plant(cfg: StudyConfig, plant: str) -> SimConfig:
     """The simulator's config of a study plant: NOMINAL (the study's named plant,
     ``StudyConfig.plant``) or a ``SHIFTS`` name (a shift of it)."""
@@ -244,7 +239,7 @@ def _plan(cfg, settings, models, params, limits, nominal, controllers, plants) -
                 tuned = tuples_from_json(settings["mpc"][kind][str(n)])
                 mpc = cfg.mpc(**tuned, horizon=n, knots=knots_for(n),
                               samples=settings["samples"][kind][str(n)],
-                              members=_paired(models[kind]))  # fmt: skip
+                              members=has_members(models[kind]))  # fmt: skip
                 plans.append(Flown(plant, mpc_label(kind, n),
                                    mpc_maker(models[kind], limits, mpc, params)))  # fmt: skip
         if ORACLE in controllers and plant == NOMINAL:
@@ -347,7 +342,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 tuned = tuples_from_json(mpc[kind][str(n)])
                 return lambda k: mpc_maker(models[kind], limits, cfg.mpc(
                     **tuned, horizon=n, knots=knots_for(n), samples=k,
-                    members=_paired(models[kind])), params)(0)  # fmt: skip
+                    members=has_members(models[kind])), params)(0)  # fmt: skip
 
             samples[PHYSICS][str(n)] = equal_compute_samples(
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
@@ -406,7 +401,7 @@ def _best(
     best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
     for choice in choices:
         mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples,
-                      members=_paired(model))  # fmt: skip
+                      members=has_members(model))  # fmt: skip
         rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
                                    label="tuning", config=nominal, steps=cfg.steps),
                                limits, nominal.cable_length)
