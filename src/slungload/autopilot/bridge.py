@@ -483,5 +483,5 @@ def fly(
 
         physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
         flown = PhysicsPaired(exported, physics)
-    check_members(flown, config.mpc)  # before any link is opened
+    check_members(flown, config.mpc.risk)  # before any link is opened
     return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

@@ -4,12 +4,9 @@ members ``MPCConfig.risk`` prices."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from .mppi import MPCConfig
 
 
 @runtime_checkable
@@ -41,9 +38,9 @@ def has_members(model: object) -> bool:
     return hasattr(model, "predict_candidates_members")
 
 
-def check_members(model: CandidateModel, cfg: MPCConfig) -> None:
-    """ValueError where ``cfg.risk`` prices members and ``model`` has none."""
-    if cfg.risk is not None and not has_members(model):
+def check_members(model: CandidateModel, risk: float | None) -> None:
+    """ValueError where ``risk`` (``MPCConfig.risk``) prices members and ``model`` has none."""
+    if risk is not None and not has_members(model):
         raise ValueError(
             f"MPCConfig.risk prices each member's prediction: it needs an ensemble (slungload "
             f"train --ensemble K) or a network paired with physics (--with-physics), and "

@@ -291,7 +291,7 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
-        check_members(model, cfg)
+        check_members(model, cfg.risk)
         prepare = getattr(model, "prepare", None)  # see ``CandidateModel``
         if prepare is not None:
             prepare(self.history.m, cfg.samples, cfg.horizon)
