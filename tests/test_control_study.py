@@ -29,7 +29,12 @@ from slungload.lab.control.config import (
 from slungload.lab.control.oracle import PlantCandidates
 from slungload.lab.control.results import label_model
 from slungload.lab.control.study import load_log, run_study, tune_settings, tuning_score
-from slungload.lab.control.study_report import gap_closed, paired_table, write_study_report
+from slungload.lab.control.study_report import (
+    gap_closed,
+    maneuver_table,
+    paired_table,
+    write_study_report,
+)
 from slungload.layout import LOAD_POS, POS, QUAT, VEL
 from slungload.reporting import gap_interval, gap_share, paired_interval, t975
 from slungload.sim.aero import Aero
@@ -314,6 +319,22 @@ def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():
     zero = [{**r, "vehicle_rmse": 0.0} for r in rows]
     row = paired_table(zero, "nominal", [("a", "b")]).splitlines()[-1]
     assert row.endswith("| +0.000 [+0.000, +0.000] |")
+
+
+def test_the_maneuver_table_shows_each_maneuvers_mean_and_its_lost_flights():
+    timing = dict(compute_median=1.0, compute_p99=2.0, vehicle_rmse=0.1, swing_rms=5.0,
+                  swing_max=9.0, at_limit=0.0)  # fmt: skip
+    flights = (("mpc-physics N=25", "step", 1, 0.5), ("mpc-physics N=25", "step", 2, 0.7),
+               ("mpc-physics N=25", "turn", 1, 0.1), ("pid", "turn", 1, 0.3))  # fmt: skip
+    rows = [{**_row(c, m, s, v), **timing} for c, m, s, v in flights]
+    rows.append({**_row("mpc-physics N=25", "turn", 2, 9.0, completed=False), **timing})
+    rows.append({**_row("pid", "turn", 1, 5.0), **timing, "plant": "wind x2"})  # not nominal
+    lines = maneuver_table(rows, "nominal").splitlines()
+    # the PID first (reading order); a maneuver it did not fly is "-"; a lost flight is not
+    # in the mean but is counted
+    assert lines[0].split("|")[2:4] == [" step ", " turn "]
+    assert lines[2] == "| pid | - | 0.300 |"
+    assert lines[3] == "| mpc-physics N=25 | 0.600 | 0.100 / 1 lost |"
 
 
 def test_the_ratio_to_the_truth_is_over_the_flights_both_flew():

@@ -1,6 +1,8 @@
 """The control study's report (``study.run_study``'s rows): ``study.md`` and its figures.
 
-- the nominal plant: every controller's means (completed flights) and lost flights;
+- the nominal plant: every controller's means (completed flights) and lost flights, and its
+  load RMSE per maneuver (where a mean's error sits: a step the load cannot follow weighs
+  the same under every model and cost);
 - error against horizon (``horizons.png``): load RMSE and swing RMS of each MPC model per N;
 - paired differences (``paired.png`` and tables): the learned MPC against the physics MPC at
   each N, against itself at the first N, against the geometric controller at each N and the
@@ -100,6 +102,21 @@ def means_table(rows: list[Row], plant: str) -> str:
         for e in [entries[label]]
     ]
     return markdown_table(["controller", *(h for _, h, _ in KEYS), "lost", "compute (ms)"], table)
+
+
+def maneuver_table(rows: list[Row], plant: str) -> str:
+    """Per controller on ``plant``: the load RMSE (m) of each maneuver, the mean over its
+    completed flights, with the flights lost after a slash where there are any."""
+    entries = summary([r for r in rows if r["plant"] == plant], ("controller", "maneuver"))
+    maneuvers = list(dict.fromkeys(e["maneuver"] for e in entries))
+    cells = {(e["controller"], e["maneuver"]): e for e in entries}
+    key, _, spec = KEYS[0]
+    table = [
+        [label, *(fmt(e[key], spec) + (f" / {e['failed']} lost" if e["failed"] else "")
+                  if (e := cells.get((label, m))) else "-" for m in maneuvers)]
+        for label in ordered_labels({e["controller"] for e in entries})
+    ]  # fmt: skip
+    return markdown_table(["controller", *maneuvers], table)
 
 
 class Paired(NamedTuple):
@@ -319,6 +336,10 @@ def write_study_report(
         means_table(rows, NOMINAL),
         "",
         "![error against horizon](horizons.png)",
+        "",
+        f"{KEYS[0][1]} per maneuver (completed flights; lost flights after a slash):",
+        "",
+        maneuver_table(rows, NOMINAL),
         "",
         "## Paired differences",
         "",
