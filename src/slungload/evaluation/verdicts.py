@@ -15,8 +15,8 @@ from typing import Any
 
 VERDICTS_FILE = "preflight.json"
 # "may pay": necessary, not sufficient (docs/BENCHMARKS.md, "The check before flying": where
-# the MPC itself limits the flight a better response buys nothing); "does not pay" held in
-# every case flown.
+# the MPC itself limits the flight a better response buys nothing); "does not pay" held in all
+# but one case flown.
 PAYS, NOT = "may pay", "does not pay"
 
 
