@@ -422,42 +422,67 @@ def physics_checks(
         mu = mass_ratio(a_quad[good], a_load[good], b3[good], g) if cable else 0.0
     a_c = (1.0 - mu) * a_quad + mu * a_load + up
     size = np.linalg.norm(a_c, axis=1)
-    out: list[Check] = []
     seen = good & (size > limits.min_force * g)
-    if seen.any():
-        angle = float(np.median(_angles(a_c[seen], b3[seen])))
-        out.append(Check(
-            THRUST_AXIS, angle, f"<= {math.degrees(limits.thrust_axis):.0f}",
-            angle <= math.degrees(limits.thrust_axis),
-            "the attitude: quaternion components in another order (w-x-y-z read as x-y-z-w "
-            "looks upright at a heading near 180 deg; CSV: the mapping key 'attitude'), its "
-            "frames (mapping keys 'world', 'body'), a world -> body quaternion, or attitude "
-            "and positions on different clocks or frames",
-        ))  # fmt: skip
     pushed = seen & (kt > 0)
-    if pushed.any():
-        total = params.mass_quad + params.mass_load
-        scale = float(np.median(total * size[pushed] / kt[pushed]))
-        low, high = 1.0 / limits.thrust_scale, limits.thrust_scale
-        out.append(Check(
-            THRUST_SCALE, scale, f"{low:.3g} to {high:.3g}", low <= scale <= high,
-            ("a thrust above what the flight's accelerations show" if scale < low else
-             "a thrust below what the flight's accelerations show")
-            + ": the hover throttle (--hover-throttle: the throttle that holds vehicle and "
-            "load), the thrust's unit or --newtons-per-throttle, or the masses of the "
-            "vehicle constants (--vehicle, --mass-quad, --mass-load)",
-        ))  # fmt: skip
-    if cable:
-        pull = a_load + up
-        toward = np.asarray(p, float) - np.asarray(p_load, float)  # load -> vehicle
-        taut = good & (np.linalg.norm(pull, axis=1) > limits.min_force * g)
-        if taut.any():
-            angle = float(np.median(_angles(pull[taut], toward[taut])))
-            out.append(Check(
-                CABLE_PULL, angle, f"<= {math.degrees(limits.cable_pull):.0f}",
-                angle <= math.degrees(limits.cable_pull),
-                "the load's positions in another frame, origin or clock than the vehicle's "
-                "(a second motion-capture frame, an offset origin: map both to one frame, or "
-                "give the load as a second log, --second), or another body's positions",
-            ))  # fmt: skip
-    return tuple(out)
+    total = params.mass_quad + params.mass_load
+    found = (
+        _thrust_axis(a_c[seen], b3[seen], limits) if seen.any() else None,
+        _thrust_scale(total * size[pushed] / kt[pushed], limits) if pushed.any() else None,
+        _cable_pull(a_load + up, np.asarray(p, float) - np.asarray(p_load, float), good, g,
+                    limits) if cable else None,
+    )  # fmt: skip
+    return tuple(c for c in found if c is not None)
+
+
+def _thrust_axis(a_c: np.ndarray, b3: np.ndarray, limits: ConsistencyLimits) -> Check:
+    """``THRUST_AXIS``: the median angle between the centre of mass's specific force (n, 3)
+    and body z (n, 3), the samples with a force to measure."""
+    import numpy as np
+
+    angle = float(np.median(_angles(a_c, b3)))
+    return Check(
+        THRUST_AXIS, angle, f"<= {math.degrees(limits.thrust_axis):.0f}",
+        angle <= math.degrees(limits.thrust_axis),
+        "the attitude: quaternion components in another order (w-x-y-z read as x-y-z-w "
+        "looks upright at a heading near 180 deg; CSV: the mapping key 'attitude'), its "
+        "frames (mapping keys 'world', 'body'), a world -> body quaternion, or attitude "
+        "and positions on different clocks or frames",
+    )  # fmt: skip
+
+
+def _thrust_scale(ratios: np.ndarray, limits: ConsistencyLimits) -> Check:
+    """``THRUST_SCALE``: the median of the total mass x specific force / (kT T) (n,), the
+    samples with a force to measure and a positive thrust."""
+    import numpy as np
+
+    scale = float(np.median(ratios))
+    low, high = 1.0 / limits.thrust_scale, limits.thrust_scale
+    return Check(
+        THRUST_SCALE, scale, f"{low:.3g} to {high:.3g}", low <= scale <= high,
+        ("a thrust above what the flight's accelerations show" if scale < low else
+         "a thrust below what the flight's accelerations show")
+        + ": the hover throttle (--hover-throttle: the throttle that holds vehicle and "
+        "load), the thrust's unit or --newtons-per-throttle, or the masses of the "
+        "vehicle constants (--vehicle, --mass-quad, --mass-load)",
+    )  # fmt: skip
+
+
+def _cable_pull(
+    pull: np.ndarray, toward: np.ndarray, good: np.ndarray, g: float, limits: ConsistencyLimits
+) -> Check | None:
+    """``CABLE_PULL``: the median angle between the load's specific force (T, 3) and the
+    direction load -> vehicle (T, 3), over the ``good`` samples where the cable is taut; None
+    where it never is."""
+    import numpy as np
+
+    taut = good & (np.linalg.norm(pull, axis=1) > limits.min_force * g)
+    if not taut.any():
+        return None
+    angle = float(np.median(_angles(pull[taut], toward[taut])))
+    return Check(
+        CABLE_PULL, angle, f"<= {math.degrees(limits.cable_pull):.0f}",
+        angle <= math.degrees(limits.cable_pull),
+        "the load's positions in another frame, origin or clock than the vehicle's "
+        "(a second motion-capture frame, an offset origin: map both to one frame, or "
+        "give the load as a second log, --second), or another body's positions",
+    )  # fmt: skip
