@@ -157,6 +157,35 @@ def align_tracks(
     across; ``what`` names the logs in errors (``LogError``)."""
     t1, p1 = _track(first, what)
     t2, p2 = _track(second, what)
+    need = _required_overlap(first, second, t1, t2, limits, max_gap, what)
+    max_gap += STAMP_EPS  # a step over it by the stamps' rounding is no gap
+    track = _Tracks(t1, p1, t2, p2, np.gradient(p2, t2, axis=0), rotation, max_gap, need)
+    noise = math.hypot(noise_floor(t1, p1, max_gap), noise_floor(t2, p2, max_gap))
+    tolerance = residual_limit(noise, limits)
+    if time_offset is not None:
+        fit = _fit(track, time_offset)
+        if fit is None:
+            common = _overlap(track, time_offset)
+            raise LogError(
+                f"{what}: with the time offset {time_offset:g} s the vehicle tracks "
+                + ("do not overlap" if common <= 0 else f"share only {common:.2f} s")
+                + f" (the first covers {t1[0]:.3f} to {t1[-1]:.3f} s, the second "
+                f"{t2[0] + time_offset:.3f} to {t2[-1] + time_offset:.3f} s on the first's "
+                f"clock; at least {need:.2f} s are needed); leave --time-offset out to "
+                "estimate it"
+            )
+        return _alignment(fit, track, estimated=False, noise=noise)
+    best, others = _estimated_offset(track, t1, t2, tolerance, limits, what)
+    return _alignment(best, track, estimated=True, noise=noise,
+                      others=[(f.offset, f.residual) for f in others])  # fmt: skip
+
+
+def _required_overlap(
+    first: Stream, second: Stream, t1: np.ndarray, t2: np.ndarray,
+    limits: ConsistencyLimits, max_gap: float, what: str,
+) -> float:  # fmt: skip
+    """s, the overlap an alignment of the two tracks (stamps t1, t2) needs; a ``LogError``
+    where the shorter is too short or either is sampled more sparsely than ``max_gap``."""
     # a short stretch fits almost anything: both must cover a good share of the shorter track
     shorter = min(t1[-1] - t1[0], t2[-1] - t2[0])
     if shorter < limits.align_duration:
@@ -177,23 +206,16 @@ def align_tracks(
             f"be aligned; raise the position's --max-gap above its step (--max-gap "
             f"position={above:g}; ImportOptions.max_gaps)"
         )
-    max_gap += STAMP_EPS  # a step over it by the stamps' rounding is no gap
-    track = _Tracks(t1, p1, t2, p2, np.gradient(p2, t2, axis=0), rotation, max_gap, need)
-    noise = math.hypot(noise_floor(t1, p1, max_gap), noise_floor(t2, p2, max_gap))
-    tolerance = residual_limit(noise, limits)
-    if time_offset is not None:
-        fit = _fit(track, time_offset)
-        if fit is None:
-            common = _overlap(track, time_offset)
-            raise LogError(
-                f"{what}: with the time offset {time_offset:g} s the vehicle tracks "
-                + ("do not overlap" if common <= 0 else f"share only {common:.2f} s")
-                + f" (the first covers {t1[0]:.3f} to {t1[-1]:.3f} s, the second "
-                f"{t2[0] + time_offset:.3f} to {t2[-1] + time_offset:.3f} s on the first's "
-                f"clock; at least {need:.2f} s are needed); leave --time-offset out to "
-                "estimate it"
-            )
-        return _alignment(fit, track, estimated=False, noise=noise)
+    return need
+
+
+def _estimated_offset(
+    track: _Tracks, t1: np.ndarray, t2: np.ndarray, tolerance: float,
+    limits: ConsistencyLimits, what: str,
+) -> tuple[_Fit, list[_Fit]]:  # fmt: skip
+    """The best fit over the candidate time offsets and the other distinct ones; a
+    ``LogError`` where none fits or another fits within ``tolerance`` m (the offset is
+    ambiguous)."""
     step = max(GRID_STEP, _median_step(t1), _median_step(t2))
     # a repeated maneuver gives many equal peaks: screen them by the fit, refine the best
     screened = [_fit(track, tau) for tau in _peaks(track, step, limits, what)]
@@ -221,8 +243,7 @@ def align_tracks(
             "cannot tell them apart; give the offset, s added to the second log's stamps, with "
             "--time-offset SECONDS (SecondLog.time_offset)"
         )
-    return _alignment(best, track, estimated=True, noise=noise,
-                      others=[(f.offset, f.residual) for f in others])  # fmt: skip
+    return best, others
 
 
 def noise_floor(t: np.ndarray, p: np.ndarray, max_gap: float) -> float:
