@@ -22,6 +22,7 @@ from slungload.lab.control.config import (
     COST_GRID,
     SETTINGS_FIELDS,
     SHIFTS,
+    SWING_BOUND,
     TUNING_GRID,
     UNSAFE_SWING,
     StudyConfig,
@@ -603,7 +604,7 @@ def test_the_oracle_flies_the_learned_mpcs_settings_at_its_own_k():
             assert getattr(cfg, name) == getattr(wanted, name), name
 
 
-def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
+def test_tuning_chooses_the_best_scored_choice_it_flew_on_the_tuning_seeds():
     from slungload.deploy.backends import load_model
 
     nominal = SimConfig()
@@ -611,23 +612,46 @@ def test_tuning_chooses_the_noise_then_the_cost_on_the_tuning_seeds():
     lines: list[str] = []
     chosen = tune_settings(load_model("physics", params), InputLimits.from_sim(nominal), params,
                            replace(TINY, tune=True), 4, lines.append)  # fmt: skip
-    assert len(lines) == len(TUNING_GRID) + len(COST_GRID)
-    noise = {k: chosen[k] for k in ("temperature", "thrust_std", "rate_std")}
-    cost = {k: v for k, v in chosen.items() if k not in noise}
+    # the noise grid, then the cost grid at its winner (its default cost not flown again),
+    # then the noise grid at the chosen cost when that changed
+    assert len(lines) >= len(TUNING_GRID) + len(COST_GRID)
+    assert len(set(lines)) == len(lines)  # no choice flown twice
     MPCConfig(**chosen)  # fields of the MPC's config
-    # The winner of each round is the best score its progress lines show (lost, past the
-    # swing limit, load RMSE to the printed digit: printed ties may go either way).
+    # The winner is a best score its progress lines show (lost, past the swing limit, load RMSE
+    # to the printed digit: printed ties may go either way).
     found = [re.search(r": (\d+) lost, (\d+) past \S+ deg, load RMSE (\S+) m$", x) for x in lines]
     scores = [tuple(float(v) for v in m.groups()) for m in found]
-    first, second = scores[: len(TUNING_GRID)], scores[len(TUNING_GRID) :]
-    best = [(t, MPCConfig().thrust_std * scale) for (t, scale), sc in zip(TUNING_GRID, first,
-            strict=True) if sc == min(first)]  # fmt: skip
-    assert (chosen["temperature"], chosen["thrust_std"]) in best
-    better = [c for c, sc in zip(COST_GRID, second, strict=True) if sc == min(second)]
-    if min(second) > min(first):
-        assert cost == {}  # the default cost, the first round's winner, is kept
-    else:
-        assert cost in better or (min(second) == min(first) and cost == {})
+    winners = [x.split(": ")[1] for x, sc in zip(lines, scores, strict=True) if sc == min(scores)]
+    assert ", ".join(f"{k} {v}" for k, v in chosen.items()) in winners
+
+
+def test_tuning_alternates_until_a_round_keeps_its_choice(monkeypatch):
+    """The chain-light case: a noise that swings the load under the default cost flies best
+    under the swing bound, which only the cost round brings in."""
+    from slungload.lab.control import study
+
+    base = MPCConfig()
+    calm = (0.1, 0.5)  # (temperature, noise scale): best with the swing bound
+    flown: list[dict] = []
+
+    def score(model, limits, params, cfg, n, choice, progress):
+        flown.append(choice)
+        scale = choice["thrust_std"] / base.thrust_std
+        pair = (choice["temperature"], round(scale, 6))
+        bound = choice.get("max_swing") == SWING_BOUND and len(choice) == 4
+        if pair == calm:
+            return (0, 0, 0.09) if bound else (0, 3, 0.10)
+        return (0, 0, 0.12) if bound else (0, 2, 0.15)
+
+    monkeypatch.setattr(study, "_score", score)
+    chosen = tune_settings(None, None, None, TINY, 4)
+    assert (chosen["temperature"], chosen["thrust_std"]) == (0.1, 0.5 * base.thrust_std)
+    assert chosen["max_swing"] == SWING_BOUND and len(chosen) == 4
+    keys = [tuple(sorted(c.items())) for c in flown]
+    assert len(set(keys)) == len(keys)  # each choice flown once
+    # round 1: six noises; round 2: five cost changes; round 3: five noises with the bound;
+    # round 4: the cost changes at the new noise (the bound itself already flown)
+    assert len(flown) == 2 * len(TUNING_GRID) - 1 + 2 * len(COST_GRID) - 1
 
 
 def test_the_tuning_score_puts_lost_flights_then_large_swings_before_the_error():

@@ -37,9 +37,9 @@ LEARNED = "learned"
 ORACLE = "oracle"
 STUDY_KINDS = (*REFERENCE, "physics", LEARNED, ORACLE)
 PHYSICS_SAMPLES = (256, 512, 1024, 2048, 4096, 8192)  # K the physics MPC may use
-# (temperature, noise scale) pairs ``tune_settings`` tries first, with the default cost
+# (temperature, noise scale) pairs ``tune_settings`` tries, first with the default cost
 TUNING_GRID = ((0.1, 1.0), (0.3, 1.0), (1.0, 1.0), (0.1, 0.5), (0.3, 0.5), (0.3, 2.0))
-# then the cost changes it tries at the chosen pair against the default cost (``mppi.MPCConfig``
+# and the cost changes it tries at the chosen pair against the default cost (``mppi.MPCConfig``
 # fields): the swing bound, position errors beyond 0.5 m or 0.3 m pulling linearly, the floor
 SWING_BOUND = 0.7  # rad (40 deg): the swing angle beyond it costs (``MPCConfig.max_swing``)
 # deg: a swing past it counts against a tuning choice, after a lost flight (``tune_settings``),
@@ -61,6 +61,8 @@ COST_GRID: tuple[dict[str, float], ...] = (
     {"max_swing": SWING_BOUND, "position_huber": 0.5},
     {"min_height": FLOOR},
 )
+# at most this many alternating rounds (noise, cost, noise, ...) of ``tune_settings``
+TUNING_ROUNDS = 4
 
 
 # The ``StudyConfig`` fields that settle what a study folder's flights are: the MPC settings and

@@ -71,6 +71,7 @@ from .config import (
     SHIFTS,
     STUDY_KINDS,
     TUNING_GRID,
+    TUNING_ROUNDS,
     UNSAFE_SWING,
     StudyConfig,
 )
@@ -378,42 +379,60 @@ def tune_settings(
     """The MPC settings that fly the tuning seeds (nominal plant, N = ``horizon``, K =
     ``cfg.samples`` for every model) best by ``tuning_score`` (the fewest lost flights, then
     the fewest swinging the load past ``UNSAFE_SWING``, then the lowest mean load RMSE),
-    chosen in two rounds: the sampling noise scale and temperature of ``TUNING_GRID``
-    with the default cost, then the cost changes of ``COST_GRID`` at that choice (the default
-    cost there is the first round's winner, not flown again). Returns the
-    ``MPCConfig`` fields chosen, e.g. {"temperature", "thrust_std", "rate_std", "max_swing"}."""
+    chosen by alternating rounds: the sampling noise scale and temperature of ``TUNING_GRID``
+    at the cost chosen so far (first the default cost), then the cost changes of ``COST_GRID``
+    at the noise chosen so far, until a round keeps the choice or ``TUNING_ROUNDS`` have run.
+    Alternating, because a noise that swings the load under the default cost may fly best
+    under the swing bound. A choice is flown once; the current one is kept unless another
+    scores strictly better. Returns the ``MPCConfig`` fields chosen, e.g. {"temperature",
+    "thrust_std", "rate_std", "max_swing"}."""
     base = MPCConfig()
-    noise = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
-              "rate_std": tuple(r * scale for r in base.rate_std)}
-             for temperature, scale in TUNING_GRID]  # fmt: skip
-    chosen = _best(model, limits, params, cfg, horizon, noise, progress)
-    costs = [{**chosen[0], **change} for change in COST_GRID]
-    return _best(model, limits, params, cfg, horizon, costs, progress, start=chosen)[0]
+    noises = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
+               "rate_std": tuple(r * scale for r in base.rate_std)}
+              for temperature, scale in TUNING_GRID]  # fmt: skip
+    costs: list[dict[str, float]] = [{}, *COST_GRID]
+    flown: dict[tuple, tuple[int, int, float]] = {}
+    noise, cost = noises[0], costs[0]
+    best: tuple[dict[str, Any], tuple[int, int, float]] | None = None
+    kept = None
+    for round_ in range(TUNING_ROUNDS):
+        if round_ % 2 == 0:
+            choices = [({**n, **cost}, n, cost) for n in noises]
+        else:
+            choices = [({**noise, **c}, noise, c) for c in costs]
+        for choice, n, c in choices:
+            key = _key(choice)
+            if key not in flown:
+                flown[key] = _score(model, limits, params, cfg, horizon, choice, progress)
+            if best is None or flown[key] < best[1]:
+                best, noise, cost = (choice, flown[key]), n, c
+        if best[0] == kept:
+            break
+        kept = best[0]
+    return best[0]
 
 
-def _best(
-    model, limits, params, cfg: StudyConfig, n: int, choices, progress, start=None
-) -> tuple[dict[str, Any], tuple[int, int, float]]:
-    """The choice of ``choices`` (``MPCConfig`` fields) scoring best on the tuning seeds, and
-    its ``tuning_score``; ``start``: a (choice, score) already flown, kept
-    unless one scores strictly better."""
+def _key(choice: dict[str, Any]) -> tuple:
+    return tuple(sorted(choice.items()))
+
+
+def _score(
+    model, limits, params, cfg: StudyConfig, n: int, choice: dict[str, Any], progress
+) -> tuple[int, int, float]:
+    """``tuning_score`` of ``choice`` (``MPCConfig`` fields) on the tuning seeds."""
     nominal = named_plant(cfg.plant)
-    best, best_score = start or (choices[0], (np.inf, np.inf, np.inf))
-    for choice in choices:
-        mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples,
-                      members=has_members(model))  # fmt: skip
-        rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
-                                   label="tuning", config=nominal, steps=cfg.steps),
-                               limits, nominal.cable_length)
-                for man in cfg.maneuvers for seed in cfg.tuning_seeds]  # fmt: skip
-        score = tuning_score(rows)
-        if progress:
-            shown = ", ".join(f"{k} {v}" for k, v in choice.items())
-            progress(f"tuning {model.name} N={n}: {shown}: {score[0]} lost, {score[1]} past "
-                     f"{UNSAFE_SWING:g} deg, load RMSE {score[2]:.3f} m")  # fmt: skip
-        if score < best_score:
-            best, best_score = choice, score
-    return best, best_score
+    mpc = cfg.mpc(**choice, horizon=n, knots=knots_for(n), samples=cfg.samples,
+                  members=has_members(model))  # fmt: skip
+    rows = [flight_metrics(fly(man, seed, mpc_maker(model, limits, mpc, params)(seed),
+                               label="tuning", config=nominal, steps=cfg.steps),
+                           limits, nominal.cable_length)
+            for man in cfg.maneuvers for seed in cfg.tuning_seeds]  # fmt: skip
+    score = tuning_score(rows)
+    if progress:
+        shown = ", ".join(f"{k} {v}" for k, v in choice.items())
+        progress(f"tuning {model.name} N={n}: {shown}: {score[0]} lost, {score[1]} past "
+                 f"{UNSAFE_SWING:g} deg, load RMSE {score[2]:.3f} m")  # fmt: skip
+    return score
 
 
 def tuning_score(rows: Sequence[dict[str, Any]]) -> tuple[int, int, float]:
