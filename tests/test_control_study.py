@@ -712,9 +712,9 @@ def test_each_horizon_gets_its_own_settings(tmp_path):
     run_study(None, tmp_path, config, controllers=("physics",), progress=lines.append)
     settings = json.loads((tmp_path / "settings.json").read_text())
     assert set(settings["mpc"]["physics"]) == {"3", "4"}
-    per_round = len(TUNING_GRID) + len(COST_GRID)
-    for n in (3, 4):
-        assert sum(line.startswith(f"tuning physics N={n}:") for line in lines) == per_round
+    for n in (3, 4):  # at least the first two rounds at each horizon
+        flown = sum(line.startswith(f"tuning physics N={n}:") for line in lines)
+        assert flown >= len(TUNING_GRID) + len(COST_GRID)
     # a folder written with one setting for every horizon is refused, not misread
     settings["mpc"]["physics"] = settings["mpc"]["physics"]["3"]
     (tmp_path / "settings.json").write_text(json.dumps(settings))
