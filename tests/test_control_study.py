@@ -28,10 +28,10 @@ from slungload.lab.control.config import (
     StudyConfig,
 )
 from slungload.lab.control.oracle import PlantCandidates
+from slungload.lab.control.oracle_gap import gap_closed
 from slungload.lab.control.results import label_model
 from slungload.lab.control.study import load_log, run_study, tune_settings, tuning_score
 from slungload.lab.control.study_report import (
-    gap_closed,
     maneuver_table,
     paired_table,
     write_study_report,

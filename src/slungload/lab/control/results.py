@@ -37,6 +37,8 @@ def columns(*keys: str) -> tuple[tuple[str, str, str], ...]:
 
 COLUMNS = columns(*METRICS)  # the error columns of ``control``'s tables, means over seeds
 PAIRED = ("load_rmse", "swing_rms", "vehicle_rmse")  # compared flight by flight with physics
+# the figures the control study reports per controller and pair (``study_report``)
+KEYS = columns("load_rmse", "swing_rms", "swing_max", "vehicle_rmse")
 
 Row = dict[str, Any]  # one flight's figures (``flight_metrics``) and how it was flown
 Flight = tuple[str, int]  # (maneuver, seed): what pairs two controllers' flights

@@ -49,10 +49,9 @@ from ...run_config import SMOKE_PRESET
 from ...sim.config import SimConfig
 from ...sim.dataset import vehicle_params
 from .config import UnseenLoadsConfig
-from .results import fmt, mean_of, ratio
+from .results import KEYS, fmt, mean_of, ratio
 from .study import Flown, collect_rows, fly_once
 from .study_report import (
-    KEYS,
     completed_pairs,
     controller_means,
     means_table,
