@@ -33,10 +33,11 @@ from log_files import (
 )
 
 from slungload import frames
-from slungload.data.alignment import RESIDUAL, SPREAD, align_tracks, fit_rigid
+from slungload.data.alignment import RESIDUAL, SPREAD, align_tracks
 from slungload.data.consistency import ConsistencyError, ConsistencyLimits
 from slungload.data.importing import ImportOptions, SecondLog, import_logs
 from slungload.data.readers.logs import LogError, Stream
+from slungload.data.track_offset import fit_rigid
 
 SHIFT = 12.34  # s, the recording's clock behind the ULog's: t_ulog = t_mocap + SHIFT
 YAW = math.radians(40.0)  # the recording's frame, turned about z ...
