@@ -16,7 +16,7 @@ from typing import Any
 VERDICTS_FILE = "preflight.json"
 # "may pay": necessary, not sufficient (docs/BENCHMARKS.md, "The check before flying": where
 # the MPC itself limits the flight a better response buys nothing); "does not pay" held in all
-# but two cases flown.
+# but three cases flown (docs/control.md).
 PAYS, NOT = "may pay", "does not pay"
 
 
