@@ -319,9 +319,11 @@ def test_a_stopped_state_stream_hovers_then_hands_back(model_file):
 
 
 def test_a_stopped_load_stream_hovers_then_hands_back(model_file):
-    # the load's age: the default 0.1 s; the lockstep simulation runs on while only the load
-    # is missing, and its 1 s gap (33 periods, each an MPC step) takes longer than that
+    # the load's age: the default 0.1 s of wall clock. In real time, not lockstep: a lockstep
+    # simulation runs on while only the load is missing, and on a fast machine its 1 s gap
+    # (33 MPC steps) can pass in less wall time than that
     sil, fly = configs(free_port(), duration=3.0, max_load_age=0.1)
+    sil = replace(sil, lockstep=False)
 
     def stop_the_load(line: str, endpoint: SilEndpoint) -> None:
         if "the MPC flies" in line:
@@ -356,7 +358,10 @@ def test_fifty_milliseconds_of_jitter_on_the_telemetry(model_file):
 
 
 def test_leaving_offboard_mid_flight_stops_the_commands(model_file):
+    # in real time: the pilot switches 0.3 s (wall) into a 3 s flight, which a lockstep
+    # simulation on a fast machine could finish first
     sil, fly = configs(free_port(), duration=3.0)
+    sil = replace(sil, lockstep=False)
     switched = []
 
     def pilot(line: str, endpoint: SilEndpoint) -> None:
