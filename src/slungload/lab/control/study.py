@@ -392,28 +392,24 @@ def tune_settings(
               for temperature, scale in TUNING_GRID]  # fmt: skip
     costs: list[dict[str, float]] = [{}, *COST_GRID]
     flown: dict[tuple, tuple[int, int, float]] = {}
+
+    def score(noise: dict[str, Any], cost: dict[str, float]) -> tuple[int, int, float]:
+        choice = {**noise, **cost}
+        key = tuple(sorted(choice.items()))
+        if key not in flown:
+            flown[key] = _score(model, limits, params, cfg, horizon, choice, progress)
+        return flown[key]
+
     noise, cost = noises[0], costs[0]
-    best: tuple[dict[str, Any], tuple[int, int, float]] | None = None
-    kept = None
     for round_ in range(TUNING_ROUNDS):
-        if round_ % 2 == 0:
-            choices = [({**n, **cost}, n, cost) for n in noises]
-        else:
-            choices = [({**noise, **c}, noise, c) for c in costs]
-        for choice, n, c in choices:
-            key = _key(choice)
-            if key not in flown:
-                flown[key] = _score(model, limits, params, cfg, horizon, choice, progress)
-            if best is None or flown[key] < best[1]:
-                best, noise, cost = (choice, flown[key]), n, c
-        if best[0] == kept:
+        before = noise, cost
+        pairs = [(n, cost) for n in noises] if round_ % 2 == 0 else [(noise, c) for c in costs]
+        for n, c in pairs:
+            if score(n, c) < score(noise, cost):
+                noise, cost = n, c
+        if round_ > 0 and (noise, cost) == before:
             break
-        kept = best[0]
-    return best[0]
-
-
-def _key(choice: dict[str, Any]) -> tuple:
-    return tuple(sorted(choice.items()))
+    return {**noise, **cost}
 
 
 def _score(
