@@ -197,6 +197,26 @@ def test_the_verdict_beside_the_run_and_the_warning(tmp_path: Path, windows) -> 
     assert verdict_note(run, N) is None
 
 
+def test_the_report_says_when_the_flights_cannot_tell_the_score_from_the_bound(windows) -> None:
+    """A load score below ``pays_below`` whose interval reaches past it: "does not pay", and the
+    report says the held-out flights are too few to tell; not where the score is clear."""
+    from slungload.evaluation.preflight import PreflightResult, render
+
+    def report(load: Ratio) -> str:
+        vehicle = Ratio(0.1, 0.05, 0.15)
+        response = {"load position": load, "vehicle position": vehicle}
+        result = PreflightResult(model="run", data="d", split="test", horizon=N, flights=3,
+                                 windows=len(windows), dt=0.03, response=response,
+                                 logged=response, curves={"network": [0.7], "physics": [0.9]},
+                                 verdict=verdict_of(response, CFG), config=CFG)  # fmt: skip
+        return render(result)
+
+    straddles = report(Ratio(0.77, 0.5, 0.96))
+    assert NOT in straddles and "3 held-out flights cannot tell it from 0.9" in straddles
+    for clear in (Ratio(0.5, 0.4, 0.6), Ratio(0.95, 0.9, 1.0)):
+        assert "cannot tell" not in report(clear)
+
+
 def test_control_warns_from_the_check(tiny_run, tmp_path: Path) -> None:
     import shutil
 

@@ -94,8 +94,8 @@ class PreflightResult:
         if self.reason:
             return f"{self.model} at N = {self.horizon}: {self.verdict} ({self.reason})"
         return (f"{self.model} at N = {self.horizon}: {self.verdict} (leaves {r.text()} x "
-                "physics's share of the commands' effect on the load unexplained; may pay below "
-                f"{self.config.pays_below:g})")  # fmt: skip
+                "physics's share of the commands' effect on the load unexplained; may pay where the "
+                f"interval lies below {self.config.pays_below:g})")  # fmt: skip
 
 
 def start_features(windows: Windows) -> Tensor:
@@ -302,6 +302,11 @@ def render(result: PreflightResult) -> str:
     """check.md: the verdict and its evidence."""
     rows = [[g, result.response[g].text(), result.logged[g].text()] for g in GROUPS_CHECKED]
     c, n = result.curves, result.horizon
+    load, bound = result.response["load position"], result.config.pays_below
+    thin = [] if result.reason or not load.value < bound <= load.high else [
+        f"The load's score itself lies below {bound:g}, but {result.flights} held-out flights "
+        f"cannot tell it from {bound:g}: more held-out flights with varied commands may turn "
+        "the verdict either way.", ""]
     lines = [
         "# Pre-flight check", "",
         f"**{result.summary()}**", "",
@@ -311,12 +316,12 @@ def render(result: PreflightResult) -> str:
         "N steps that a model's predicted effect leaves unexplained (each fitted on the start "
         "state and the commands, out of fold by flight; 0 is perfect, 1 a model that ignores "
         "its commands): what an MPC's choice among plans from one state depends on. The "
-        f"network may pay when the load's ratio lies below {result.config.pays_below:g} and "
+        f"network may pay when the load's interval lies below {result.config.pays_below:g} and "
         "the vehicle's is not clearly above 1.", "",
         markdown_table(["network / physics, steps 1..N",
                         f"response score [{100 * result.config.level:.0f} % flight bootstrap]",
                         "RMS error on the flights"], rows),
-        "",
+        "", *thin,
         f"At step {n}, load position: the network leaves {c['network'][-1]:.3f} of the "
         f"commands' effect unexplained, physics {c['physics'][-1]:.3f}. Flights whose commands "
         "barely varied (a PID's alone) leave little to fit: the verdict then says little. "
