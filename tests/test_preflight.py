@@ -247,8 +247,12 @@ def test_the_command_writes_its_report_and_refuses_bad_input(
     assert "at N = 6" in out and (run / VERDICTS_FILE).is_file()
     for name in ("check.md", "check.json", "check.png"):
         assert (tmp_path / "report" / name).is_file()
-    code, _, err = run_cli("check", run, "--horizon", "6")  # its own test split: 2 flights
+    code, _, err = run_cli("check", run, "--horizon", "6", "--split", "test")  # 2 flights
     assert code == 2 and "at least 3" in err
+    code, out, err = run_cli("check", run, "--horizon", "6", "--out", tmp_path / "own")
+    report = (tmp_path / "own" / "check.md").read_text()
+    assert code == 0, err  # by default on val and test together: 3 flights
+    assert "held-out flights (val and test)" in report and ": 3 flights" in report
     code, _, err = run_cli("check", tmp_path / "nowhere", "--data", data)
     assert code == 2 and "nowhere" in err
 

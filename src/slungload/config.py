@@ -446,9 +446,11 @@ class PreflightConfig:
     below this (a 10 % lead, with confidence). level, resamples: the interval's coverage
     and its flight-bootstrap resamplings. knots: values per command channel a window's future
     commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
-    response fit's regularisation, per window (standardised features)."""
+    response fit's regularisation, per window (standardised features). split: the flights
+    judged on: "held-out" (val and test together), "test" or "val"."""
 
     horizon: int = 15
+    split: str = "held-out"
     pays_below: float = 0.9
     level: float = 0.95
     resamples: int = 2000

@@ -88,6 +88,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def add_check(sub: Any) -> None:
     from ..config import PreflightConfig
+    from ..fileio import HELD_OUT
 
     cfg = PreflightConfig()
     p = new_command(
@@ -106,8 +107,9 @@ def add_check(sub: Any) -> None:
     )
     p.add_argument("run", type=Path, metavar="RUN_DIR", help="run folder, .ckpt or ensemble")
     p.add_argument("--data", type=Path, help="dataset folder (default: the run's own)")
-    p.add_argument("--split", default="test", choices=("test", "val"),
-                   help="held-out flights to judge on (default test)")  # fmt: skip
+    p.add_argument("--split", default=cfg.split, choices=(HELD_OUT, "test", "val"),
+                   help=f"flights to judge on: {HELD_OUT} is val and test together (default "
+                   f"{cfg.split})")  # fmt: skip
     p.add_argument("--horizon", type=positive_int, default=cfg.horizon, metavar="N",
                    help=f"the MPC's horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
     p.add_argument("--pays-below", type=float, default=cfg.pays_below, metavar="R",
@@ -125,8 +127,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     from ..evaluation.preflight import check, record_verdict, write_check
     from ..evaluation.verdicts import verdicts_path
 
-    cfg = replace(PreflightConfig(), horizon=args.horizon, pays_below=args.pays_below)
-    result = check(args.run, args.data, split=args.split, cfg=cfg)
+    cfg = replace(PreflightConfig(), horizon=args.horizon, split=args.split,
+                  pays_below=args.pays_below)  # fmt: skip
+    result = check(args.run, args.data, cfg=cfg)
     print(result.summary())
     for path in write_check(result, args.out or verdicts_path(args.run).parent / "check"):
         print(f"wrote {path}")

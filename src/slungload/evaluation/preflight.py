@@ -39,7 +39,7 @@ from torch import Tensor
 from ..config import PreflightConfig, VehicleParams, WindowConfig, from_dict
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
-from ..fileio import write_json, write_text
+from ..fileio import HELD_OUT, write_json, write_text
 from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
@@ -94,8 +94,8 @@ class PreflightResult:
         if self.reason:
             return f"{self.model} at N = {self.horizon}: {self.verdict} ({self.reason})"
         return (f"{self.model} at N = {self.horizon}: {self.verdict} (leaves {r.text()} x "
-                "physics's share of the commands' effect on the load unexplained; may pay where the "
-                f"interval lies below {self.config.pays_below:g})")  # fmt: skip
+                "physics's share of the commands' effect on the load unexplained; may pay "
+                f"where the interval lies below {self.config.pays_below:g})")  # fmt: skip
 
 
 def start_features(windows: Windows) -> Tensor:
@@ -244,14 +244,13 @@ def check(
     run: str | Path,
     data: str | Path | None = None,
     *,
-    split: str = "test",
     cfg: PreflightConfig | None = None,
 ) -> PreflightResult:
     """The pre-flight check of a run folder, ``.ckpt`` or ensemble folder (its members' mean)
-    on a dataset's ``split`` (default: the run's own dataset) at the MPC horizon
+    on a dataset's ``cfg.split`` (default: the run's own dataset) at the MPC horizon
     ``cfg.horizon``, against the physics model with the dataset's constants."""
     cfg = cfg or PreflightConfig()
-    n = cfg.horizon
+    n, split = cfg.horizon, cfg.split
     meta = model_meta(run)
     folder = data if data is not None else meta.get("data")
     if folder is None:
@@ -298,19 +297,24 @@ def record_verdict(result: PreflightResult) -> Path:
 # --- the report ----------------------------------------------------------------------------
 
 
+def _flights(split: str) -> str:
+    return "held-out flights (val and test)" if split == HELD_OUT else f"{split} split"
+
+
 def render(result: PreflightResult) -> str:
     """check.md: the verdict and its evidence."""
     rows = [[g, result.response[g].text(), result.logged[g].text()] for g in GROUPS_CHECKED]
     c, n = result.curves, result.horizon
     load, bound = result.response["load position"], result.config.pays_below
-    thin = [] if result.reason or not load.value < bound <= load.high else [
-        f"The load's score itself lies below {bound:g}, but {result.flights} held-out flights "
-        f"cannot tell it from {bound:g}: more held-out flights with varied commands may turn "
-        "the verdict either way.", ""]
+    thin = []
+    if not result.reason and load.value < bound <= load.high:
+        thin = [f"The load's score itself lies below {bound:g}, but {result.flights} held-out "
+                f"flights cannot tell it from {bound:g}: more held-out flights with varied "
+                "commands may turn the verdict either way.", ""]  # fmt: skip
     lines = [
         "# Pre-flight check", "",
         f"**{result.summary()}**", "",
-        f"{result.model} against the physics model on the {result.split} split of "
+        f"{result.model} against the physics model on the {_flights(result.split)} of "
         f"{result.data}: {result.flights} flights, {result.windows} windows at N = {n}. The "
         "response score is the share of the commands' true effect on a displacement over the "
         "N steps that a model's predicted effect leaves unexplained (each fitted on the start "

@@ -7,6 +7,7 @@ from typing import Any
 
 from ..config import WindowConfig
 from ..data.windows import Windows, make_windows
+from ..fileio import HELD_OUT
 
 SPLITS = ("test", "val")
 # the splits ``evaluate`` measures on: report on test, choose on val
@@ -20,11 +21,13 @@ def horizon_windows(
     dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...,
     ``.params``: the constants of flights that record none of their own).
     Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
+    ``split``: one of ``SPLITS``, or ``HELD_OUT`` for the val flights then the test flights.
     """
-    if split not in SPLITS:
-        raise ValueError(f"evaluate: split must be one of {SPLITS}, got {split!r}")
-    chosen = dataset.splits[split]
-    flights = [dataset.flights[name] for name in chosen.names if name in dataset.flights]
+    if split not in (*SPLITS, HELD_OUT):
+        raise ValueError(f"evaluate: split must be one of {(*SPLITS, HELD_OUT)}, got {split!r}")
+    parts = ("val", "test") if split == HELD_OUT else (split,)
+    names = [name for part in parts for name in dataset.splits[part].names]
+    flights = [dataset.flights[name] for name in names if name in dataset.flights]
     if not flights:
         raise ValueError(f"evaluate: the dataset has no {split} flight")
     return {
