@@ -139,10 +139,15 @@ def test_a_bias_every_plan_shares_does_not_count_nor_does_accuracy_alone(windows
 
 
 def test_the_verdict_needs_the_load_better_and_the_vehicle_not_worse() -> None:
-    better, same, worse = Ratio(0.5, 0.4, 0.6), Ratio(1.0, 0.95, 1.05), Ratio(1.5, 1.2, 1.8)
-    assert verdict_of({"load position": better, "vehicle position": same}, CFG) == PAYS
-    assert verdict_of({"load position": better, "vehicle position": worse}, CFG) == NOT
-    assert verdict_of({"load position": same, "vehicle position": better}, CFG) == NOT
+    """May pay: the load's score clearly below ``pays_below`` and the vehicle's below
+    ``vehicle_below`` (a network that learned this vehicle's inner loops)."""
+    far, better, same = Ratio(0.2, 0.1, 0.3), Ratio(0.5, 0.4, 0.6), Ratio(1.0, 0.95, 1.05)
+    assert verdict_of({"load position": better, "vehicle position": far}, CFG) == PAYS
+    assert verdict_of({"load position": far, "vehicle position": better}, CFG) == NOT
+    assert verdict_of({"load position": better, "vehicle position": same}, CFG) == NOT
+    assert verdict_of({"load position": same, "vehicle position": far}, CFG) == NOT
+    straddles = Ratio(0.45, 0.3, 0.6)  # below 0.5 itself, but not clearly
+    assert verdict_of({"load position": better, "vehicle position": straddles}, CFG) == NOT
 
 
 def test_the_share_unexplained_is_scale_free() -> None:
@@ -181,15 +186,15 @@ def test_the_verdict_beside_the_run_and_the_warning(tmp_path: Path, windows) -> 
 
     run = tmp_path / "run"
     run.mkdir()
-    ratio = Ratio(1.02, 0.95, 1.1)
+    ratio, vehicle = Ratio(1.02, 0.95, 1.1), Ratio(0.2, 0.1, 0.3)
+    response = {"load position": ratio, "vehicle position": vehicle}
     result = PreflightResult(model=str(run), data="d", split="test", horizon=N, flights=6,
-                             windows=len(windows), dt=0.03, response={"load position": ratio},
-                             logged={"load position": ratio}, curves={}, verdict=NOT,
-                             config=CFG)  # fmt: skip
+                             windows=len(windows), dt=0.03, response=response,
+                             logged=response, curves={}, verdict=NOT, config=CFG)  # fmt: skip
     path = record_verdict(result)
     assert path == run / VERDICTS_FILE
     note = verdict_note(run, N)
-    assert note is not None and "1.02 [0.95, 1.10]" in note
+    assert note is not None and "1.020 [0.950, 1.100]" in note
     assert verdict_note(run, N + 1) is None
     record_verdict(replace(result, horizon=N + 1, verdict=PAYS))
     assert verdict_note(run, N + 1) is None and verdict_note(run, N) == note
@@ -199,11 +204,13 @@ def test_the_verdict_beside_the_run_and_the_warning(tmp_path: Path, windows) -> 
 
 def test_the_report_says_when_the_flights_cannot_tell_the_score_from_the_bound(windows) -> None:
     """A load score below ``pays_below`` whose interval reaches past it: "does not pay", and the
-    report says the held-out flights are too few to tell; not where the score is clear."""
+    report says the held-out flights are too few to tell; not where the score is clear. A
+    vehicle score that fails: the verdict names it."""
     from slungload.evaluation.preflight import PreflightResult, render
 
-    def report(load: Ratio) -> str:
-        vehicle = Ratio(0.1, 0.05, 0.15)
+    learned = Ratio(0.1, 0.05, 0.15)
+
+    def report(load: Ratio, vehicle: Ratio = learned) -> str:
         response = {"load position": load, "vehicle position": vehicle}
         result = PreflightResult(model="run", data="d", split="test", horizon=N, flights=3,
                                  windows=len(windows), dt=0.03, response=response,
@@ -215,6 +222,8 @@ def test_the_report_says_when_the_flights_cannot_tell_the_score_from_the_bound(w
     assert NOT in straddles and "3 held-out flights cannot tell it from 0.9" in straddles
     for clear in (Ratio(0.5, 0.4, 0.6), Ratio(0.95, 0.9, 1.0)):
         assert "cannot tell" not in report(clear)
+    other = report(Ratio(0.5, 0.4, 0.6), Ratio(0.7, 0.6, 0.8))  # a network of another vehicle?
+    assert f"{NOT} (leaves 0.700 [0.600, 0.800]" in other and "learned this vehicle" in other
 
 
 def test_control_warns_from_the_check(tiny_run, tmp_path: Path) -> None:

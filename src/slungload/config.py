@@ -441,9 +441,12 @@ class PreflightConfig:
     model in an MPC, judged on held-out flights.
 
     horizon: the MPC's N, steps (the MPC's own default, ``control.mppi.MPCConfig``).
-    pays_below: the network may pay when the upper end of the interval of its response score
-    relative to physics's (the share of the commands' effect it leaves unexplained) lies
-    below this (a 10 % lead, with confidence). level, resamples: the interval's coverage
+    pays_below: the network may pay when the upper end of the interval of its load response
+    score relative to physics's (the share of the commands' effect it leaves unexplained) lies
+    below this (a 10 % lead, with confidence). vehicle_below: and its vehicle score's upper end
+    below this: a network that learned this vehicle explains its response to commands far
+    better than the physics model, which leaves out its inner loops (docs/control.md).
+    level, resamples: the interval's coverage
     and its flight-bootstrap resamplings. knots: values per command channel a window's future
     commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
     response fit's regularisation, per window (standardised features). split: the flights
@@ -452,13 +455,18 @@ class PreflightConfig:
     horizon: int = 15
     split: str = "held-out"
     pays_below: float = 0.9
+    vehicle_below: float = 0.5
     level: float = 0.95
     resamples: int = 2000
     knots: int = 5
     ridge: float = 1e-3
 
     def __post_init__(self) -> None:
-        if self.horizon < 1 or not 0 < self.pays_below or not 0 < self.level < 1:
+        if (
+            self.horizon < 1
+            or min(self.pays_below, self.vehicle_below) <= 0
+            or not (0 < self.level < 1)
+        ):
             raise ValueError(f"PreflightConfig: bad values {self}")
         if self.resamples < 100:
             raise ValueError(f"PreflightConfig.resamples: at least 100, got {self.resamples}")

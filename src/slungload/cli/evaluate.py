@@ -116,6 +116,10 @@ def add_check(sub: Any) -> None:
                    help="the network may pay when its response score's interval (the share of "
                    "the commands' effect it leaves unexplained) lies below R x physics's "
                    f"(default {cfg.pays_below:g})")  # fmt: skip
+    p.add_argument("--vehicle-below", type=float, default=cfg.vehicle_below, metavar="R",
+                   help="... and its vehicle score's interval below R x physics's: a network "
+                   "that learned this vehicle explains its response to commands far better "
+                   f"than physics (default {cfg.vehicle_below:g})")  # fmt: skip
     p.add_argument("--out", type=Path, help="report folder (default RUN_DIR/check)")
     p.set_defaults(func=cmd_check)
 
@@ -128,7 +132,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     from ..evaluation.verdicts import verdicts_path
 
     cfg = replace(PreflightConfig(), horizon=args.horizon, split=args.split,
-                  pays_below=args.pays_below)  # fmt: skip
+                  pays_below=args.pays_below, vehicle_below=args.vehicle_below)  # fmt: skip
     result = check(args.run, args.data, cfg=cfg)
     print(result.summary())
     for path in write_check(result, args.out or verdicts_path(args.run).parent / "check"):

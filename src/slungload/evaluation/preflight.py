@@ -16,14 +16,15 @@ of the true effect the predicted one leaves unexplained at its best scale (``une
 however well it predicts the flights; a bias every plan shares does not count.
 
 The verdict (``verdict_of``): the network **may pay** when the flight-bootstrap interval of its
-load score relative to physics's lies below ``PreflightConfig.pays_below`` and its vehicle
-score is not clearly worse; otherwise it **does not pay**. ``slungload check`` writes the
-verdict beside the run (``VERDICTS_FILE``) and ``slungload control`` warns before flying a
-network whose check says it does not pay (``verdict_note``). What it cannot see: where the
-MPC itself, not its model, limits the flight (a short horizon; a plant whose unmodelled
-effects shift every plan alike), a better model buys little; with a simulator, the oracle
-says so (``study control --controllers physics,oracle``). Its agreement with closed-loop
-flights: docs/BENCHMARKS.md, "The check before flying".
+load score relative to physics's lies below ``PreflightConfig.pays_below`` and that of its
+vehicle score below ``PreflightConfig.vehicle_below``; otherwise it **does not pay**.
+``slungload check`` writes the verdict beside the run (``VERDICTS_FILE``) and ``slungload
+control`` warns before flying a network whose check says it does not pay (``verdict_note``).
+What it cannot see: where the MPC itself, not its model, limits the flight (a short
+horizon; a plant whose unmodelled effects shift every plan alike), a better model buys
+little; with a simulator, the oracle says so (``study control --controllers
+physics,oracle``). Its agreement with closed-loop flights: docs/BENCHMARKS.md, "The check
+before flying".
 """
 
 from __future__ import annotations
@@ -89,13 +90,29 @@ class PreflightResult:
     config: PreflightConfig
     reason: str | None = None  # a "does not pay" the score did not give
 
-    def summary(self) -> str:
-        r = self.response["load position"]
+    def why(self) -> str:
+        """The verdict's ground, in a clause."""
         if self.reason:
-            return f"{self.model} at N = {self.horizon}: {self.verdict} ({self.reason})"
-        return (f"{self.model} at N = {self.horizon}: {self.verdict} (leaves {r.text()} x "
-                "physics's share of the commands' effect on the load unexplained; may pay "
-                f"where the interval lies below {self.config.pays_below:g})")  # fmt: skip
+            return self.reason
+        (load, pays), (vehicle, learned) = _bounds(self)
+        if self.verdict == NOT and load.high < pays:
+            return (f"leaves {vehicle.text()} x physics's share of the commands' effect on the "
+                    f"vehicle unexplained; may pay where the interval lies below {learned:g}: "
+                    "has it learned this vehicle?")  # fmt: skip
+        return (
+            f"leaves {load.text()} x physics's share of the commands' effect on the load "
+            f"unexplained; may pay where the interval lies below {pays:g}"
+        )
+
+    def summary(self) -> str:
+        return f"{self.model} at N = {self.horizon}: {self.verdict} ({self.why()})"
+
+
+def _bounds(result: PreflightResult) -> tuple[tuple[Ratio, float], tuple[Ratio, float]]:
+    """(load score, its bound), (vehicle score, its bound)."""
+    cfg, response = result.config, result.response
+    return ((response["load position"], cfg.pays_below),
+            (response["vehicle position"], cfg.vehicle_below))  # fmt: skip
 
 
 def start_features(windows: Windows) -> Tensor:
@@ -234,10 +251,10 @@ def measure(
 
 def verdict_of(response: dict[str, Ratio], cfg: PreflightConfig) -> str:
     """``PAYS`` ("may pay") where the network explains the commands' effect on the load
-    clearly better than physics (the ratio's upper end below ``cfg.pays_below``) and not
-    clearly worse on the vehicle (the lower end below 1); else ``NOT``."""
+    clearly better than physics (the ratio's upper end below ``cfg.pays_below``) and on the
+    vehicle far better (below ``cfg.vehicle_below``); else ``NOT``."""
     load, vehicle = response["load position"], response["vehicle position"]
-    return PAYS if load.high < cfg.pays_below and vehicle.low < 1.0 else NOT
+    return PAYS if load.high < cfg.pays_below and vehicle.high < cfg.vehicle_below else NOT
 
 
 def check(
@@ -288,7 +305,7 @@ def record_verdict(result: PreflightResult) -> Path:
     found[str(result.horizon)] = {
         "verdict": result.verdict, "ratio": [r.value, r.low, r.high],
         "pays_below": result.config.pays_below, "data": result.data, "split": result.split,
-        "date": _dt.date.today().isoformat(), "reason": result.reason,
+        "date": _dt.date.today().isoformat(), "reason": result.reason, "why": result.why(),
     }  # fmt: skip
     write_json(path, found)
     return path
@@ -305,12 +322,11 @@ def render(result: PreflightResult) -> str:
     """check.md: the verdict and its evidence."""
     rows = [[g, result.response[g].text(), result.logged[g].text()] for g in GROUPS_CHECKED]
     c, n = result.curves, result.horizon
-    load, bound = result.response["load position"], result.config.pays_below
-    thin = []
-    if not result.reason and load.value < bound <= load.high:
-        thin = [f"The load's score itself lies below {bound:g}, but {result.flights} held-out "
-                f"flights cannot tell it from {bound:g}: more held-out flights with varied "
-                "commands may turn the verdict either way.", ""]  # fmt: skip
+    thin = [f"The {group}'s score itself lies below {bound:g}, but {result.flights} held-out "
+            f"flights cannot tell it from {bound:g}: more held-out flights with varied commands "
+            "may turn the verdict either way."
+            for group, (r, bound) in zip(("load", "vehicle"), _bounds(result), strict=True)
+            if not result.reason and r.value < bound <= r.high]  # fmt: skip
     lines = [
         "# Pre-flight check", "",
         f"**{result.summary()}**", "",
@@ -321,11 +337,11 @@ def render(result: PreflightResult) -> str:
         "state and the commands, out of fold by flight; 0 is perfect, 1 a model that ignores "
         "its commands): what an MPC's choice among plans from one state depends on. The "
         f"network may pay when the load's interval lies below {result.config.pays_below:g} and "
-        "the vehicle's is not clearly above 1.", "",
+        f"the vehicle's below {result.config.vehicle_below:g}.", "",
         markdown_table(["network / physics, steps 1..N",
                         f"response score [{100 * result.config.level:.0f} % flight bootstrap]",
                         "RMS error on the flights"], rows),
-        "", *thin,
+        "", *(f"{line}\n" for line in thin),
         f"At step {n}, load position: the network leaves {c['network'][-1]:.3f} of the "
         f"commands' effect unexplained, physics {c['physics'][-1]:.3f}. Flights whose commands "
         "barely varied (a PID's alone) leave little to fit: the verdict then says little. "

@@ -48,9 +48,13 @@ def note(
         return None
     try:
         value, low, high = found["ratio"]
-        why = found.get("reason") or (
-            f"its response score is {value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may "
-            f"pay where the interval lies below {found['pays_below']:g})"
+        why = (
+            found.get("reason")
+            or found.get("why")
+            or (
+                f"its response score is {value:.2f} [{low:.2f}, {high:.2f}] x physics's (it may "
+                f"pay where the interval lies below {found['pays_below']:g})"
+            )
         )
     except (KeyError, TypeError, ValueError):
         why = "see its check.md"
