@@ -266,6 +266,35 @@ def test_the_command_writes_its_report_and_refuses_bad_input(
     assert code == 2 and "nowhere" in err
 
 
+def test_a_network_that_diverges_does_not_pay_and_one_that_always_does_is_refused(
+    tiny_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Predictions that are not finite on one flight's windows: "does not pay", saying on how
+    many, scored on the rest; on every flight: a clear error, not a score of 1."""
+    from slungload.evaluation import preflight
+
+    names = [f"t{i}" for i in range(4)]
+    data = write_dataset(tmp_path / "data", {n: 50 for n in names},
+                         {"train": [], "val": [], "test": names}, physics=True)  # fmt: skip
+    cfg = PreflightConfig(horizon=6, split="test", resamples=200)
+
+    def nan_on(flights: int):
+        def error(windows) -> torch.Tensor:
+            out = torch.zeros(*windows.future.states.shape, dtype=torch.float64)
+            out[windows.flight < flights] = float("nan")
+            return out
+
+        return lambda run: Shifted(error)
+
+    monkeypatch.setattr(preflight, "load_prediction_model", nan_on(1))
+    result = preflight.check(tiny_run.out, data, cfg=cfg)
+    assert result.verdict == NOT and "not finite on" in result.summary()
+    assert np.isfinite(result.response["load position"].value)
+    monkeypatch.setattr(preflight, "load_prediction_model", nan_on(4))
+    with pytest.raises(ValueError, match="not finite on"):
+        preflight.check(tiny_run.out, data, cfg=cfg)
+
+
 def test_which_datasets_count_as_unexcited(tmp_path: Path) -> None:
     from slungload.fileio import write_json
     from slungload.vehicle_file import simulated_without_excitation

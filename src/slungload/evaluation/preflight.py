@@ -277,20 +277,42 @@ def check(
     dataset = load_dataset(folder, window=WindowConfig(history=history, horizon=n, stride=1),
                            params=params)  # fmt: skip
     windows = horizon_windows(dataset, history=history, horizons=(n,), split=split)[n]
-    network = load_prediction_model(run)
-    response, logged, curves = measure(network, PhysicsModel(dataset.params), windows, cfg)
+    predicted = load_prediction_model(run).predict_windows(windows)
+    finite = torch.isfinite(predicted).flatten(1).all(dim=1)
+    diverged = int((~finite).sum())
+    kept = windows[finite]
+    if diverged and kept.flight.unique().numel() < 3:
+        raise ValueError(f"check: {run} predicts states that are not finite on {diverged} of "
+                         f"{len(windows)} windows of {folder} ({_flights(split)}): it diverges "
+                         "there (a network of another vehicle?) and cannot pay")  # fmt: skip
+    physics = PhysicsModel(dataset.params)
+    response, logged, curves = measure(_Predicted(predicted[finite]), physics, kept, cfg)
+    reasons = []
     trained_on = meta.get("data")
-    unexcited = bool(trained_on) and simulated_without_excitation(trained_on)
-    reason = (f"trained on {trained_on}, simulated without input excitation: a network that "
-              "learned from a PID's flights alone fails in the states its MPC leads it into, "
-              "whatever its score (docs/control.md)") if unexcited else None  # fmt: skip
+    if bool(trained_on) and simulated_without_excitation(trained_on):
+        reasons.append(f"trained on {trained_on}, simulated without input excitation: a "
+                       "network that learned from a PID's flights alone fails in the states "
+                       "its MPC leads it into, whatever its score (docs/control.md)")  # fmt: skip
+    if diverged:
+        reasons.append(f"its predictions are not finite on {diverged} of {len(windows)} "
+                       "windows: it diverges there (scores from the rest)")  # fmt: skip
     return PreflightResult(
         model=str(run), data=str(folder), split=split, horizon=n,
         flights=len(windows.names), windows=len(windows), dt=dataset.params.dt,
         response=response, logged=logged,
-        curves=curves, verdict=NOT if unexcited else verdict_of(response, cfg), config=cfg,
-        reason=reason,
+        curves=curves, verdict=NOT if reasons else verdict_of(response, cfg), config=cfg,
+        reason="; ".join(reasons) or None,
     )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Predicted:
+    """A model's predictions (W, N, 13) of the windows ``measure`` is given, made once."""
+
+    values: Tensor
+
+    def predict_windows(self, windows: Windows) -> Tensor:
+        return self.values
 
 
 # --- the verdict beside the run, and what control says of it -------------------------------
