@@ -295,6 +295,36 @@ def test_a_network_that_diverges_does_not_pay_and_one_that_always_does_is_refuse
         preflight.check(tiny_run.out, data, cfg=cfg)
 
 
+def test_physics_flies_with_the_datasets_own_constants(
+    tiny_run, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Flights of another vehicle (its vehicle.json): physics with that vehicle's constants,
+    the model the user's physics MPC flies, not the run's; without a vehicle.json, the run's."""
+    from slungload.config import to_dict
+    from slungload.evaluation import preflight
+    from slungload.fileio import write_json
+
+    seen = []
+
+    def physics(params: VehicleParams) -> PhysicsModel:
+        seen.append(params)
+        return PhysicsModel(params)
+
+    monkeypatch.setattr(preflight, "PhysicsModel", physics)
+    monkeypatch.setattr(preflight, "load_prediction_model", lambda run: Shifted(lambda w: 0.0))
+    cfg = PreflightConfig(horizon=6, split="test", resamples=200)
+    names = [f"t{i}" for i in range(4)]
+    for folder, vehicle in (("other", True), ("bare", False)):
+        data = write_dataset(tmp_path / folder, {n: 50 for n in names},
+                             {"train": [], "val": [], "test": names}, physics=True,
+                             vehicle=vehicle)  # fmt: skip
+        if vehicle:
+            write_json(data / "vehicle.json", to_dict(VehicleParams(cable_length=1.0)))
+        preflight.check(tiny_run.out, data, cfg=cfg)
+    assert seen[0].cable_length == 1.0
+    assert seen[1].cable_length == VehicleParams().cable_length  # the run's (paper) constants
+
+
 def test_which_datasets_count_as_unexcited(tmp_path: Path) -> None:
     from slungload.fileio import write_json
     from slungload.vehicle_file import simulated_without_excitation

@@ -45,7 +45,7 @@ from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
 from ..reporting import markdown_table, model_colors, save_figure
-from ..vehicle_file import simulated_without_excitation
+from ..vehicle_file import load_vehicle, simulated_without_excitation
 from .verdicts import NOT, PAYS, read_verdicts, verdicts_path
 from .windows import horizon_windows
 
@@ -265,7 +265,8 @@ def check(
 ) -> PreflightResult:
     """The pre-flight check of a run folder, ``.ckpt`` or ensemble folder (its members' mean)
     on a dataset's ``cfg.split`` (default: the run's own dataset) at the MPC horizon
-    ``cfg.horizon``, against the physics model with the dataset's constants."""
+    ``cfg.horizon``, against the physics model with the dataset's constants (its
+    ``vehicle.json``; the run's where it has none): the model the user's physics MPC flies."""
     cfg = cfg or PreflightConfig()
     n, split = cfg.horizon, cfg.split
     meta = model_meta(run)
@@ -273,7 +274,7 @@ def check(
     if folder is None:
         raise ValueError(f"{run}: no dataset folder recorded in the run; pass --data")
     history = int(meta["window"]["history"])
-    params = from_dict(VehicleParams, meta["params"])
+    params = load_vehicle(folder) or from_dict(VehicleParams, meta["params"])
     dataset = load_dataset(folder, window=WindowConfig(history=history, horizon=n, stride=1),
                            params=params)  # fmt: skip
     windows = horizon_windows(dataset, history=history, horizons=(n,), split=split)[n]
