@@ -265,8 +265,9 @@ def check(
 ) -> PreflightResult:
     """The pre-flight check of a run folder, ``.ckpt`` or ensemble folder (its members' mean)
     on a dataset's ``cfg.split`` (default: the run's own dataset) at the MPC horizon
-    ``cfg.horizon``, against the physics model with the dataset's constants (its
-    ``vehicle.json``; the run's where it has none): the model the user's physics MPC flies."""
+    ``cfg.horizon``, against the physics model with the vehicle's constants, the model the
+    user's physics MPC flies: on the run's own dataset the run's (with any it was trained
+    with), on another that dataset's ``vehicle.json`` (the run's where it has none)."""
     cfg = cfg or PreflightConfig()
     n, split = cfg.horizon, cfg.split
     meta = model_meta(run)
@@ -274,7 +275,9 @@ def check(
     if folder is None:
         raise ValueError(f"{run}: no dataset folder recorded in the run; pass --data")
     history = int(meta["window"]["history"])
-    params = load_vehicle(folder) or from_dict(VehicleParams, meta["params"])
+    params = from_dict(VehicleParams, meta["params"])
+    if meta.get("data") is None or Path(folder).resolve() != Path(meta["data"]).resolve():
+        params = load_vehicle(folder) or params
     dataset = load_dataset(folder, window=WindowConfig(history=history, horizon=n, stride=1),
                            params=params)  # fmt: skip
     windows = horizon_windows(dataset, history=history, horizons=(n,), split=split)[n]
