@@ -446,8 +446,7 @@ class PreflightConfig:
     below this (a 10 % lead, with confidence). vehicle_below: and its vehicle score's upper end
     below this: a network that learned this vehicle explains its response to commands far
     better than the physics model, which leaves out its inner loops (docs/control.md).
-    level, resamples: the interval's coverage
-    and its flight-bootstrap resamplings. knots: values per command channel a window's future
+    level, resamples: the interval's coverage and its flight-bootstrap resamplings. knots: values per command channel a window's future
     commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
     response fit's regularisation, per window (standardised features). split: the flights
     judged on: "held-out" (val and test together), "test" or "val"."""
