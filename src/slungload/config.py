@@ -441,15 +441,16 @@ class PreflightConfig:
     model in an MPC, judged on held-out flights.
 
     horizon: the MPC's N, steps (the MPC's own default, ``control.mppi.MPCConfig``).
+    split: the flights judged on: "held-out" (val and test together), "test" or "val".
     pays_below: the network may pay when the upper end of the interval of its load response
     score relative to physics's (the share of the commands' effect it leaves unexplained) lies
     below this (a 10 % lead, with confidence). vehicle_below: and its vehicle score's upper end
     below this: a network that learned this vehicle explains its response to commands far
     better than the physics model, which leaves out its inner loops (docs/control.md).
-    level, resamples: the interval's coverage and its flight-bootstrap resamplings. knots: values per command channel a window's future
-    commands are summarised by (hat functions, as the MPC draws its noise). ridge: the
-    response fit's regularisation, per window (standardised features). split: the flights
-    judged on: "held-out" (val and test together), "test" or "val"."""
+    level, resamples: the interval's coverage and its flight-bootstrap resamplings. knots:
+    values per command channel a window's future commands are summarised by (hat functions,
+    as the MPC draws its noise). ridge: the response fit's regularisation, per window
+    (standardised features)."""
 
     horizon: int = 15
     split: str = "held-out"
