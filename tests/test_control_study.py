@@ -30,8 +30,15 @@ from slungload.lab.control.config import (
 from slungload.lab.control.oracle import PlantCandidates
 from slungload.lab.control.oracle_gap import gap_closed
 from slungload.lab.control.results import label_model
-from slungload.lab.control.study import load_log, run_study, tune_settings, tuning_score
+from slungload.lab.control.study import (
+    best_horizons,
+    load_log,
+    run_study,
+    tune_settings,
+    tuning_score,
+)
 from slungload.lab.control.study_report import (
+    best_horizon_section,
     maneuver_table,
     paired_table,
     write_study_report,
@@ -322,6 +329,34 @@ def test_the_paired_table_pairs_flights_and_states_the_share_of_the_second():
     assert row.endswith("| +0.000 [+0.000, +0.000] |")
 
 
+def test_each_model_is_set_against_the_other_at_its_own_best_horizon():
+    # The best horizon is the one whose chosen settings scored best on the tuning seeds:
+    # fewest lost, then fewest past the swing limit, then load RMSE; never the evaluation seeds.
+    scores = {"learned": {"25": [0, 0, 0.195], "50": [0, 0, 0.131]},
+              "physics": {"25": [0, 0, 0.199], "50": [1, 0, 0.120]}}  # fmt: skip
+    settings = {"tuning_score": scores}
+    assert best_horizons(settings) == {"learned": 50, "physics": 25}
+    assert best_horizons({"tuning_score": {"physics": {"25": [0, 0, 0.2]}}}) == {}
+    assert best_horizons({}) == {}  # not tuned
+    figures = dict(swing_rms=10.0, swing_max=20.0, vehicle_rmse=0.1)
+    flights = [("mpc-learned N=50", 1, 0.10), ("mpc-learned N=50", 2, 0.20),
+               ("mpc-physics N=25", 1, 0.15), ("mpc-physics N=25", 2, 0.25),
+               ("mpc-learned N=25", 1, 0.9), ("mpc-physics N=50", 2, 0.01)]  # fmt: skip
+    rows = [{**_row(c, "m", s, v), **figures} for c, s, v in flights]
+    lines = best_horizon_section(rows, settings)
+    assert lines[0] == "## Each model at its own best horizon"
+    assert "mpc-learned N=50 (0 lost, 0 past 60 deg, load RMSE 0.131 m" in lines[2]
+    assert "mpc-physics N=25 (0 lost, 0 past 60 deg, load RMSE 0.199 m" in lines[2]
+    # -0.05 on both flights, -25 % of physics's 0.2 m mean over them
+    assert "| mpc-learned N=50 - mpc-physics N=25 | 2 | -0.050 [-0.050, -0.050] (-25 %) |" in (
+        "\n".join(lines)
+    )
+    # nothing to say when one of the pair never flew, or a model was tuned at one horizon
+    assert best_horizon_section(rows[:2], settings) == []
+    one = {"tuning_score": {**scores, "learned": {"50": [0, 0, 0.131]}}}
+    assert best_horizon_section(rows, one) == []
+
+
 def test_the_maneuver_table_shows_each_maneuvers_mean_and_its_lost_flights():
     timing = dict(compute_median=1.0, compute_p99=2.0, vehicle_rmse=0.1, swing_rms=5.0,
                   swing_max=9.0, at_limit=0.0)  # fmt: skip
@@ -610,8 +645,8 @@ def test_tuning_chooses_the_best_scored_choice_it_flew_on_the_tuning_seeds():
     nominal = SimConfig()
     params = vehicle_params(nominal)
     lines: list[str] = []
-    chosen = tune_settings(load_model("physics", params), InputLimits.from_sim(nominal), params,
-                           replace(TINY, tune=True), 4, lines.append)  # fmt: skip
+    chosen, scored = tune_settings(load_model("physics", params), InputLimits.from_sim(nominal),
+                                   params, replace(TINY, tune=True), 4, lines.append)  # fmt: skip
     # the noise grid, then the cost grid at its winner (its default cost not flown again),
     # then the noise grid at the chosen cost when that changed
     assert len(lines) >= len(TUNING_GRID) + len(COST_GRID)
@@ -623,6 +658,7 @@ def test_tuning_chooses_the_best_scored_choice_it_flew_on_the_tuning_seeds():
     scores = [tuple(float(v) for v in m.groups()) for m in found]
     winners = [x.split(": ")[1] for x, sc in zip(lines, scores, strict=True) if sc == min(scores)]
     assert ", ".join(f"{k} {v}" for k, v in chosen.items()) in winners
+    assert scored[:2] == min(scores)[:2] and f"{scored[2]:.3f}" == f"{min(scores)[2]:.3f}"
 
 
 def test_tuning_alternates_until_a_round_keeps_its_choice(monkeypatch):
@@ -644,7 +680,8 @@ def test_tuning_alternates_until_a_round_keeps_its_choice(monkeypatch):
         return (0, 0, 0.12) if bound else (0, 2, 0.15)
 
     monkeypatch.setattr(study, "_score", score)
-    chosen = tune_settings(None, None, None, TINY, 4)
+    chosen, scored = tune_settings(None, None, None, TINY, 4)
+    assert scored == (0, 0, 0.09)
     assert (chosen["temperature"], chosen["thrust_std"]) == (0.1, 0.5 * base.thrust_std)
     assert chosen["max_swing"] == SWING_BOUND and len(chosen) == 4
     keys = [tuple(sorted(c.items())) for c in flown]
@@ -712,6 +749,11 @@ def test_each_horizon_gets_its_own_settings(tmp_path):
     run_study(None, tmp_path, config, controllers=("physics",), progress=lines.append)
     settings = json.loads((tmp_path / "settings.json").read_text())
     assert set(settings["mpc"]["physics"]) == {"3", "4"}
+    for n in (3, 4):  # the chosen settings' score at each N, which names the best horizon
+        lost, unsafe, load = settings["tuning_score"]["physics"][str(n)]
+        assert f": {lost} lost, {unsafe} past 60 deg, load RMSE {load:.3f} m" in "\n".join(
+            line for line in lines if line.startswith(f"tuning physics N={n}:")
+        )
     for n in (3, 4):  # at least the first two rounds at each horizon
         flown = sum(line.startswith(f"tuning physics N={n}:") for line in lines)
         assert flown >= len(TUNING_GRID) + len(COST_GRID)

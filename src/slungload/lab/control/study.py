@@ -332,9 +332,11 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 "would mix two networks; use a new --out"
             )
         return settings
-    mpc = {kind: {str(n): tune_settings(model, limits, params, cfg, n, progress) if cfg.tune
-                  else {} for n in cfg.horizons}
-           for kind, model in models.items()}  # fmt: skip
+    tuned = {kind: {str(n): tune_settings(model, limits, params, cfg, n, progress)
+                    for n in cfg.horizons}
+             for kind, model in models.items()} if cfg.tune else {}  # fmt: skip
+    mpc = {kind: {str(n): tuned[kind][str(n)][0] if cfg.tune else {} for n in cfg.horizons}
+           for kind in models}  # fmt: skip
     samples = {kind: {str(n): cfg.samples for n in cfg.horizons} for kind in models}
     if "learned" in models:
         for n in cfg.horizons:
@@ -349,6 +351,9 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
     settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
+    if tuned:  # each choice's tuning_score, so that each model's best horizon can be named
+        settings["tuning_score"] = {kind: {n: list(t[1]) for n, t in per.items()}
+                                    for kind, per in tuned.items()}  # fmt: skip
     if network:
         settings["learned_network"] = network
     write_json(path, settings)
@@ -375,7 +380,7 @@ def tune_settings(
     cfg: StudyConfig,
     horizon: int,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], tuple[int, int, float]]:
     """The MPC settings that fly the tuning seeds (nominal plant, N = ``horizon``, K =
     ``cfg.samples`` for every model) best by ``tuning_score`` (the fewest lost flights, then
     the fewest swinging the load past ``UNSAFE_SWING``, then the lowest mean load RMSE),
@@ -385,7 +390,7 @@ def tune_settings(
     Alternating, because a noise that swings the load under the default cost may fly best
     under the swing bound. A choice is flown once; the current one is kept unless another
     scores strictly better. Returns the ``MPCConfig`` fields chosen, e.g. {"temperature",
-    "thrust_std", "rate_std", "max_swing"}."""
+    "thrust_std", "rate_std", "max_swing"}, and their ``tuning_score``."""
     base = MPCConfig()
     noises = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
                "rate_std": tuple(r * scale for r in base.rate_std)}
@@ -409,7 +414,15 @@ def tune_settings(
                 noise, cost = n, c
         if round_ > 0 and (noise, cost) == before:
             break
-    return {**noise, **cost}
+    return {**noise, **cost}, score(noise, cost)
+
+
+def best_horizons(settings: dict[str, Any]) -> dict[str, int]:
+    """Each model's best horizon by the ``tuning_score`` of its chosen settings on the tuning
+    seeds (a study's settings.json, tuned at two horizons or more); {} when it has none."""
+    scores = settings.get("tuning_score", {})
+    return {kind: int(min(per, key=lambda n: tuple(per[n])))
+            for kind, per in scores.items() if len(per) > 1}  # fmt: skip
 
 
 def _score(
