@@ -332,11 +332,10 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 "would mix two networks; use a new --out"
             )
         return settings
-    tuned = {kind: {str(n): tune_settings(model, limits, params, cfg, n, progress)
-                    for n in cfg.horizons}
-             for kind, model in models.items()} if cfg.tune else {}  # fmt: skip
-    mpc = {kind: {str(n): tuned[kind][str(n)][0] if cfg.tune else {} for n in cfg.horizons}
-           for kind in models}  # fmt: skip
+    tuned = {kind: {str(n): tune_settings(model, limits, params, cfg, n, progress) if cfg.tune
+                    else ({}, None) for n in cfg.horizons}
+             for kind, model in models.items()}  # fmt: skip
+    mpc = {kind: {n: choice for n, (choice, _) in per.items()} for kind, per in tuned.items()}
     samples = {kind: {str(n): cfg.samples for n in cfg.horizons} for kind in models}
     if "learned" in models:
         for n in cfg.horizons:
@@ -351,8 +350,8 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
     settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
-    if tuned:  # each choice's tuning_score, so that each model's best horizon can be named
-        settings["tuning_score"] = {kind: {n: list(t[1]) for n, t in per.items()}
+    if cfg.tune:  # each choice's tuning_score, so that each model's best horizon can be named
+        settings["tuning_score"] = {kind: {n: list(score) for n, (_, score) in per.items()}
                                     for kind, per in tuned.items()}  # fmt: skip
     if network:
         settings["learned_network"] = network

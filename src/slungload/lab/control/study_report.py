@@ -308,7 +308,7 @@ def best_horizon_section(rows, settings: dict[str, Any]) -> list[str]:
 
     def shown(kind: str) -> str:
         lost, unsafe, load = settings["tuning_score"][kind][str(best[kind])]
-        return (f"{pair[kind == PHYSICS]} ({lost} lost, {unsafe} past {UNSAFE_SWING:g} deg, "
+        return (f"{mpc_label(kind, best[kind])} ({lost} lost, {unsafe} past {UNSAFE_SWING:g} deg, "
                 f"load RMSE {load:.3f} m on the tuning seeds)")  # fmt: skip
 
     return [
