@@ -248,9 +248,10 @@ def test_the_fifo_scheduler_is_asked_for_and_given_back(tmp_path, model_file, ru
 
 
 def test_a_lockstep_flight_priced_with_physics(tmp_path):
-    """`fly --with-physics --risk 1`: the compiled file's model and the physics model of its
-    constants as two members (numpy only); a --risk without members is refused before any
-    link is opened."""
+    """`fly --with-physics --risk 1 --trust-window 5`: the compiled file's model and the physics
+    model of its constants as two members (numpy only), the file's model trusted throughout (it
+    predicts the flown steps as physics does); a --risk without members, or a trust window
+    without physics, is refused before any link is opened."""
     from slungload.autopilot.bridge import fly
 
     compiled = export_for_mpc("physics", tmp_path / "p.mpc.npz", horizon=10,
@@ -260,18 +261,21 @@ def test_a_lockstep_flight_priced_with_physics(tmp_path):
     endpoint = SilEndpoint(sil)
     thread = threading.Thread(target=endpoint.run, daemon=True)
     thread.start()
-    try:
-        result = fly(compiled, bridge)
+    try:  # with the trust window: the file's model predicts the flown steps as physics does
+        result = fly(compiled, replace(bridge, trust_window=5))
     finally:
         endpoint.stop()
         thread.join(5.0)
     assert result.end == "flight complete" and result.steps == round(0.6 / 0.03)
     assert not result.safety.counts and result.mpc.fallback_steps == 0
+    assert result.mpc.physics_only_steps == 0
     assert_finite_on_the_wire(endpoint)
     with pytest.raises(ValueError, match="one network"):
         fly(compiled, replace(bridge, with_physics=False))
     with pytest.raises(ValueError, match="give --risk"):
         replace(bridge, mpc=MPCConfig())
+    with pytest.raises(ValueError, match="only with --with-physics"):
+        replace(bridge, with_physics=False, trust_window=5)
 
 
 def test_offboard_is_refused_without_a_setpoint_stream_and_accepted_after():

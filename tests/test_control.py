@@ -146,6 +146,74 @@ def test_physics_pricing_halves_a_biased_networks_height_error():
     assert low["paired"] < 0.7 * low["alone"], low
 
 
+def flown_window(m: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """x_hist (m, 13) and u_past (m - 1, 4): m states of physics.step under varied inputs from
+    hover, u_j applied at x_j (the controller's ``History.window``)."""
+    rng = np.random.default_rng(seed)
+    x = torch.from_numpy(hover_state())
+    aux = torch.zeros(6, dtype=torch.float64)
+    xs, us = [x.numpy().copy()], []
+    for _ in range(m - 1):
+        u = np.array([HOVER_T * (1 + 0.2 * rng.standard_normal()), *rng.normal(0, 0.5, 3)])
+        x, aux = physics.step(x, torch.from_numpy(u), aux, PARAMS)
+        xs.append(x.numpy().copy())
+        us.append(u)
+    return np.array(xs), np.array(us)
+
+
+def test_the_trust_window_asks_each_member_to_predict_the_steps_just_flown():
+    """Each member predicts the last H states from the one H steps before them under the
+    inputs applied since: the physics model that flew them is right there to millimetres (its
+    cable rate is estimated from two states), a network that believes the rotors 30 % stronger
+    is not and has no say; a network equal to physics is trusted."""
+    from slungload.control.mpc import candidate_model
+    from slungload.control.paired import PhysicsPaired
+
+    truth = candidate_model(PhysicsModel(PARAMS))
+    biased = candidate_model(PhysicsModel(replace(PARAMS, thrust_gain=1.3)))
+    pair = PhysicsPaired(biased, truth, window=8)
+    assert pair.history == 2 + 8 and pair.name.endswith("+physics-trust8")
+    x_hist, u_past = flown_window(pair.history)
+    plans = np.tile(u_past[-1], (5, 12, 1))
+    members = pair.predict_candidates_members(x_hist, u_past, plans)
+    net_error, physics_error = pair.errors
+    assert physics_error < 0.005 and net_error > 10 * physics_error, pair.errors
+    assert not pair.trusted and np.array_equal(members[0], members[1])  # physics twice
+    same = PhysicsPaired(candidate_model(PhysicsModel(PARAMS)), truth, window=8)
+    members = same.predict_candidates_members(x_hist, u_past, plans)
+    assert same.trusted and same.errors[0] == pytest.approx(same.errors[1], abs=1e-9)
+    # a plan shorter than the window: only its N steps are compared (an earlier start would
+    # compare states the inputs did not lead to)
+    pair.predict_candidates_members(x_hist, u_past, plans[:, :4])
+    assert pair.errors[1] < 0.005 and pair.errors[0] < 0.5 * net_error  # a bias grows with t
+    with pytest.raises(ValueError, match="window >= 0"):
+        PhysicsPaired(biased, truth, window=-1)
+
+
+def test_a_wrong_network_under_the_trust_window_flies_as_physics_alone():
+    """A network of another vehicle (rotors 60 % stronger) priced with physics still pulls the
+    flight off; with the trust window it never takes part and the MPC flies exactly as physics
+    alone, counting every step."""
+    from slungload.control.mpc import candidate_model
+    from slungload.control.paired import PhysicsPaired
+
+    wrong = PhysicsModel(replace(PARAMS, thrust_gain=1.6))
+    target = np.array([0.0, 0.0, 1.5])
+    cfg = replace(FAST, risk=0.5)
+    paths, stats = {}, {}
+    for window in (0, 8):
+        pair = PhysicsPaired(candidate_model(wrong), candidate_model(PhysicsModel(PARAMS)), window)
+        mpc = SamplingMPC(pair, LIMITS, cfg, PARAMS)
+        paths[window], _ = fly_discrete(mpc, hover_state(target), target, 60)
+        stats[window] = mpc.stats
+    alone = SamplingMPC(PhysicsModel(PARAMS), LIMITS, FAST, PARAMS)
+    physics_path, _ = fly_discrete(alone, hover_state(target), target, 60)
+    np.testing.assert_allclose(paths[8], physics_path, atol=1e-9)
+    assert stats[8].physics_only_steps == 60 and stats[0].physics_only_steps == 0
+    error = {w: np.abs(p[:, 2] - target[2]).max() for w, p in paths.items()}
+    assert error[0] > 2 * error[8], error
+
+
 # --- safety ----------------------------------------------------------------------------
 
 
@@ -349,6 +417,11 @@ def test_a_network_is_compared_with_physics_on_the_flights_both_flew_to_the_end(
     assert (
         "no flight that MPC + physics also flew" in versus_lines(versus_physics(physics + lost))[0]
     )
+    # A pair whose trust window gave physics the say on a quarter of its steps says so.
+    audited = [dict(r, mpc_steps=100, physics_only_steps=25) for r in good]
+    (v,) = versus_physics(physics + audited)
+    assert v.physics_only == pytest.approx(0.25)
+    assert "physics alone priced 25 % of its steps" in versus_lines([v])[0]
 
 
 def test_the_control_report_shows_results_only():

@@ -482,6 +482,6 @@ def fly(
         from ..vehicle_constants import VehicleConstants
 
         physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
-        flown = PhysicsPaired(exported, physics)
+        flown = PhysicsPaired(exported, physics, config.trust_window)
     check_members(flown, config.mpc.risk)  # before any link is opened
     return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

@@ -53,6 +53,11 @@ class BridgeConfig:
         "price each plan under the model and under the physics model (the file's constants): "
         "their mean cost + --risk x their spread (control.paired; docs/control.md)",
     )
+    trust_window: int = _option(
+        0,
+        "with --with-physics: steps just flown the model must predict at least as well as "
+        "physics to take part (0: always; control.paired)",
+    )
     # the reference: a maneuver's offsets from where OFFBOARD starts (None: hold that point)
     maneuver: str | None = _option(
         None,
@@ -130,6 +135,9 @@ class BridgeConfig:
             raise ValueError(f"handback must be one of {HANDBACK}, got {self.handback!r}")
         if self.with_physics and self.mpc.risk is None:
             raise ValueError("with_physics prices the plans by the MPC's risk: give --risk")
+        if self.trust_window < 0 or (self.trust_window and not self.with_physics):
+            raise ValueError("trust window: 0 steps or more, and only with --with-physics; got "
+                             f"{self.trust_window}")  # fmt: skip
         if self.duration is not None and not self.duration > 0:
             raise ValueError(f"duration must be > 0 s, got {self.duration}")
         if not self.settle >= 0:

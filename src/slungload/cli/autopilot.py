@@ -17,9 +17,10 @@ from .common import choices, given, new_command, plants_help
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
                "hover_throttle", "newtons_per_throttle", "min_thrust_share", "max_throttle",
                "rate_max", "maneuver", "seed", "duration", "settle", "origin", "box", "arm",
-               "offboard", "with_physics", "stream_before_switch", "wait_offboard", "dry_run",
-               "max_state_age", "max_load_age", "max_tilt", "fence_radius", "fence_height",
-               "hover_time", "handback", "fifo_priority", "tlog", "connect_timeout")  # fmt: skip
+               "offboard", "with_physics", "trust_window", "stream_before_switch",
+               "wait_offboard", "dry_run", "max_state_age", "max_load_age", "max_tilt",
+               "fence_radius", "fence_height", "hover_time", "handback", "fifo_priority", "tlog",
+               "connect_timeout")  # fmt: skip
 SIL_OPTIONS = ("seed", "maneuver", "steps", "start_on_offboard", "connection", "system",
                "load_component", "lockstep_wait", "hover_throttle", "of_loss_timeout",
                "heartbeat_period", "duration")  # fmt: skip

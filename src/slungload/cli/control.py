@@ -66,6 +66,12 @@ def add_flight_options(
                        help="price each --model's plans under it and under the physics model: "
                        "their mean cost + --risk x their spread (--risk 1: the worse of the "
                        "two; docs/control.md)")  # fmt: skip
+    if hasattr(cfg, "trust_window"):
+        p.add_argument("--trust-window", type=int, metavar="H",
+                       help="with --with-physics: the network takes part only while it "
+                       "predicts the last H steps flown at least as well as physics (another "
+                       "vehicle's network flies as physics; docs/control.md) (default "
+                       f"{cfg.trust_window}: always)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -143,7 +149,8 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
                                          cost=args.cost, risk=args.risk,
-                                         with_physics=args.with_physics or None)  # fmt: skip
+                                         with_physics=args.with_physics or None,
+                                         trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon, paired=config.with_physics)
     result = compare(args.model, args.out, config, threads=args.threads,

@@ -171,10 +171,12 @@ def _stats_dict(stats: Any) -> dict[str, Any]:
     if stats is None:
         return {}
     return {
+        "mpc_steps": stats.steps,
         "fallback_steps": stats.fallback_steps,
         "fallbacks": dict(stats.fallbacks),
         "nonfinite_steps": stats.nonfinite_steps,
         "hover_steps": stats.hover_steps,
+        "physics_only_steps": stats.physics_only_steps,
     }
 
 

@@ -216,6 +216,7 @@ class MPCStats:
     hover_steps: int = 0  # fallback steps that flew the hover command
     estimate_rejected: int = 0  # steps whose in-flight constants were not finite and positive
     novel_steps: int = 0  # with ``MPCConfig.risk``: nominal plans flagged (``Calibration.novel``)
+    physics_only_steps: int = 0  # a network paired with physics had no say (``paired``'s window)
 
     @property
     def fallback_steps(self) -> int:
@@ -430,6 +431,8 @@ class MPPIController:
             self.target(ref),
         ).reshape(e, k)
         cost = costs[0] if not members else costs.mean(0) + self.cfg.risk * costs.std(0)
+        if members and not getattr(self.model, "trusted", True):
+            self.stats.physics_only_steps += 1
         if members and hasattr(self.model, "novel"):  # sample 0 is the nominal plan
             self.stats.novel_steps += bool(self.model.novel(states[:, :1])[0])
         finite = np.isfinite(cost) & np.isfinite(states).transpose(1, 0, 2, 3).reshape(k, -1).all(1)

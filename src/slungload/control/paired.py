@@ -10,25 +10,57 @@ mean. Where the network is right and physics wrong, the network's plans still wi
 physics does not call them worse; where the network leaves what it was trained on (a new
 plant, few flights), physics vetoes the plans only the network believes in. docs/control.md,
 "A network vetoed by physics". numpy only.
+
+The veto has a blind side: a network that is wrong everywhere (another vehicle's) calls good
+plans bad too, and mean + risk x spread lets it veto physics's plans. With a ``window`` of H
+steps the pair first asks each member to predict the H steps just flown, from the state H steps
+ago under the inputs that were applied: while the network's position error (vehicle and load)
+is above ``ratio`` x physics's + ``floor``, it has no say and physics prices the plans alone
+(``trusted`` False; the controller counts those steps, ``MPCStats.physics_only_steps``).
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from ..layout import LOAD_POS, POS
 from .mppi import CandidateModel
+
+TRUST_RATIO = 1.0  # the network takes part while its error is at most this x physics's ...
+TRUST_FLOOR = 0.01  # m, + this (RMS over the window's steps and the six position components)
 
 
 class PhysicsPaired:
-    """``network`` and ``physics`` (numpy candidate models) as one model of two members."""
+    """``network`` and ``physics`` (numpy candidate models) as one model of two members.
+
+    window: steps of the flown path each member predicts before the network may take part (0:
+    it always does); ratio, floor: the network takes part while its RMS position error over
+    them is at most ratio x physics's + floor (m). ``trusted``: whether it took part in the last
+    ``predict_candidates_members``; ``errors``: the two errors (m) that decided it.
+    """
 
     numpy = True
 
-    def __init__(self, network: CandidateModel, physics: CandidateModel) -> None:
+    def __init__(
+        self,
+        network: CandidateModel,
+        physics: CandidateModel,
+        window: int = 0,
+        ratio: float = TRUST_RATIO,
+        floor: float = TRUST_FLOOR,
+    ) -> None:
+        if window < 0 or not (ratio > 0 and floor >= 0):
+            raise ValueError(f"PhysicsPaired: need window >= 0, ratio > 0 and floor >= 0; got "
+                             f"{window}, {ratio}, {floor}")  # fmt: skip
         self.network, self.physics = network, physics
-        self.history = max(network.history, physics.history)
-        self.name = f"{network.name}+physics"
+        self.window, self.ratio, self.floor = window, ratio, floor
+        self.history = max(network.history, physics.history) + window
+        self.name = f"{network.name}+physics" + (f"-trust{window}" if window else "")
         self.horizon = getattr(network, "horizon", None)
+        self.trusted = True
+        self.errors = (math.nan, math.nan)
 
     def _call(self, model: CandidateModel, x_hist, u_past, plans) -> np.ndarray:
         m = model.history  # the last M measured states and the M - 1 inputs between them
@@ -44,9 +76,31 @@ class PhysicsPaired:
     def predict_candidates_members(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
     ) -> np.ndarray:
-        """(2, K, N, 13): the network's prediction, then the physics model's."""
-        return np.stack([self._call(self.network, x_hist, u_past, plans),
-                         self._call(self.physics, x_hist, u_past, plans)])  # fmt: skip
+        """(2, K, N, 13): the network's prediction, then the physics model's; physics's twice
+        when the network predicted the window just flown worse (``trusted`` False)."""
+        physics = self._call(self.physics, x_hist, u_past, plans)
+        self.trusted = not self.window or self._trust(x_hist, u_past, plans.shape[1])
+        if not self.trusted:
+            return np.stack([physics, physics])
+        return np.stack([self._call(self.network, x_hist, u_past, plans), physics])
+
+    def _trust(self, x_hist: np.ndarray, u_past: np.ndarray, n: int) -> bool:
+        """Each member predicts the last H = min(window, n) measured states from the one H steps
+        before them under the inputs applied since (padded to the plans' n steps: an exported
+        network's N is fixed); the network is trusted unless its position error is larger."""
+        h = min(self.window, n)
+        applied = u_past[len(u_past) - h :]
+        plan = np.concatenate([applied, np.repeat(applied[-1:], n - h, axis=0)])[None]
+        flown = x_hist[len(x_hist) - h :]
+        errors = []
+        for model in (self.network, self.physics):
+            with np.errstate(all="ignore"):  # a diverging network is what this looks for
+                got = self._call(model, x_hist[: len(x_hist) - h], u_past[: len(u_past) - h], plan)
+            diff = np.concatenate([got[0, :h, POS] - flown[:, POS],
+                                   got[0, :h, LOAD_POS] - flown[:, LOAD_POS]], axis=1)  # fmt: skip
+            errors.append(float(np.sqrt(np.mean(diff**2))))
+        self.errors = (errors[0], errors[1])
+        return math.isfinite(errors[0]) and errors[0] <= self.ratio * errors[1] + self.floor
 
     def prepare(self, m: int, k: int, n: int) -> None:
         for model in (self.network, self.physics):

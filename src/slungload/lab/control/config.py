@@ -91,9 +91,17 @@ class ComparisonConfig:
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
+    # with ``with_physics``: steps of the flown path on which the network must predict at least
+    # as well as physics to take part (``PhysicsPaired``'s window; 0: always)
+    trust_window: int = 0
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
+        if self.trust_window < 0 or (self.trust_window and not self.with_physics):
+            raise ValueError(
+                "--trust-window is the network's audit against physics: give "
+                f"--with-physics, and 0 steps or more (got {self.trust_window})"
+            )
         _check_cost(self.cost)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)

@@ -80,6 +80,9 @@ def versus_lines(comparisons: list[VersusPhysics]) -> list[str]:
                 + (f" (MPC + physics ended {v.physics_failed} more early)" if v.physics_failed
                    else "")
             )  # fmt: skip
+        if v.physics_only:
+            parts.append(f"physics alone priced {100 * v.physics_only:.0f} % of its steps (the "
+                         "network predicted the steps just flown worse)")  # fmt: skip
         lines.append(f"- {v.controller}: " + "; ".join(parts) + ".")
     return lines or ["- no network was flown in the MPC"]
 

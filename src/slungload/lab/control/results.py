@@ -147,6 +147,8 @@ class VersusPhysics:
     physics_failed: int  # flights the network flew to the end and MPC + physics did not
     network: dict[str, float]
     physics: dict[str, float]
+    # share of the network's control steps priced by physics alone (``PhysicsPaired``'s window)
+    physics_only: float = 0.0
 
     def lower(self, key: str) -> float:
         """How much lower the network's mean of ``key`` is, as a fraction of physics's."""
@@ -169,8 +171,10 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
             failed = [r for r in mine.values() if not r["completed"]]
             physics_failed = sum(r["completed"] and f in physics and not physics[f]["completed"]
                                  for f, r in mine.items())  # fmt: skip
+            steps = sum(r.get("mpc_steps", 0) for r in mine.values())
+            alone = sum(r.get("physics_only_steps", 0) for r in mine.values())
             out.append(VersusPhysics(
                 net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
-                len(both), physics_failed, *means,
+                len(both), physics_failed, *means, alone / steps if steps else 0.0,
             ))  # fmt: skip
     return out
