@@ -809,3 +809,17 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
         run_study(tiny_run.out, tmp_path / "alone", paired, controllers=kinds, progress=None)
     with pytest.raises(ValueError, match="give both or neither"):
         replace(config, with_physics=True)
+    # --trust-window: the pair's flights count the steps physics priced alone, and the report
+    # gives their share; a folder flown without the window refuses it
+    audited = replace(paired, trust_window=2)
+    rows = run_study(tiny_run.out, tmp_path / "audited", audited, controllers=kinds,
+                     progress=None)  # fmt: skip
+    mine = learned(rows)
+    assert 0 <= mine["physics_only_steps"] <= mine["mpc_steps"] and mine["mpc_steps"] > 0
+    share = 100 * mine["physics_only_steps"] / mine["mpc_steps"]
+    report = write_study_report(rows, audited, tmp_path / "audited").read_text()
+    assert f"physics priced alone {share:.0f} % of its steps" in report
+    with pytest.raises(ValueError, match="trust_window differ"):
+        run_study(tiny_run.out, tmp_path / "paired", audited, controllers=kinds, progress=None)
+    with pytest.raises(ValueError, match="give --with-physics"):
+        replace(config, trust_window=2)

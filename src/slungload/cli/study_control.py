@@ -88,7 +88,8 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      oracle_samples=args.oracle_samples, samples=args.samples,
                      backend=args.backend, steps=args.steps, plant=args.plant,
                      cost=args.cost, risk=args.risk,
-                     with_physics=args.with_physics or None)  # fmt: skip
+                     with_physics=args.with_physics or None,
+                     trust_window=args.trust_window)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     warn_model_notes(args.model, max(config.horizons), paired=config.with_physics)
     learned = args.model[0] if args.model else None

@@ -71,7 +71,7 @@ TUNING_ROUNDS = 4
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
-    "tune", "backend", "cost", "risk", "with_physics",
+    "tune", "backend", "cost", "risk", "with_physics", "trust_window",
 )  # fmt: skip
 
 
@@ -97,11 +97,7 @@ class ComparisonConfig:
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
-        if self.trust_window < 0 or (self.trust_window and not self.with_physics):
-            raise ValueError(
-                "--trust-window is the network's audit against physics: give "
-                f"--with-physics, and 0 steps or more (got {self.trust_window})"
-            )
+        _check_trust(self.trust_window, self.with_physics)
         _check_cost(self.cost)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
@@ -143,6 +139,7 @@ class StudyConfig:
     # (``control.paired``): tuned, timed and matched at equal compute as that pair
     risk: float | None = MPCConfig.risk
     with_physics: bool = False
+    trust_window: int = 0  # with ``with_physics``: ``ComparisonConfig.trust_window``
 
     def mpc(self, *, members: bool = False, **fields: Any) -> MPCConfig:
         """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
@@ -168,6 +165,7 @@ class StudyConfig:
         if set(self.shift_horizons) - set(self.horizons):
             raise ValueError(f"shift horizons {list(self.shift_horizons)} must be among the "
                              f"horizons {list(self.horizons)}")  # fmt: skip
+        _check_trust(self.trust_window, self.with_physics)
         if self.with_physics != (self.risk is not None):
             raise ValueError("the study prices the learned MPC's plans with the physics model "
                              "by a risk (--with-physics --risk BETA): give both or neither "
@@ -213,6 +211,12 @@ def _check_plant(name: str) -> None:
     """One of the simulator's named plants (``sim.plants.PLANTS``)."""
     if name not in PLANTS:
         raise ValueError(f"unknown plant {name!r}; known: {list(PLANTS)}")
+
+
+def _check_trust(window: int, with_physics: bool) -> None:
+    if window < 0 or (window and not with_physics):
+        raise ValueError("--trust-window is the network's audit against physics: give "
+                         f"--with-physics, and 0 steps or more (got {window})")  # fmt: skip
 
 
 def _check_steps(owner: str, steps: int | None) -> None:

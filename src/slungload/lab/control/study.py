@@ -215,7 +215,8 @@ def _models(learned: str | Path | None, params: VehicleParams, cfg: StudyConfig)
         models["learned"] = load_model(learned, backend=cfg.backend)
         if cfg.with_physics:
             models["learned"] = PhysicsPaired(candidate_model(models["learned"]),
-                                              candidate_model(models[PHYSICS]))  # fmt: skip
+                                              candidate_model(models[PHYSICS]),
+                                              cfg.trust_window)  # fmt: skip
     return models
 
 

@@ -41,7 +41,7 @@ from ...reporting import (
 )
 from ...run_config import SMOKE_PRESET
 from ...sim.config import SimConfig
-from .config import NOMINAL, STUDY_KINDS, UNSAFE_SWING, StudyConfig
+from .config import LEARNED, NOMINAL, STUDY_KINDS, UNSAFE_SWING, StudyConfig
 from .oracle_gap import oracle_gap_section
 from .report import plot_paths
 from .results import (
@@ -224,7 +224,7 @@ def write_study_report(
         ),  # fmt: skip
         _settings_line(config, settings, sorted({r["seed"] for r in rows})),
         "",
-        _learned_line(settings, learned, config),
+        _learned_line(settings, learned, config, rows),
         "",
         _settings_table(settings),
         "",
@@ -343,9 +343,12 @@ def _flown(labels, pairs: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
     return [(a, b) for a, b in pairs if a in flown and b in flown]
 
 
-def _learned_line(settings: dict[str, Any], learned: str | None, config: StudyConfig) -> str:
+def _learned_line(
+    settings: dict[str, Any], learned: str | None, config: StudyConfig, rows: Sequence[dict] = ()
+) -> str:
     """The learned network flown (the one the folder's settings were tuned for, else as
-    given), and how its plans were priced."""
+    given), how its plans were priced, and with a trust window how often physics priced them
+    alone (over ``rows``' learned flights)."""
     network = settings.get("learned_network")
     if network:
         line = f"The learned network: `{network['checkpoint']}` (SHA-256 {network['sha256'][:12]})."
@@ -357,6 +360,14 @@ def _learned_line(settings: dict[str, Any], learned: str | None, config: StudyCo
         line += (f" Its plans priced under it and under the physics model (`--with-physics`): "
                  f"their mean cost + {config.risk:g} x their spread; tuned, timed and matched "
                  "as that pair.")  # fmt: skip
+    if config.trust_window:
+        mine = [r for r in rows if label_model(r["controller"]) == LEARNED]
+        steps = sum(r.get("mpc_steps", 0) for r in mine)
+        alone = sum(r.get("physics_only_steps", 0) for r in mine)
+        line += (f" The network had no say while it predicted the last {config.trust_window} "
+                 "steps flown worse than physics (`--trust-window`)"
+                 + (f": physics priced alone {100 * alone / steps:.0f} % of its steps." if steps
+                    else "."))  # fmt: skip
     return line
 
 
