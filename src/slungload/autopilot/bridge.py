@@ -472,7 +472,7 @@ def fly(
     exported = load_exported(model, threads=threads)
     horizon = exported.horizon or config.mpc.horizon  # a compiled file flies the MPC's N
     warning = note((exported.meta or {}).get("preflight") or {}, str(model), horizon,
-                   paired=config.with_physics)  # fmt: skip
+                   paired=config.with_physics, trust_window=config.trust_window)  # fmt: skip
     if warning:
         warnings.warn(warning, stacklevel=2)
     flown = exported

@@ -104,15 +104,17 @@ def plan_changes(args: argparse.Namespace) -> dict[str, Any]:
                  seeds=None if args.seeds is None else seed_range(args.seeds))  # fmt: skip
 
 
-def warn_model_notes(models: Sequence[Path], horizon: int, *, paired: bool = False) -> None:
+def warn_model_notes(
+    models: Sequence[Path], horizon: int, *, paired: bool = False, trust_window: int = 0
+) -> None:
     """What a user should know before flying each model at ``horizon`` (``mpc.model_notes``;
-    ``paired``: priced with physics too), as warnings; a model that cannot be read is left to
-    the command, which says so."""
+    ``paired``: priced with physics too, with ``trust_window``), as warnings; a model that
+    cannot be read is left to the command, which says so."""
     from ..control.mpc import ModelNote, model_notes
 
     for model in models:
         try:
-            notes = model_notes(model, horizon, paired=paired)
+            notes = model_notes(model, horizon, paired=paired, trust_window=trust_window)
         except (OSError, ValueError):
             continue
         for note in notes:
@@ -152,7 +154,8 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          with_physics=args.with_physics or None,
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
-    warn_model_notes(args.model, config.horizon, paired=config.with_physics)
+    warn_model_notes(args.model, config.horizon, paired=config.with_physics,
+                     trust_window=config.trust_window)  # fmt: skip
     result = compare(args.model, args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
     print(result.out / "report.md")

@@ -221,9 +221,12 @@ class ModelNote(UserWarning):
     """Something a user should know before flying a model (``model_notes``)."""
 
 
-def model_notes(model: str | Path, horizon: int, *, paired: bool = False) -> list[str]:
+def model_notes(
+    model: str | Path, horizon: int, *, paired: bool = False, trust_window: int = 0
+) -> list[str]:
     """What a user should know before an MPC over ``model`` (a run folder, or "physics") plans
-    ``horizon`` steps ahead (``paired``: priced with the physics model too, ``control.paired``),
+    ``horizon`` steps ahead (``paired``: priced with the physics model too, ``control.paired``,
+    with ``trust_window``),
     where its run says so:
 
     - it was trained on simulated flights whose commands carried no excitation (the dataset's
@@ -254,5 +257,5 @@ def model_notes(model: str | Path, horizon: int, *, paired: bool = False) -> lis
             f"the MPC plans {horizon} steps ahead and {model} was trained to predict {trained}: "
             f"its predictions past step {trained} are extrapolation"
         )
-    checked = verdict_note(model, horizon, paired=paired)
+    checked = verdict_note(model, horizon, paired=paired, trust_window=trust_window)
     return notes + ([checked] if checked else [])

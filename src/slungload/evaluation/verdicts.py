@@ -38,11 +38,17 @@ def read_verdicts(run: str | Path) -> dict[str, Any]:
 
 
 def note(
-    verdicts: Mapping[str, Any], what: str, horizon: int, *, paired: bool = False
+    verdicts: Mapping[str, Any],
+    what: str,
+    horizon: int,
+    *,
+    paired: bool = False,
+    trust_window: int = 0,
 ) -> str | None:
     """A warning for an MPC over ``what`` at ``horizon`` where ``verdicts`` (``read_verdicts``'
     shape) say it does not pay there; None where it may pay or was not checked there.
-    ``paired``: the MPC prices its plans with the physics model too (``--with-physics``)."""
+    ``paired``: the MPC prices its plans with the physics model too (``--with-physics``), with
+    ``trust_window`` (``--trust-window``) physics alone while the network predicts worse."""
     found = verdicts.get(str(horizon))
     if not isinstance(found, dict) or found.get("verdict") != NOT:
         return None
@@ -60,12 +66,21 @@ def note(
         why = "see its check.md"
     said = (f"the pre-flight check of {what} (on {found.get('data', '?')}) says it will not "
             f"beat the physics model in an MPC at N = {horizon}: {why}")  # fmt: skip
+    if paired and trust_window:
+        return (f"{said}; the physics model prices its plans too, and alone while the network "
+                f"predicts the last {trust_window} steps flown worse (--with-physics "
+                "--trust-window)")  # fmt: skip
     if paired:
-        return f"{said}; the physics model prices its plans too (--with-physics)"
-    return (f"{said}; flying it anyway (--with-physics lets the physics model veto the plans "
-            "only it believes in; docs/control.md)")  # fmt: skip
+        return (f"{said}; the physics model prices its plans too (--with-physics), but cannot "
+                "veto a network that is wrong everywhere: add --trust-window 10 "
+                "(docs/control.md)")  # fmt: skip
+    return (f"{said}; flying it anyway (--with-physics --trust-window 10 lets the physics model "
+            "veto the plans only it believes in, and price them alone while the network "
+            "predicts the steps just flown worse; docs/control.md)")  # fmt: skip
 
 
-def verdict_note(run: str | Path, horizon: int, *, paired: bool = False) -> str | None:
+def verdict_note(
+    run: str | Path, horizon: int, *, paired: bool = False, trust_window: int = 0
+) -> str | None:
     """``note`` from the run's own ``VERDICTS_FILE``."""
-    return note(read_verdicts(run), str(run), horizon, paired=paired)
+    return note(read_verdicts(run), str(run), horizon, paired=paired, trust_window=trust_window)
