@@ -274,7 +274,7 @@ def test_a_lockstep_flight_priced_with_physics(tmp_path):
         fly(compiled, replace(bridge, with_physics=False))
     with pytest.raises(ValueError, match="give --risk"):
         replace(bridge, mpc=MPCConfig())
-    with pytest.raises(ValueError, match="only with --with-physics"):
+    with pytest.raises(ValueError, match="give --with-physics"):
         replace(bridge, with_physics=False, trust_window=5)
 
 

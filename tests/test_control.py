@@ -114,7 +114,7 @@ def test_a_network_paired_with_physics_gives_both_their_own_history():
     from slungload.control.paired import PhysicsPaired
 
     network, physics = Recording("net", 5, 1.0), Recording("physics", 2, 2.0)
-    pair = PhysicsPaired(network, physics)
+    pair = PhysicsPaired(network, physics, window=0)  # the veto alone
     assert pair.history == 5 and pair.name == "net+physics"
     x_hist, u_past = np.arange(65.0).reshape(5, 13), np.zeros((4, 4))
     plans = np.zeros((3, 7, 4))
@@ -137,7 +137,8 @@ def test_physics_pricing_halves_a_biased_networks_height_error():
     low = {}
     for name, model, cfg in (
         ("alone", biased, FAST),
-        ("paired", PhysicsPaired(candidate_model(biased), candidate_model(PhysicsModel(PARAMS))),
+        ("paired", PhysicsPaired(candidate_model(biased), candidate_model(PhysicsModel(PARAMS)),
+                                 window=0),  # the veto alone
          replace(FAST, risk=1.0)),
     ):  # fmt: skip
         mpc = SamplingMPC(model, LIMITS, cfg, PARAMS)

@@ -823,3 +823,10 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
         run_study(tiny_run.out, tmp_path / "paired", audited, controllers=kinds, progress=None)
     with pytest.raises(ValueError, match="give --with-physics"):
         replace(config, trust_window=2)
+    # a folder whose settings lack the window was flown before it existed: without one
+    path = tmp_path / "paired" / "settings.json"
+    settings = json.loads(path.read_text())
+    del settings["config"]["trust_window"]
+    path.write_text(json.dumps(settings))
+    with pytest.raises(ValueError, match="trust_window differ"):
+        run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)

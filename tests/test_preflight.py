@@ -236,12 +236,12 @@ def test_control_warns_from_the_check(tiny_run, tmp_path: Path) -> None:
                                      '1.2], "pays_below": 0.9, "data": "d"}}')  # fmt: skip
     (alone,) = [n for n in model_notes(run, 4) if "pre-flight check" in n]
     (paired,) = [n for n in model_notes(run, 4, paired=True) if "pre-flight check" in n]
-    assert "--with-physics --trust-window 10 lets the physics model veto" in alone  # the remedy
-    assert "prices its plans too" in paired and "add --trust-window 10" in paired
+    assert "--with-physics lets the physics model veto" in alone  # the remedy
+    assert "prices its plans too" in paired and "with --trust-window 0 it cannot" in paired
     (audited,) = [n for n in model_notes(run, 4, paired=True, trust_window=7)
                   if "pre-flight check" in n]  # fmt: skip
     assert "alone while the network predicts the last 7 steps" in audited
-    assert "add --trust-window" not in audited  # already done
+    assert "cannot veto" not in audited  # already done
 
 
 def test_the_command_writes_its_report_and_refuses_bad_input(

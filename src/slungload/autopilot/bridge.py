@@ -472,7 +472,7 @@ def fly(
     exported = load_exported(model, threads=threads)
     horizon = exported.horizon or config.mpc.horizon  # a compiled file flies the MPC's N
     warning = note((exported.meta or {}).get("preflight") or {}, str(model), horizon,
-                   paired=config.with_physics, trust_window=config.trust_window)  # fmt: skip
+                   paired=config.with_physics, trust_window=config.pair_window)  # fmt: skip
     if warning:
         warnings.warn(warning, stacklevel=2)
     flown = exported
@@ -482,6 +482,6 @@ def fly(
         from ..vehicle_constants import VehicleConstants
 
         physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
-        flown = PhysicsPaired(exported, physics, config.trust_window)
+        flown = PhysicsPaired(exported, physics, config.pair_window)
     check_members(flown, config.mpc.risk)  # before any link is opened
     return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

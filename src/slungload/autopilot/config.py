@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from ..control.mppi import MPCConfig
+from ..control.paired import TRUST_WINDOW, trust_steps
 from ..sim.maneuvers import ARENA_BOX
 
 HANDBACK = ("position", "hold", "land")  # px4.HANDBACK_MODES
@@ -53,10 +54,10 @@ class BridgeConfig:
         "price each plan under the model and under the physics model (the file's constants): "
         "their mean cost + --risk x their spread (control.paired; docs/control.md)",
     )
-    trust_window: int = _option(
-        0,
+    trust_window: int | None = _option(
+        None,
         "with --with-physics: steps just flown the model must predict at least as well as "
-        "physics to take part (0: always; control.paired)",
+        f"physics to take part (0: always; default {TRUST_WINDOW}; control.paired)",
     )
     # the reference: a maneuver's offsets from where OFFBOARD starts (None: hold that point)
     maneuver: str | None = _option(
@@ -115,6 +116,11 @@ class BridgeConfig:
     tlog: Path | None = _option(None, "MAVLink telemetry log to write (.tlog)")
     connect_timeout: float = _option(10.0, "s to wait for the autopilot's heartbeat")
 
+    @property
+    def pair_window(self) -> int:
+        """The pair's trust window in steps (``control.paired.trust_steps``; 0 without physics)."""
+        return trust_steps(self.trust_window, self.with_physics)
+
     def __post_init__(self) -> None:
         positive = ("period", "max_state_age", "max_load_age", "max_tilt", "fence_radius",
                     "fence_height", "hover_time", "connect_timeout", "rate_max")  # fmt: skip
@@ -135,9 +141,7 @@ class BridgeConfig:
             raise ValueError(f"handback must be one of {HANDBACK}, got {self.handback!r}")
         if self.with_physics and self.mpc.risk is None:
             raise ValueError("with_physics prices the plans by the MPC's risk: give --risk")
-        if self.trust_window < 0 or (self.trust_window and not self.with_physics):
-            raise ValueError("trust window: 0 steps or more, and only with --with-physics; got "
-                             f"{self.trust_window}")  # fmt: skip
+        trust_steps(self.trust_window, self.with_physics)  # only with physics, >= 0
         if self.duration is not None and not self.duration > 0:
             raise ValueError(f"duration must be > 0 s, got {self.duration}")
         if not self.settle >= 0:

@@ -45,7 +45,7 @@ def _floats(count: int, names: str):
 _NONE_TYPES = {"hover_throttle": float, "newtons_per_throttle": float, "maneuver": str,
                "duration": float, "tlog": Path, "origin": _floats(4, "X,Y,Z,YAW"),
                "box": _floats(6, "X0,Y0,Z0,X1,Y1,Z1"), "steps": int,
-               "fifo_priority": int}  # fmt: skip
+               "fifo_priority": int, "trust_window": int}  # fmt: skip
 
 
 def _add_options(p: argparse.ArgumentParser, config: type, names: tuple[str, ...]) -> None:

@@ -67,11 +67,13 @@ def add_flight_options(
                        "their mean cost + --risk x their spread (--risk 1: the worse of the "
                        "two; docs/control.md)")  # fmt: skip
     if hasattr(cfg, "trust_window"):
+        from ..control.paired import TRUST_WINDOW  # numpy only
+
         p.add_argument("--trust-window", type=int, metavar="H",
                        help="with --with-physics: the network takes part only while it "
                        "predicts the last H steps flown at least as well as physics (another "
-                       "vehicle's network flies as physics; docs/control.md) (default "
-                       f"{cfg.trust_window}: always)")  # fmt: skip
+                       "vehicle's network flies as physics; 0: always; docs/control.md) "
+                       f"(default {TRUST_WINDOW})")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -155,7 +157,7 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)
     warn_model_notes(args.model, config.horizon, paired=config.with_physics,
-                     trust_window=config.trust_window)  # fmt: skip
+                     trust_window=config.pair_window)  # fmt: skip
     result = compare(args.model, args.out, config, threads=args.threads,
                      progress=None if args.quiet else print)  # fmt: skip
     print(result.out / "report.md")

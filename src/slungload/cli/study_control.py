@@ -92,7 +92,7 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      trust_window=args.trust_window)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     warn_model_notes(args.model, max(config.horizons), paired=config.with_physics,
-                     trust_window=config.trust_window)  # fmt: skip
+                     trust_window=config.pair_window)  # fmt: skip
     learned = args.model[0] if args.model else None
     rows = run_study(learned, args.out, config, controllers=args.controllers, plants=args.plants,
                      threads=args.threads, workers=args.workers,

@@ -28,17 +28,29 @@ import numpy as np
 from ..layout import LOAD_POS, POS
 from .mppi import CandidateModel
 
+TRUST_WINDOW = 10  # steps (0.3 s) each member predicts of the path just flown (chosen, not tuned)
 TRUST_RATIO = 1.0  # the network takes part while its error is at most this x physics's ...
 TRUST_FLOOR = 0.01  # m, + this (RMS over the window's steps and the six position components)
+
+
+def trust_steps(window: int | None, with_physics: bool) -> int:
+    """A pair's window from a config: ``window`` as given, ``TRUST_WINDOW`` when None; 0 without
+    physics. A window given without physics, or below 0, is a ``ValueError``."""
+    if window is not None and (window < 0 or (window and not with_physics)):
+        raise ValueError("--trust-window is the network's audit against physics: give "
+                         f"--with-physics, and 0 steps or more (got {window})")  # fmt: skip
+    if not with_physics:
+        return 0
+    return TRUST_WINDOW if window is None else window
 
 
 class PhysicsPaired:
     """``network`` and ``physics`` (numpy candidate models) as one model of two members.
 
     window: steps of the flown path each member predicts before the network may take part (0:
-    it always does); ratio, floor: the network takes part while its RMS position error over
-    them is at most ratio x physics's + floor (m). ``trusted``: whether it took part in the last
-    ``predict_candidates_members``; ``errors``: the two errors (m) that decided it.
+    it always does, the veto alone); ratio, floor: the network takes part while its RMS position
+    error over them is at most ratio x physics's + floor (m). ``trusted``: whether it took part
+    in the last ``predict_candidates_members``; ``errors``: the two errors (m) that decided it.
     """
 
     numpy = True
@@ -47,7 +59,7 @@ class PhysicsPaired:
         self,
         network: CandidateModel,
         physics: CandidateModel,
-        window: int = 0,
+        window: int = TRUST_WINDOW,
         ratio: float = TRUST_RATIO,
         floor: float = TRUST_FLOOR,
     ) -> None:

@@ -67,16 +67,17 @@ def note(
     said = (f"the pre-flight check of {what} (on {found.get('data', '?')}) says it will not "
             f"beat the physics model in an MPC at N = {horizon}: {why}")  # fmt: skip
     if paired and trust_window:
-        return (f"{said}; the physics model prices its plans too, and alone while the network "
-                f"predicts the last {trust_window} steps flown worse (--with-physics "
-                "--trust-window)")  # fmt: skip
+        return (
+            f"{said}; the physics model prices its plans too, and alone while the network "
+            f"predicts the last {trust_window} steps flown worse (--with-physics)"
+        )
     if paired:
-        return (f"{said}; the physics model prices its plans too (--with-physics), but cannot "
-                "veto a network that is wrong everywhere: add --trust-window 10 "
+        return (f"{said}; the physics model prices its plans too (--with-physics), but with "
+                "--trust-window 0 it cannot veto a network that is wrong everywhere "
                 "(docs/control.md)")  # fmt: skip
-    return (f"{said}; flying it anyway (--with-physics --trust-window 10 lets the physics model "
-            "veto the plans only it believes in, and price them alone while the network "
-            "predicts the steps just flown worse; docs/control.md)")  # fmt: skip
+    return (f"{said}; flying it anyway (--with-physics lets the physics model veto the plans "
+            "only it believes in, and price them alone while the network predicts the steps "
+            "just flown worse; docs/control.md)")  # fmt: skip
 
 
 def verdict_note(

@@ -63,7 +63,7 @@ def compare(
             raise ValueError("--with-physics prices each --model's plans under it and physics "
                              "by --risk: give both")  # fmt: skip
         physics = candidate_model(predictors[0])
-        predictors[1:] = [PhysicsPaired(candidate_model(p), physics, cfg.trust_window)
+        predictors[1:] = [PhysicsPaired(candidate_model(p), physics, cfg.pair_window)
                           for p in predictors[1:]]  # fmt: skip
     if cfg.risk is not None and not any(has_members(p) for p in predictors):
         raise ValueError("--risk prices an ensemble's candidates, and no --model is an ensemble")

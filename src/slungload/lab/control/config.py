@@ -12,6 +12,7 @@ from typing import Any
 
 from ...control.controllers import REFERENCE
 from ...control.mppi import COSTS, MPCConfig, knots_for
+from ...control.paired import trust_steps
 from ...sim.config import SimConfig
 from ...sim.maneuvers import MANEUVERS
 from ...sim.plants import DEFAULT_PLANT, PLANTS
@@ -92,17 +93,23 @@ class ComparisonConfig:
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
     # with ``with_physics``: steps of the flown path on which the network must predict at least
-    # as well as physics to take part (``PhysicsPaired``'s window; 0: always)
-    trust_window: int = 0
+    # as well as physics to take part (``control.paired.trust_steps``: None, its default; 0:
+    # always)
+    trust_window: int | None = None
 
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
-        _check_trust(self.trust_window, self.with_physics)
+        trust_steps(self.trust_window, self.with_physics)  # refuses a window without physics
         _check_cost(self.cost)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
             raise ValueError(f"ComparisonConfig.samples: K >= 2 each, got {list(self.samples)}")
+
+    @property
+    def pair_window(self) -> int:
+        """The pair's trust window in steps (``control.paired.trust_steps``; 0 without physics)."""
+        return trust_steps(self.trust_window, self.with_physics)
 
     @property
     def mpc(self) -> MPCConfig:
@@ -139,7 +146,12 @@ class StudyConfig:
     # (``control.paired``): tuned, timed and matched at equal compute as that pair
     risk: float | None = MPCConfig.risk
     with_physics: bool = False
-    trust_window: int = 0  # with ``with_physics``: ``ComparisonConfig.trust_window``
+    trust_window: int | None = None  # with ``with_physics``: ``ComparisonConfig``'s
+
+    @property
+    def pair_window(self) -> int:
+        """The pair's trust window in steps (``control.paired.trust_steps``; 0 without physics)."""
+        return trust_steps(self.trust_window, self.with_physics)
 
     def mpc(self, *, members: bool = False, **fields: Any) -> MPCConfig:
         """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
@@ -165,7 +177,7 @@ class StudyConfig:
         if set(self.shift_horizons) - set(self.horizons):
             raise ValueError(f"shift horizons {list(self.shift_horizons)} must be among the "
                              f"horizons {list(self.horizons)}")  # fmt: skip
-        _check_trust(self.trust_window, self.with_physics)
+        trust_steps(self.trust_window, self.with_physics)
         if self.with_physics != (self.risk is not None):
             raise ValueError("the study prices the learned MPC's plans with the physics model "
                              "by a risk (--with-physics --risk BETA): give both or neither "
@@ -211,12 +223,6 @@ def _check_plant(name: str) -> None:
     """One of the simulator's named plants (``sim.plants.PLANTS``)."""
     if name not in PLANTS:
         raise ValueError(f"unknown plant {name!r}; known: {list(PLANTS)}")
-
-
-def _check_trust(window: int, with_physics: bool) -> None:
-    if window < 0 or (window and not with_physics):
-        raise ValueError("--trust-window is the network's audit against physics: give "
-                         f"--with-physics, and 0 steps or more (got {window})")  # fmt: skip
 
 
 def _check_steps(owner: str, steps: int | None) -> None:

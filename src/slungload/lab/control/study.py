@@ -216,7 +216,7 @@ def _models(learned: str | Path | None, params: VehicleParams, cfg: StudyConfig)
         if cfg.with_physics:
             models["learned"] = PhysicsPaired(candidate_model(models["learned"]),
                                               candidate_model(models[PHYSICS]),
-                                              cfg.trust_window)  # fmt: skip
+                                              cfg.pair_window)  # fmt: skip
     return models
 
 
@@ -305,6 +305,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
         mine = _jsonable(asdict(cfg))
         # a field the file lacks was added since, with the value its flights had
         was = _jsonable(asdict(StudyConfig()))
+        was["trust_window"] = 0  # a pair flown before the window existed had none
         differ = [k for k in SETTINGS_FIELDS if settings["config"].get(k, was[k]) != mine[k]]
         if differ:
             raise ValueError(
