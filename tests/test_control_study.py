@@ -804,6 +804,7 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
     assert learned(rows)["load_rmse"] != pytest.approx(learned(alone)["load_rmse"])
     report = write_study_report(rows, paired, tmp_path / "paired", str(tiny_run.out)).read_text()
     assert "priced under it and under the physics model" in report
+    assert "no say while it predicted the last 10 steps" in report  # the default window
     assert "priced under" not in write_study_report(alone, config, tmp_path / "alone").read_text()
     with pytest.raises(ValueError, match="risk, with_physics differ"):
         run_study(tiny_run.out, tmp_path / "alone", paired, controllers=kinds, progress=None)

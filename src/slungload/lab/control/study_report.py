@@ -360,11 +360,11 @@ def _learned_line(
         line += (f" Its plans priced under it and under the physics model (`--with-physics`): "
                  f"their mean cost + {config.risk:g} x their spread; tuned, timed and matched "
                  "as that pair.")  # fmt: skip
-    if config.trust_window:
+    if config.pair_window:
         mine = [r for r in rows if label_model(r["controller"]) == LEARNED]
         steps = sum(r.get("mpc_steps", 0) for r in mine)
         alone = sum(r.get("physics_only_steps", 0) for r in mine)
-        line += (f" The network had no say while it predicted the last {config.trust_window} "
+        line += (f" The network had no say while it predicted the last {config.pair_window} "
                  "steps flown worse than physics (`--trust-window`)"
                  + (f": physics priced alone {100 * alone / steps:.0f} % of its steps." if steps
                     else "."))  # fmt: skip
