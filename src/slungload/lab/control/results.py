@@ -130,6 +130,13 @@ def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, A
     return out
 
 
+def physics_only_share(rows: list[dict[str, Any]]) -> float | None:
+    """The share of the MPC steps of ``rows`` that physics priced alone (``PhysicsPaired``'s
+    trust window); None when the rows count no MPC step."""
+    steps = sum(r.get("mpc_steps", 0) for r in rows)
+    return sum(r.get("physics_only_steps", 0) for r in rows) / steps if steps else None
+
+
 @dataclass(frozen=True)
 class VersusPhysics:
     """One network's MPC against MPC + physics at the same K, over every maneuver flown.
@@ -171,10 +178,8 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
             failed = [r for r in mine.values() if not r["completed"]]
             physics_failed = sum(r["completed"] and f in physics and not physics[f]["completed"]
                                  for f, r in mine.items())  # fmt: skip
-            steps = sum(r.get("mpc_steps", 0) for r in mine.values())
-            alone = sum(r.get("physics_only_steps", 0) for r in mine.values())
             out.append(VersusPhysics(
                 net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
-                len(both), physics_failed, *means, alone / steps if steps else 0.0,
+                len(both), physics_failed, *means, physics_only_share(list(mine.values())) or 0.0,
             ))  # fmt: skip
     return out

@@ -55,6 +55,7 @@ from .results import (
     label_model,
     mean_of,
     mpc_label,
+    physics_only_share,
     ratio,
     summary,
 )
@@ -361,12 +362,10 @@ def _learned_line(
                  f"their mean cost + {config.risk:g} x their spread; tuned, timed and matched "
                  "as that pair.")  # fmt: skip
     if config.pair_window:
-        mine = [r for r in rows if label_model(r["controller"]) == LEARNED]
-        steps = sum(r.get("mpc_steps", 0) for r in mine)
-        alone = sum(r.get("physics_only_steps", 0) for r in mine)
+        share = physics_only_share([r for r in rows if label_model(r["controller"]) == LEARNED])
         line += (f" The network had no say while it predicted the last {config.pair_window} "
                  "steps flown worse than physics (`--trust-window`)"
-                 + (f": physics priced alone {100 * alone / steps:.0f} % of its steps." if steps
+                 + (f": physics priced alone {100 * share:.0f} % of its steps." if share is not None
                     else "."))  # fmt: skip
     return line
 
