@@ -211,7 +211,7 @@ def test_uncertainty_command_writes_its_report_and_resume_keeps_members(
     trained_ensemble, tiny_run, run_cli, tmp_path
 ):
     code, out, _ = run_cli("uncertainty", trained_ensemble, "--out", tmp_path / "u")
-    assert code == 0 and "flagged novel" in out
+    assert code == 0 and "flagged novel" in out and "tracked in flight" in out
     for name in ("uncertainty.md", "coverage.csv", "calibration.png"):
         assert (tmp_path / "u" / name).is_file()
     rows = (tmp_path / "u" / "coverage.csv").read_text().splitlines()
@@ -258,6 +258,28 @@ def test_ensemble_predictor_gives_the_mean_an_interval_and_a_flag(trained_ensemb
     np.testing.assert_allclose(half * z_of(0.9) / z_of(0.5), interval.half_width, rtol=1e-9)
     with pytest.raises(ValueError, match="uncalibrated"):
         EnsemblePredictor(predictor.members).predict_interval(w.history, w.future_inputs)
+
+
+def test_ensemble_predictor_tracks_its_interval_in_flight(trained_ensemble, tiny_run):
+    from slungload.data.readers import read_flight
+    from slungload.deploy.predictor import EnsemblePredictor, flight_window
+
+    predictor = EnsemblePredictor.from_folder(trained_ensemble)
+    flight = read_flight(tiny_run.data / "test_3.npz")
+    w = flight_window(flight, 0, history=predictor.history, horizon=4)
+    before = predictor.predict_interval(w.history, w.future_inputs)
+    assert predictor.tracker is None and not before.surprised
+    # a vehicle whose states run 1 m off every prediction: the position interval widens
+    off = w.truth.copy()
+    off[:, 0] += 1.0
+    for _ in range(60):
+        predictor.resolve(w.history, w.future_inputs, off)
+    after = predictor.predict_interval(w.history, w.future_inputs)
+    assert after.surprised and predictor.tracker.resolved == 60
+    assert (after.half_width[:, :3] > before.half_width[:, :3]).all()
+    np.testing.assert_allclose(after.mean, before.mean)
+    with pytest.raises(ValueError, match="flown must be"):
+        predictor.resolve(w.history, w.future_inputs, off[:2])
 
 
 def test_the_mpc_calls_an_ensemble_for_its_mean():

@@ -106,7 +106,9 @@ def add_uncertainty(sub: Any) -> None:
         "uncertainty",
         "how well a calibrated ensemble's interval covers a dataset's errors",
         "Per horizon step and state group: the members' mean's RMSE, the calibrated sigma and "
-        "the share of errors inside the interval, and the share of windows flagged novel. "
+        "the share of errors inside the interval, and the share of windows flagged novel; "
+        "then the same interval tracked in flight (widened where the model's resolved "
+        "predictions miss it; the share of windows issued surprised). "
         "Give --data a dataset the ensemble was not trained on (another load, another "
         "vehicle) to see whether its spread says so.",
     )
@@ -119,15 +121,16 @@ def add_uncertainty(sub: Any) -> None:
 
 
 def cmd_uncertainty(args: argparse.Namespace) -> int:
-    from ..evaluation.uncertainty import assess, stats_table, write_assessment
+    from ..evaluation.uncertainty import assess, stats_table, summary_line, write_assessment
 
-    stats, about = assess(
+    stats, tracked, about = assess(
         args.ensemble, args.data, split=args.split, horizon=args.horizon, level=args.level
     )
     print(f"{about}, {stats.windows} windows, {stats.level:.0%} interval:")
     print(stats_table(stats))
-    print(f"flagged novel: {100 * stats.novel:.1f} % of windows")
+    print(f"as calibrated: {summary_line(stats)}")
+    print(f"tracked in flight: {summary_line(tracked)}")
     if args.out is not None:
-        for path in write_assessment(stats, about, args.out):
+        for path in write_assessment(stats, tracked, about, args.out):
             print(f"wrote {path}")
     return 0

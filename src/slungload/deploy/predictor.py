@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..config import VehicleParams, WindowConfig
+from ..config import OnlineIntervalConfig, VehicleParams, WindowConfig
 from ..layout import (
     INPUT_DIM,
     QUAT,
@@ -41,6 +41,7 @@ from ..layout import (
 from ..models.checkpoints import load_checkpoint
 from ..models.ensemble import Calibration, read_manifest, spread
 from ..models.lstm_attention import SlungLoadNet
+from ..online_interval import OnlineInterval, normalized_errors
 from ..state import (
     quat_continuous,
     quat_normalize,
@@ -167,16 +168,24 @@ class Interval(NamedTuple):
     mean: np.ndarray  # (N, 13) or (B, N, 13): the members' mean, unit quaternion x-y-z-w
     half_width: np.ndarray  # same shape: the interval is mean +- half_width
     novel: np.ndarray  # () or (B,) bool: the spread is beyond what the calibration saw
+    surprised: bool = False  # the tracked interval: resolved errors beyond the calibration's
 
 
 @dataclass
 class EnsemblePredictor:
     """An ensemble folder (``models.ensemble``) behind numpy: ``predict`` gives the members'
     mean as ``Predictor.predict`` does; ``predict_interval`` adds the calibrated interval and
-    the novelty flag (the model outside what it has seen; needs a calibrated ensemble)."""
+    the novelty flag (the model outside what it has seen; needs a calibrated ensemble).
+
+    In flight, ``resolve`` feeds it the prediction whose steps have all been flown; the
+    interval is then the one tracked in flight (``online_interval``: widened per step and
+    state group where resolved predictions missed it) and ``Interval.surprised`` says when
+    the model's errors run beyond its calibration's by ``tracking.surprise``."""
 
     members: tuple[Predictor, ...]
     calibration: Calibration | None = None
+    tracking: OnlineIntervalConfig = field(default_factory=OnlineIntervalConfig)
+    tracker: OnlineInterval | None = field(default=None, repr=False)
 
     @classmethod
     def from_folder(
@@ -205,6 +214,11 @@ class EnsemblePredictor:
         states = torch.as_tensor(np.stack([o[None] if single else o for o in out]))
         return states_from_file(states.double()), single
 
+    def _calibration(self) -> Calibration:
+        if self.calibration is None:
+            raise ValueError("an uncalibrated ensemble states no interval: slungload calibrate")
+        return self.calibration
+
     def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
         """The members' mean, as ``Predictor.predict`` (same arguments and layout)."""
         states, single = self._members(history, future_inputs)
@@ -213,20 +227,45 @@ class EnsemblePredictor:
     def predict_interval(
         self, history: np.ndarray, future_inputs: np.ndarray, level: float | None = None
     ) -> Interval:
-        """The mean, the half width of the ``level`` interval (default the calibration's) and
-        the novelty flag per window."""
-        if self.calibration is None:
-            raise ValueError("an uncalibrated ensemble states no interval: slungload calibrate")
+        """The mean, the half width of the ``level`` interval (default the calibration's;
+        tracked in flight once ``resolve`` has been called, its multipliers tracked at the
+        calibration's level) and the novelty flag per window."""
+        calibration = self._calibration()
         states, single = self._members(history, future_inputs)
         mean, std = spread(states)
-        half = self.calibration.half_width(std, level)
+        half = calibration.half_width(std, level)
+        if self.tracker is not None:
+            factor = self.tracker.component_multiplier(half.shape[-2])
+            half = half * torch.as_tensor(factor, dtype=half.dtype)
         half[..., QUAT] = half[..., QUAT][..., list(WXYZ_TO_XYZW)]  # the file's x-y-z-w
-        novel = self.calibration.novel(std).numpy()
+        novel = calibration.novel(std).numpy()
         return Interval(
             unbatch(states_to_file(mean).numpy(), single),
             unbatch(half.numpy(), single),
             novel[0] if single else novel,
+            self.tracker is not None and self.tracker.surprised,
         )
+
+    def resolve(self, history: np.ndarray, applied_inputs: np.ndarray, flown: np.ndarray) -> None:
+        """Feed the tracked interval one resolved prediction, file layout: ``history`` (M, 17)
+        ending at the step the prediction starts from, ``applied_inputs`` (N, 4) the inputs
+        applied since (as ``predict``'s future_inputs), ``flown`` (N, 13) the states flown
+        since. Once per control step with the window N steps back keeps it current."""
+        calibration = self._calibration()
+        flown = np.asarray(flown, dtype=np.float64)
+        n = np.asarray(applied_inputs).shape[-2]
+        if flown.shape != (n, STATE_DIM):
+            raise ValueError(
+                f"EnsemblePredictor.resolve: flown must be ({n}, {STATE_DIM}) like "
+                f"applied_inputs' {n} steps, got {flown.shape}"
+            )
+        states, _ = self._members(history, applied_inputs)
+        mean, std = spread(states[:, 0])
+        half = calibration.half_width(std)
+        truth = states_from_file(torch.as_tensor(flown))
+        if self.tracker is None:
+            self.tracker = OnlineInterval(calibration.horizon, calibration.level, self.tracking)
+        self.tracker.update(normalized_errors(mean.numpy(), half.numpy(), truth.numpy()))
 
 
 @contextmanager

@@ -9,9 +9,13 @@
 - ``uncertainty_stats``: per group and step, the mean's RMSE, the calibrated spread (RMS of
   the interval's sigma), the interval's coverage (pooled over the group's components); and
   the share of windows flagged novel.
+- ``tracked_multipliers``: the interval as tracked in flight (``online_interval``), replayed
+  over each flight's windows in time order; ``uncertainty_stats(..., multiplier=)`` measures
+  it, with the share of windows issued while the tracker was surprised.
 - ``calibrate`` and ``assess``: the same on a dataset folder's split for an ensemble folder
-  (``slungload calibrate`` / ``slungload uncertainty``); ``write_assessment`` writes the
-  table (markdown), ``coverage.csv`` and ``calibration.png``. ``evaluate`` adds the same
+  (``slungload calibrate`` / ``slungload uncertainty``, which measures the interval as
+  calibrated and as tracked); ``write_assessment`` writes the tables (markdown),
+  ``coverage.csv`` and ``calibration.png``. ``evaluate`` adds the same
   table and figure to its report for every calibrated ensemble it evaluates.
 """
 
@@ -25,7 +29,7 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from ..config import WindowConfig
+from ..config import OnlineIntervalConfig, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..fileio import write_text
@@ -42,6 +46,7 @@ from ..models.ensemble import (
     z_of,
 )
 from ..models.prediction import ensemble_model
+from ..online_interval import OnlineInterval
 from ..reporting import markdown_table, save_figure
 from .windows import horizon_windows
 
@@ -107,15 +112,61 @@ class UncertaintyStats:
     novel: float  # share of windows flagged novel
     level: float
     windows: int
+    surprised: float | None = None  # tracked in flight: share of windows issued surprised
+
+
+def tracked_multipliers(
+    ratio: Tensor,
+    flight: Tensor,
+    start: Tensor,
+    level: float,
+    config: OnlineIntervalConfig | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The multipliers (W, N, G) each window's interval had in flight, and (W,) bool whether
+    the tracker was surprised when it was issued.
+
+    ratio (W, N, 13): |error| / the calibrated half width; flight, start (W,): each window's
+    flight and first step. Per flight in time order the tracker starts at the calibration
+    (multiplier 1) and, before window s is issued, takes window s - N: the newest prediction
+    whose every step has been flown (a vehicle re-predicts it from the state then under the
+    inputs since applied)."""
+    r = ratio.double().numpy()
+    n = r.shape[1]
+    out = np.ones((r.shape[0], n, len(GROUPS)))
+    surprised = np.zeros(r.shape[0], bool)
+    fl, st = flight.numpy(), start.numpy()
+    for f in np.unique(fl):
+        rows = np.flatnonzero(fl == f)
+        rows = rows[np.argsort(st[rows])]
+        row_of = dict(zip(st[rows].tolist(), rows.tolist(), strict=True))
+        tracker = OnlineInterval(n, level, config)
+        for row in rows:
+            done = row_of.get(int(st[row]) - n)
+            if done is not None:
+                tracker.update(r[done])
+            out[row] = tracker.multiplier
+            surprised[row] = tracker.surprised
+    return out, surprised
 
 
 def uncertainty_stats(
-    members: Tensor, truth: Tensor, calibration: Calibration, level: float | None = None
+    members: Tensor,
+    truth: Tensor,
+    calibration: Calibration,
+    level: float | None = None,
+    multiplier: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> UncertaintyStats:
-    """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13)."""
+    """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13); with
+    ``multiplier`` (``tracked_multipliers``) the interval as tracked in flight."""
     lvl = calibration.level if level is None else level
     mean, std = spread(members)
     half = calibration.half_width(std, lvl)
+    surprised = None
+    if multiplier is not None:
+        factor, flagged = multiplier
+        comp = torch.as_tensor(factor[..., np.maximum(group_index().numpy(), 0)])
+        half = half * comp.to(half.dtype)
+        surprised = float(flagged.mean())
     inside = ((truth - mean).abs() <= half).double()
     sigma = half / z_of(lvl)  # the calibrated scale times std
     sq_err, sq_sig = (truth - mean) ** 2, sigma**2
@@ -128,7 +179,23 @@ def uncertainty_stats(
         sig[g] = sq_sig[..., cols].sum(-1).mean(0).sqrt().numpy()
         cov[g] = inside[..., cols].mean(dim=(0, 2)).numpy()
     novel = float(calibration.novel(std).double().mean())
-    return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]))
+    return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised)
+
+
+def tracked_stats(
+    members: Tensor,
+    truth: Tensor,
+    windows: Windows,
+    calibration: Calibration,
+    level: float | None = None,
+    config: OnlineIntervalConfig | None = None,
+) -> UncertaintyStats:
+    """``uncertainty_stats`` of the interval as tracked in flight over ``windows``' flights."""
+    lvl = calibration.level if level is None else level
+    mean, std = spread(members)
+    ratio = (truth - mean).abs() / calibration.half_width(std, lvl).clamp_min(1e-12)
+    tracked = tracked_multipliers(ratio, windows.flight, windows.start, lvl, config)
+    return uncertainty_stats(members, truth, calibration, lvl, multiplier=tracked)
 
 
 def _ensemble_and_windows(
@@ -174,13 +241,18 @@ def assess(
     split: str = "test",
     horizon: int | None = None,
     level: float | None = None,
-) -> tuple[UncertaintyStats, str]:
-    """The calibrated ensemble folder's stats on a dataset's split, and what they are of."""
+    online: OnlineIntervalConfig | None = None,
+) -> tuple[UncertaintyStats, UncertaintyStats, str]:
+    """The calibrated ensemble folder's stats on a dataset's split: the interval as
+    calibrated, as tracked in flight (``online``, default ``OnlineIntervalConfig()``), and
+    what they are of."""
     model, windows, about = _ensemble_and_windows(ensemble, data, split, horizon)
     if model.calibration is None:
         raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
     members, truth = member_predictions(model, windows)
-    return uncertainty_stats(members, truth, model.calibration, level), about
+    fixed = uncertainty_stats(members, truth, model.calibration, level)
+    tracked = tracked_stats(members, truth, windows, model.calibration, level, online)
+    return fixed, tracked, about
 
 
 def stats_table(stats: UncertaintyStats) -> str:
@@ -201,10 +273,14 @@ def stats_table(stats: UncertaintyStats) -> str:
 def summary_line(stats: UncertaintyStats) -> str:
     """One sentence: the coverage range over every step and group, the share flagged."""
     lo, hi = stats.coverage.min(), stats.coverage.max()
+    flag = (
+        f"{100 * stats.novel:.1f} % of windows flagged novel"
+        if stats.surprised is None
+        else f"{100 * stats.surprised:.1f} % of windows issued surprised"
+    )
     return (
         f"the {stats.level:.0%} interval covers {100 * lo:.1f}-{100 * hi:.1f} % of the errors "
-        f"over every step and group (pooled over each group's components); "
-        f"{100 * stats.novel:.1f} % of windows flagged novel"
+        f"over every step and group (pooled over each group's components); {flag}"
     )
 
 
@@ -221,28 +297,47 @@ def spread_section(spreads: dict[str, dict[int, UncertaintyStats]]) -> list[str]
     return lines
 
 
-def write_assessment(stats: UncertaintyStats, about: str, out: str | Path) -> list[Path]:
-    """``out/uncertainty.md``, ``out/coverage.csv`` (every step) and ``out/calibration.png``."""
+def write_assessment(
+    stats: UncertaintyStats, tracked: UncertaintyStats, about: str, out: str | Path
+) -> list[Path]:
+    """``out/uncertainty.md`` (the interval as calibrated and as tracked in flight),
+    ``out/coverage.csv`` (every step, both) and ``out/calibration.png``."""
     out = Path(out).expanduser()
     text = (
-        f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows: {summary_line(stats)}."
-        "\n\n" + stats_table(stats) + "\n"
+        f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows.\n\n"
+        f"As calibrated: {summary_line(stats)}.\n\n" + stats_table(stats) + "\n\n"
+        f"Tracked in flight (each flight from the calibration, moved by the predictions it "
+        f"resolves; docs/uncertainty.md): {summary_line(tracked)}.\n\n"
+        + stats_table(tracked)
+        + "\n"
     )
     write_text(out / "uncertainty.md", text)
-    lines = ["step," + ",".join(f"{g}_{k}" for g in GROUPS for k in ("rmse", "sigma", "coverage"))]
+    kinds = ("rmse", "sigma", "coverage", "tracked_sigma", "tracked_coverage")
+    lines = ["step," + ",".join(f"{g}_{k}" for g in GROUPS for k in kinds)]
     for n in range(stats.rmse.shape[1]):
         values = [
             f"{a[g, n]:.6g}"
             for g in range(len(GROUPS))
-            for a in (stats.rmse, stats.sigma, stats.coverage)
+            for a in (stats.rmse, stats.sigma, stats.coverage, tracked.sigma, tracked.coverage)
         ]
         lines.append(f"{n + 1}," + ",".join(values))
     write_text(out / "coverage.csv", "\n".join(lines) + "\n")
-    return [out / "uncertainty.md", out / "coverage.csv", plot_calibration(stats, out)]
+    return [
+        out / "uncertainty.md",
+        out / "coverage.csv",
+        plot_calibration(stats, out, tracked=tracked),
+    ]
 
 
-def plot_calibration(stats: UncertaintyStats, out: Path, name: str = "calibration.png") -> Path:
-    """Two panels: coverage per step and group beside the level; RMSE against sigma."""
+def plot_calibration(
+    stats: UncertaintyStats,
+    out: Path,
+    name: str = "calibration.png",
+    *,
+    tracked: UncertaintyStats | None = None,
+) -> Path:
+    """Two panels: coverage per step and group beside the level; RMSE against sigma. With
+    ``tracked``: its curves dashed in the same colours."""
     fig = Figure(figsize=(10, 4))
     ax_cov, ax_sig = fig.subplots(1, 2)
     steps = np.arange(1, stats.rmse.shape[1] + 1)
@@ -250,7 +345,14 @@ def plot_calibration(stats: UncertaintyStats, out: Path, name: str = "calibratio
         (line,) = ax_cov.plot(steps, 100 * stats.coverage[g], label=group)
         ratio = stats.rmse[g] / np.maximum(stats.sigma[g], 1e-12)
         ax_sig.plot(steps, ratio, color=line.get_color(), label=group)
+        if tracked is not None:
+            colour = line.get_color()
+            ax_cov.plot(steps, 100 * tracked.coverage[g], color=colour, linestyle="--")
+            ratio = tracked.rmse[g] / np.maximum(tracked.sigma[g], 1e-12)
+            ax_sig.plot(steps, ratio, color=colour, linestyle="--")
     ax_cov.axhline(100 * stats.level, color="k", linestyle=":", label=f"{stats.level:.0%} level")
+    if tracked is not None:
+        ax_cov.plot([], [], color="k", linestyle="--", label="tracked in flight")
     ax_cov.set(xlabel="horizon step", ylabel="coverage (%)", ylim=(0, 100))
     ax_cov.legend(fontsize=8)
     ax_sig.axhline(1.0, color="k", linestyle=":")
