@@ -112,6 +112,10 @@ def test_the_replay_is_causal_and_restarts_with_each_flight():
     np.testing.assert_allclose(after[: 7 + n], first[: 7 + n])
     assert np.all(after[7 + n] >= first[7 + n]) and np.any(after[7 + n] > first[7 + n])
     np.testing.assert_allclose(after[w:], first[w:])  # the next flight starts afresh
+    # every other window (stride 2): each still takes what has resolved, N steps late
+    every = torch.arange(0, w, 2)
+    sparse, _ = tracked_multipliers(ratio[every], flight[every], start[every], LEVEL)
+    assert np.all(sparse[:2] == 1.0) and np.any(sparse[2] != 1.0)  # start 4 takes start 0
 
 
 def test_bad_inputs_are_refused():

@@ -46,7 +46,7 @@ from ..models.ensemble import (
     z_of,
 )
 from ..models.prediction import ensemble_model
-from ..online_interval import OnlineInterval
+from ..online_interval import OnlineInterval, group_of_component
 from ..reporting import markdown_table, save_figure
 from .windows import horizon_windows
 
@@ -127,9 +127,9 @@ def tracked_multipliers(
 
     ratio (W, N, 13): |error| / the calibrated half width; flight, start (W,): each window's
     flight and first step. Per flight in time order the tracker starts at the calibration
-    (multiplier 1) and, before window s is issued, takes window s - N: the newest prediction
-    whose every step has been flown (a vehicle re-predicts it from the state then under the
-    inputs since applied)."""
+    (multiplier 1) and, before window s is issued, takes every window up to s - N not taken
+    yet: the predictions whose every step has been flown (with stride 1, window s - N alone; a
+    vehicle re-predicts it from the state then under the inputs since applied)."""
     r = ratio.double().numpy()
     n = r.shape[1]
     out = np.ones((r.shape[0], n, len(GROUPS)))
@@ -137,13 +137,13 @@ def tracked_multipliers(
     fl, st = flight.numpy(), start.numpy()
     for f in np.unique(fl):
         rows = np.flatnonzero(fl == f)
-        rows = rows[np.argsort(st[rows])]
-        row_of = dict(zip(st[rows].tolist(), rows.tolist(), strict=True))
+        rows = rows[np.argsort(st[rows], kind="stable")]
         tracker = OnlineInterval(n, level, config)
+        taken = 0  # rows[:taken] are resolved and fed
         for row in rows:
-            done = row_of.get(int(st[row]) - n)
-            if done is not None:
-                tracker.update(r[done])
+            while taken < len(rows) and st[rows[taken]] <= st[row] - n:
+                tracker.update(r[rows[taken]])
+                taken += 1
             out[row] = tracker.multiplier
             surprised[row] = tracker.surprised
     return out, surprised
@@ -164,7 +164,7 @@ def uncertainty_stats(
     surprised = None
     if multiplier is not None:
         factor, flagged = multiplier
-        comp = torch.as_tensor(factor[..., np.maximum(group_index().numpy(), 0)])
+        comp = torch.as_tensor(factor[..., group_of_component()])
         half = half * comp.to(half.dtype)
         surprised = float(flagged.mean())
     inside = ((truth - mean).abs() <= half).double()
