@@ -17,6 +17,7 @@ import torch
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
+from slungload.control.paired import TRUST_WINDOW
 from slungload.frames import rotation_matrix, swing_angle
 from slungload.lab.control.config import (
     COST_GRID,
@@ -804,9 +805,9 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
     assert learned(rows)["load_rmse"] != pytest.approx(learned(alone)["load_rmse"])
     report = write_study_report(rows, paired, tmp_path / "paired", str(tiny_run.out)).read_text()
     assert "priced under it and under the physics model" in report
-    assert "no say while it predicted the last 10 steps" in report  # the default window
+    assert f"no say while it predicted the last {TRUST_WINDOW} steps" in report  # the default
     assert "priced under" not in write_study_report(alone, config, tmp_path / "alone").read_text()
-    with pytest.raises(ValueError, match="risk, with_physics differ"):
+    with pytest.raises(ValueError, match="risk, with_physics, trust_window differ"):
         run_study(tiny_run.out, tmp_path / "alone", paired, controllers=kinds, progress=None)
     with pytest.raises(ValueError, match="give both or neither"):
         replace(config, with_physics=True)
@@ -824,10 +825,19 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
         run_study(tiny_run.out, tmp_path / "paired", audited, controllers=kinds, progress=None)
     with pytest.raises(ValueError, match="give --with-physics"):
         replace(config, trust_window=2)
-    # a folder whose settings lack the window was flown before it existed: without one
+    # the file records the window flown, resolved; one written with null (the default, then
+    # 10 steps) is read as 10; one that lacks the field was flown before it existed: none
     path = tmp_path / "paired" / "settings.json"
     settings = json.loads(path.read_text())
+    assert settings["config"]["trust_window"] == TRUST_WINDOW
+    settings["config"]["trust_window"] = None
+    path.write_text(json.dumps(settings))
+    ten = replace(paired, trust_window=10)
+    run_study(tiny_run.out, tmp_path / "paired", ten, controllers=kinds, progress=None)
+    if TRUST_WINDOW != 10:
+        with pytest.raises(ValueError, match="trust_window differ"):
+            run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
     del settings["config"]["trust_window"]
     path.write_text(json.dumps(settings))
     with pytest.raises(ValueError, match="trust_window differ"):
-        run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
+        run_study(tiny_run.out, tmp_path / "paired", ten, controllers=kinds, progress=None)

@@ -302,11 +302,14 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
     network = learned_network(learned) if "learned" in models else None
     if path.exists():
         settings = read_json(path)
-        mine = _jsonable(asdict(cfg))
+        mine = _config_record(cfg)
         # a field the file lacks was added since, with the value its flights had
         was = _jsonable(asdict(StudyConfig()))
         was["trust_window"] = 0  # a pair flown before the window existed had none
-        differ = [k for k in SETTINGS_FIELDS if settings["config"].get(k, was[k]) != mine[k]]
+        theirs = {k: settings["config"].get(k, was[k]) for k in SETTINGS_FIELDS}
+        if theirs["trust_window"] is None:  # written when the default window was 10 steps
+            theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
+        differ = [k for k in SETTINGS_FIELDS if theirs[k] != mine[k]]
         if differ:
             raise ValueError(
                 f"{path} was written for another study configuration ({', '.join(differ)} "
@@ -351,7 +354,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
             samples[PHYSICS][str(n)] = equal_compute_samples(
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
-    settings = {"config": _jsonable(asdict(cfg)), "mpc": mpc, "samples": samples}
+    settings = {"config": _config_record(cfg), "mpc": mpc, "samples": samples}
     if cfg.tune:  # each choice's tuning_score, so that each model's best horizon can be named
         settings["tuning_score"] = {kind: {n: list(score) for n, (_, score) in per.items()}
                                     for kind, per in tuned.items()}  # fmt: skip
@@ -367,6 +370,20 @@ def learned_network(learned: str | Path) -> dict[str, str | None]:
     path = checkpoint_path(learned)
     preset = checkpoint_meta(path).get("preset")
     return {"checkpoint": str(path), "sha256": sha256(path), "preset": preset}
+
+
+# The pair's default window when settings files recorded the field as given (null: the
+# default); those files' null means this many steps.
+_EARLIER_WINDOW = 10
+
+
+def _config_record(cfg: StudyConfig) -> dict[str, Any]:
+    """The study's configuration as ``settings.json`` records it, the pair's window resolved
+    (``pair_window``): a file must say the window its flights had, whatever the default
+    becomes."""
+    record = _jsonable(asdict(cfg))
+    record["trust_window"] = cfg.pair_window
+    return record
 
 
 def _jsonable(value: Any) -> Any:
