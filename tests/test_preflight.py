@@ -238,9 +238,12 @@ def test_control_warns_from_the_check(tiny_run, tmp_path: Path) -> None:
     (paired,) = [n for n in model_notes(run, 4, paired=True) if "pre-flight check" in n]
     assert "--with-physics lets the physics model veto" in alone  # the remedy
     assert "prices its plans too" in paired and "with --trust-window 0 it cannot" in paired
-    (audited,) = [n for n in model_notes(run, 4, paired=True, trust_window=7)
+    (audited,) = [n for n in model_notes(run, 4, paired=True, trust_window=3)
                   if "pre-flight check" in n]  # fmt: skip
-    assert "alone while the network predicts the last 7 steps" in audited
+    assert "alone while the network predicts the last 3 steps" in audited
+    (longer,) = [n for n in model_notes(run, 4, paired=True, trust_window=7)
+                 if "pre-flight check" in n]  # fmt: skip
+    assert "the last 4 steps" in longer  # the window is at most the plans' N
     assert "cannot veto" not in audited  # already done
 
 

@@ -69,7 +69,7 @@ def note(
     if paired and trust_window:
         return (
             f"{said}; the physics model prices its plans too, and alone while the network "
-            f"predicts the last {trust_window} steps flown worse (--with-physics)"
+            f"predicts the last {min(trust_window, horizon)} steps flown worse (--with-physics)"
         )
     if paired:
         return (f"{said}; the physics model prices its plans too (--with-physics), but with "

@@ -364,7 +364,7 @@ def _learned_line(
     if config.pair_window:
         share = physics_only_share([r for r in rows if label_model(r["controller"]) == LEARNED])
         line += (f" The network had no say while it predicted the last {config.pair_window} "
-                 "steps flown worse than physics (`--trust-window`)"
+                 "steps flown (at most N) worse than physics (`--trust-window`)"
                  + (f": physics priced alone {100 * share:.0f} % of its steps." if share is not None
                     else "."))  # fmt: skip
     return line
