@@ -133,7 +133,7 @@ ENSEMBLE_LEVEL = 0.9
 
 @dataclass(frozen=True)
 class OnlineIntervalConfig:
-    """The interval tracked in flight (``models.online_interval``): adaptive conformal.
+    """The interval tracked in flight (``online_interval``): adaptive conformal.
 
     rate: the change of the log multiplier per resolved prediction, per unit of the share of
     its components outside the interval above 1 - level (a miss widens by rate x level, a hit
