@@ -269,6 +269,10 @@ def test_a_lockstep_flight_priced_with_physics(tmp_path):
     assert result.end == "flight complete" and result.steps == round(0.6 / 0.03)
     assert not result.safety.counts and result.mpc.fallback_steps == 0
     assert result.mpc.physics_only_steps == 0
+    assert result.summary().startswith("flight complete: 20 MPC steps")
+    assert "physics alone" not in result.summary()  # trusted throughout
+    result.mpc.physics_only_steps = 5
+    assert "physics alone priced 25 % of the steps" in result.summary()
     assert_finite_on_the_wire(endpoint)
     with pytest.raises(ValueError, match="one network"):
         fly(compiled, replace(bridge, with_physics=False))

@@ -80,6 +80,24 @@ class BridgeResult:
     states: list[np.ndarray] = field(default_factory=list)  # (13,) each MPC step's state
     commands: list[np.ndarray] = field(default_factory=list)  # (4,) thrust N, rates FLU
 
+    def summary(self) -> str:
+        """One line: how it ended, steps, set-points, safety events, the MPC's fallbacks, the
+        share of steps physics priced alone (a pair's trust window), the latency."""
+        safety = ", ".join(f"{k} {n}" for k, n in self.safety.counts.items()) or "none"
+        line = (f"{self.end}: {self.steps} MPC steps, {self.sent} set-points sent, safety "
+                f"events: {safety}")  # fmt: skip
+        if self.mpc is not None:
+            line += f", MPC fallbacks {self.mpc.fallback_steps}"
+            if self.mpc.physics_only_steps and self.mpc.steps:
+                share = 100 * self.mpc.physics_only_steps / self.mpc.steps
+                line += (f", physics alone priced {share:.0f} % of the steps (the network "
+                         "predicted the steps just flown worse)")  # fmt: skip
+        if self.latency:
+            ms = np.array(self.latency) * 1e3
+            line += (f"; state -> command {np.median(ms):.2f} ms median, "
+                     f"{np.percentile(ms, 99):.2f} ms p99")  # fmt: skip
+        return line
+
 
 class Bridge:
     """One flight of the MPC over ``model`` (a ``CandidateModel``; ``params``: the vehicle

@@ -99,8 +99,6 @@ def add_fly(sub: Any) -> None:
 
 
 def cmd_fly(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
@@ -109,16 +107,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)
     result = fly(args.model, config, threads=args.threads, log=print)
-    latency = np.array(result.latency) * 1e3
-    timing = (
-        f"; state -> command {np.median(latency):.2f} ms median, "
-        f"{np.percentile(latency, 99):.2f} ms p99"
-        if len(latency)
-        else ""
-    )
-    safety = ", ".join(f"{k} {n}" for k, n in result.safety.counts.items()) or "none"
-    print(f"{result.end}: {result.steps} MPC steps, {result.sent} set-points sent, safety "
-          f"events: {safety}, MPC fallbacks {result.mpc.fallback_steps}{timing}")  # fmt: skip
+    print(result.summary())
     return 0
 
 
