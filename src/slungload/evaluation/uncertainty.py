@@ -10,8 +10,8 @@
   the interval's sigma), the interval's coverage (pooled over the group's components); and
   the share of windows flagged novel.
 - ``tracked_multipliers``: the interval as tracked in flight (``online_interval``), replayed
-  over each flight's windows in time order; ``uncertainty_stats(..., multiplier=)`` measures
-  it, with the share of windows issued while the tracker was surprised.
+  over each flight's windows in time order; ``uncertainty_stats(..., tracked_in=windows)``
+  measures it, with the share of windows issued while the tracker was surprised.
 - ``calibrate`` and ``assess``: the same on a dataset folder's split for an ensemble folder
   (``slungload calibrate`` / ``slungload uncertainty``, which measures the interval as
   calibrated and as tracked); ``write_assessment`` writes the tables (markdown),
@@ -154,18 +154,21 @@ def uncertainty_stats(
     truth: Tensor,
     calibration: Calibration,
     level: float | None = None,
-    multiplier: tuple[np.ndarray, np.ndarray] | None = None,
+    tracked_in: Windows | None = None,
+    online: OnlineIntervalConfig | None = None,
 ) -> UncertaintyStats:
     """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13); with
-    ``multiplier`` (``tracked_multipliers``) the interval as tracked in flight."""
+    ``tracked_in`` (the windows they are of) the interval as tracked in flight over their
+    flights (``tracked_multipliers``, ``online`` its constants)."""
     lvl = calibration.level if level is None else level
     mean, std = spread(members)
     half = calibration.half_width(std, lvl)
     surprised = None
-    if multiplier is not None:
-        factor, flagged = multiplier
-        comp = torch.as_tensor(factor[..., group_of_component()])
-        half = half * comp.to(half.dtype)
+    if tracked_in is not None:
+        ratio = (truth - mean).abs() / half.clamp_min(1e-12)
+        factor, flagged = tracked_multipliers(ratio, tracked_in.flight, tracked_in.start, lvl,
+                                              online)  # fmt: skip
+        half = half * torch.as_tensor(factor[..., group_of_component()]).to(half.dtype)
         surprised = float(flagged.mean())
     inside = ((truth - mean).abs() <= half).double()
     sigma = half / z_of(lvl)  # the calibrated scale times std
@@ -180,22 +183,6 @@ def uncertainty_stats(
         cov[g] = inside[..., cols].mean(dim=(0, 2)).numpy()
     novel = float(calibration.novel(std).double().mean())
     return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised)
-
-
-def tracked_stats(
-    members: Tensor,
-    truth: Tensor,
-    windows: Windows,
-    calibration: Calibration,
-    level: float | None = None,
-    config: OnlineIntervalConfig | None = None,
-) -> UncertaintyStats:
-    """``uncertainty_stats`` of the interval as tracked in flight over ``windows``' flights."""
-    lvl = calibration.level if level is None else level
-    mean, std = spread(members)
-    ratio = (truth - mean).abs() / calibration.half_width(std, lvl).clamp_min(1e-12)
-    tracked = tracked_multipliers(ratio, windows.flight, windows.start, lvl, config)
-    return uncertainty_stats(members, truth, calibration, lvl, multiplier=tracked)
 
 
 def _ensemble_and_windows(
@@ -251,7 +238,7 @@ def assess(
         raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
     members, truth = member_predictions(model, windows)
     fixed = uncertainty_stats(members, truth, model.calibration, level)
-    tracked = tracked_stats(members, truth, windows, model.calibration, level, online)
+    tracked = uncertainty_stats(members, truth, model.calibration, level, windows, online)
     return fixed, tracked, about
 
 
