@@ -8,10 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from slungload.config import OnlineIntervalConfig
 from slungload.evaluation.uncertainty import tracked_multipliers
 from slungload.layout import GROUPS, QUAT, STATE_DIM
-from slungload.online_interval import OnlineInterval, group_of_component, normalized_errors
+from slungload.online_interval import (
+    OnlineInterval,
+    OnlineIntervalConfig,
+    group_of_component,
+    normalized_errors,
+)
 
 LEVEL = 0.9
 

@@ -131,27 +131,6 @@ PREDICTION_BACKENDS: dict[str, str] = {
 ENSEMBLE_LEVEL = 0.9
 
 
-@dataclass(frozen=True)
-class OnlineIntervalConfig:
-    """The interval tracked in flight (``online_interval``): adaptive conformal.
-
-    rate: the change of the log multiplier per resolved prediction, per unit of the share of
-    its components outside the interval above 1 - level (a miss widens by rate x level, a hit
-    narrows by rate x (1 - level)). surprise: the multiplier (on any step and state group)
-    beyond which the model is flagged as surprised: its errors that many times what its
-    calibration expects.
-    """
-
-    rate: float = 0.05
-    surprise: float = 2.0
-
-    def __post_init__(self) -> None:
-        if not self.rate > 0.0:
-            raise ValueError(f"OnlineIntervalConfig.rate must be > 0, got {self.rate}")
-        if not self.surprise > 1.0:
-            raise ValueError(f"OnlineIntervalConfig.surprise must be > 1, got {self.surprise}")
-
-
 # The physics-step network's estimate of the load state at the last history step.
 LOAD_ESTIMATES: dict[str, str] = {
     "difference": "backward differences of the last two positions (the data's estimate)",

@@ -23,10 +23,32 @@ state then and the inputs since applied, is compared with the N states since flo
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from .config import OnlineIntervalConfig
 from .layout import GROUPS, QUAT, STATE_DIM
+
+
+@dataclass(frozen=True)
+class OnlineIntervalConfig:
+    """The interval tracked in flight's constants: adaptive conformal.
+
+    rate: the change of the log multiplier per resolved prediction, per unit of the share of
+    its components outside the interval above 1 - level (a miss widens by rate x level, a hit
+    narrows by rate x (1 - level)). surprise: the multiplier (on any step and state group)
+    beyond which the model is flagged as surprised: its errors that many times what its
+    calibration expects.
+    """
+
+    rate: float = 0.05
+    surprise: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not self.rate > 0.0:
+            raise ValueError(f"OnlineIntervalConfig.rate must be > 0, got {self.rate}")
+        if not self.surprise > 1.0:
+            raise ValueError(f"OnlineIntervalConfig.surprise must be > 1, got {self.surprise}")
 
 
 def _group_weights() -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from ..config import OnlineIntervalConfig, VehicleParams, WindowConfig
+from ..config import VehicleParams, WindowConfig
 from ..layout import (
     INPUT_DIM,
     QUAT,
@@ -41,7 +41,7 @@ from ..layout import (
 from ..models.checkpoints import load_checkpoint
 from ..models.ensemble import Calibration, read_manifest, spread
 from ..models.lstm_attention import SlungLoadNet
-from ..online_interval import OnlineInterval, normalized_errors
+from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
 from ..state import (
     quat_continuous,
     quat_normalize,

@@ -29,7 +29,7 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from ..config import OnlineIntervalConfig, WindowConfig
+from ..config import WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..fileio import write_text
@@ -46,7 +46,7 @@ from ..models.ensemble import (
     z_of,
 )
 from ..models.prediction import ensemble_model
-from ..online_interval import OnlineInterval, group_of_component
+from ..online_interval import OnlineInterval, OnlineIntervalConfig, group_of_component
 from ..reporting import markdown_table, save_figure
 from .windows import horizon_windows
 
