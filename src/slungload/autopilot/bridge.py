@@ -33,9 +33,8 @@ import math
 import os
 import time
 import warnings
-from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +44,6 @@ from ..config import VehicleParams
 from ..control.mppi import (
     CandidateModel,
     InputLimits,
-    MPCStats,
     MPPIController,
     check_members,
     reference_ahead,
@@ -56,7 +54,8 @@ from ..layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from . import px4
 from .config import BridgeConfig
 from .reference import flight_reference
-from .safety import SafetyLog, check_state
+from .result import BridgeResult
+from .safety import check_state
 from .tlog import TlogWriter
 
 mavlink = px4.mavlink
@@ -64,39 +63,6 @@ MODE_ANSWER_WAIT = 0.3  # s without waiting set-points while a mode command awai
 # the user's own source of the load's position (e.g. a ROS 2 subscriber): None, or
 # (position (3,) m world z up, age s)
 LoadSource = Callable[[], "tuple[np.ndarray, float] | None"]
-
-
-@dataclass
-class BridgeResult:
-    """How a flight through the bridge went."""
-
-    end: str  # why it ended: "flight complete", "left offboard", "handed back: <fault>", ...
-    steps: int = 0  # MPC steps flown
-    sent: int = 0  # set-points sent (0 in shadow mode)
-    safety: SafetyLog = field(default_factory=SafetyLog)
-    mpc: MPCStats | None = None
-    ignored: Counter = field(default_factory=Counter)  # message type -> count (bad, unknown)
-    latency: list[float] = field(default_factory=list)  # s, state received -> command sent
-    states: list[np.ndarray] = field(default_factory=list)  # (13,) each MPC step's state
-    commands: list[np.ndarray] = field(default_factory=list)  # (4,) thrust N, rates FLU
-
-    def summary(self) -> str:
-        """One line: how it ended, steps, set-points, safety events, the MPC's fallbacks, the
-        share of steps physics priced alone (a pair's trust window), the latency."""
-        safety = ", ".join(f"{k} {n}" for k, n in self.safety.counts.items()) or "none"
-        line = (f"{self.end}: {self.steps} MPC steps, {self.sent} set-points sent, safety "
-                f"events: {safety}")  # fmt: skip
-        if self.mpc is not None:
-            line += f", MPC fallbacks {self.mpc.fallback_steps}"
-            if self.mpc.physics_only_steps and self.mpc.steps:
-                share = 100 * self.mpc.physics_only_steps / self.mpc.steps
-                line += (f", physics alone priced {share:.0f} % of the steps (the network "
-                         "predicted the steps just flown worse)")  # fmt: skip
-        if self.latency:
-            ms = np.array(self.latency) * 1e3
-            line += (f"; state -> command {np.median(ms):.2f} ms median, "
-                     f"{np.percentile(ms, 99):.2f} ms p99")  # fmt: skip
-        return line
 
 
 class Bridge:
