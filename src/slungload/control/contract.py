@@ -38,6 +38,13 @@ def has_members(model: object) -> bool:
     return hasattr(model, "predict_candidates_members")
 
 
+def priced(costs: np.ndarray, risk: float, weights: np.ndarray | None = None) -> np.ndarray:
+    """(E, K) member costs -> (K,): their mean + ``risk`` x their spread (std), both weighted
+    by ``weights`` (E,) where a model gives them (``member_weights``), else equal."""
+    mean = np.average(costs, axis=0, weights=weights)
+    return mean + risk * np.sqrt(np.average((costs - mean) ** 2, axis=0, weights=weights))
+
+
 def check_members(model: CandidateModel, risk: float | None) -> None:
     """ValueError where ``risk`` (``MPCConfig.risk``) prices members and ``model`` has none."""
     if risk is not None and not has_members(model):

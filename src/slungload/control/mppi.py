@@ -58,7 +58,7 @@ import numpy as np
 from .. import frames
 from ..config import NETWORK_CONSTANTS, VehicleParams
 from ..layout import INPUT_DIM, QUAT, STATE_DIM
-from .contract import CandidateModel, ConstantsEstimate, check_members, has_members
+from .contract import CandidateModel, ConstantsEstimate, check_members, has_members, priced
 from .cost import (
     COSTS,
     ReferenceAhead,
@@ -430,7 +430,10 @@ class MPPIController:
             self.hover_thrust,
             self.target(ref),
         ).reshape(e, k)
-        cost = costs[0] if not members else costs.mean(0) + self.cfg.risk * costs.std(0)
+        if members:
+            cost = priced(costs, self.cfg.risk, getattr(self.model, "member_weights", None))
+        else:
+            cost = costs[0]
         if members and not getattr(self.model, "trusted", True):
             self.stats.physics_only_steps += 1
         if members and hasattr(self.model, "novel"):  # sample 0 is the nominal plan

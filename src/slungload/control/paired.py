@@ -34,6 +34,7 @@ from .mppi import CandidateModel
 TRUST_WINDOW = 25
 TRUST_RATIO = 1.0  # the network takes part while its error is at most this x physics's ...
 TRUST_FLOOR = 0.01  # m, + this (RMS over the window's steps and the six position components)
+WEIGH_BY_RECORD = False  # a trusted network's cost weighted by 1 / (error + floor)^2 against physics's
 
 
 def trust_steps(window: int | None, with_physics: bool) -> int:
@@ -65,6 +66,7 @@ class PhysicsPaired:
         window: int = TRUST_WINDOW,
         ratio: float = TRUST_RATIO,
         floor: float = TRUST_FLOOR,
+        weigh: bool | None = None,
     ) -> None:
         if window < 0 or not (ratio > 0 and floor >= 0):
             raise ValueError(f"PhysicsPaired: need window >= 0, ratio > 0 and floor >= 0; got "
@@ -74,8 +76,10 @@ class PhysicsPaired:
         self.history = max(network.history, physics.history) + window
         self.name = f"{network.name}+physics" + (f"-trust{window}" if window else "")
         self.horizon = getattr(network, "horizon", None)
+        self.weigh = WEIGH_BY_RECORD if weigh is None else weigh
         self.trusted = True
         self.errors = (math.nan, math.nan)
+        self.member_weights: np.ndarray | None = None  # (2,), read by the controller's price
 
     def _call(self, model: CandidateModel, x_hist, u_past, plans) -> np.ndarray:
         m = model.history  # the last M measured states and the M - 1 inputs between them
@@ -95,6 +99,9 @@ class PhysicsPaired:
         when the network predicted the window just flown worse (``trusted`` False)."""
         physics = self._call(self.physics, x_hist, u_past, plans)
         self.trusted = not self.window or self._trust(x_hist, u_past, plans.shape[1])
+        self.member_weights = None
+        if self.trusted and self.window and self.weigh:
+            self.member_weights = (np.asarray(self.errors) + self.floor) ** -2.0
         if not self.trusted:
             return np.stack([physics, physics])
         return np.stack([self._call(self.network, x_hist, u_past, plans), physics])
