@@ -273,6 +273,9 @@ def test_a_lockstep_flight_priced_with_physics(tmp_path):
     assert "physics alone" not in result.summary()  # trusted throughout
     result.mpc.physics_only_steps = 5
     assert "physics alone priced 25 % of the steps" in result.summary()
+    assert "surprised" not in result.summary()
+    result.mpc.surprised_steps = 2  # a calibrated ensemble's tracked interval (control.tracked)
+    assert "the ensemble surprised on 10 % of the steps" in result.summary()
     assert_finite_on_the_wire(endpoint)
     with pytest.raises(ValueError, match="one network"):
         fly(compiled, replace(bridge, with_physics=False))

@@ -191,6 +191,39 @@ def test_the_trust_window_asks_each_member_to_predict_the_steps_just_flown():
         PhysicsPaired(biased, truth, window=-1)
 
 
+def test_members_are_priced_by_their_weights_and_by_their_record():
+    """Equal weights: mean + risk x std of the members' costs; weights (3, 1): the weighted
+    mean and spread, by hand. A pair that weighs by its record gives the member that predicted
+    the window just flown better the larger weight, 1 / (error + floor)^2; without weighing,
+    or untrusted, it gives none."""
+    from slungload.control.contract import priced
+    from slungload.control.mpc import candidate_model
+    from slungload.control.paired import PhysicsPaired
+
+    costs = np.array([[1.0, 4.0], [3.0, 4.0]])
+    np.testing.assert_allclose(priced(costs, 0.5), [2.0 + 0.5, 4.0])
+    # weights 0.75 / 0.25: mean 1.5, spread sqrt(0.75 x 0.25) x 2
+    np.testing.assert_allclose(priced(costs, 1.0, np.array([3.0, 1.0])),
+                               [1.5 + np.sqrt(0.1875) * 2, 4.0])  # fmt: skip
+    truth = candidate_model(PhysicsModel(PARAMS))
+    biased = candidate_model(PhysicsModel(replace(PARAMS, thrust_gain=1.2)))
+    x_hist, u_past = flown_window(2 + 8)
+    plans = np.tile(u_past[-1], (5, 12, 1))
+    for weigh in (False, True):
+        pair = PhysicsPaired(truth, biased, window=8, weigh=weigh)  # the network is right
+        pair.predict_candidates_members(x_hist, u_past, plans)
+        assert pair.trusted
+        if not weigh:
+            assert pair.member_weights is None
+            continue
+        errors = np.asarray(pair.errors)
+        np.testing.assert_allclose(pair.member_weights, (errors + pair.floor) ** -2.0)
+        assert pair.member_weights[0] > 2 * pair.member_weights[1], pair.errors
+    wrong = PhysicsPaired(biased, truth, window=8, weigh=True, floor=0.0)
+    wrong.predict_candidates_members(x_hist, u_past, plans)
+    assert not wrong.trusted and wrong.member_weights is None
+
+
 def test_a_wrong_network_under_the_trust_window_flies_as_physics_alone():
     """A network of another vehicle (rotors 60 % stronger) priced with physics still pulls the
     flight off; with the trust window it never takes part and the MPC flies exactly as physics
@@ -213,6 +246,79 @@ def test_a_wrong_network_under_the_trust_window_flies_as_physics_alone():
     assert stats[8].physics_only_steps == 60 and stats[0].physics_only_steps == 0
     error = {w: np.abs(p[:, 2] - target[2]).max() for w, p in paths.items()}
     assert error[0] > 2 * error[8], error
+
+
+class TwoPhysics:
+    """A numpy ensemble of two members: the physics model + ``bias`` in every component, 2 cm
+    (or m/s, or 0.02 in the quaternion) below and above it; calibrated by hand (scale 1 at
+    every step and group, level 0.9)."""
+
+    name, history = "two-physics", 2
+
+    def __init__(self, bias: float) -> None:
+        from slungload.control.mpc import candidate_model
+        from slungload.layout import GROUPS
+
+        self.physics, self.bias = candidate_model(PhysicsModel(PARAMS)), bias
+        self.calibration = {"scale": [[1.0] * len(GROUPS)] * 3, "level": 0.9}
+
+    def predict_candidates_members(self, x_hist, u_past, plans):
+        states = self.physics.predict_candidates(x_hist, u_past, plans) + self.bias
+        return np.stack([states - 0.02, states + 0.02])
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        return self.physics.predict_candidates(x_hist, u_past, plans)
+
+
+def test_an_ensembles_interval_is_tracked_over_the_steps_just_flown():
+    """Members 2 cm around the vehicle flown are within their interval and never surprised;
+    members that agree on a prediction 0.3 off in every component are outside it, and after
+    16 resolved windows (rate 0.05 x level 0.9 a window, up to log 2) surprised. The MPC wraps
+    a calibrated ensemble itself and counts those steps."""
+    from slungload.control.mppi import MPPIController, ReferenceAhead
+    from slungload.control.tracked import TrackedMembers
+
+    x_hist, u_past = flown_window(2 + 8)
+    plans = np.tile(u_past[-1], (5, 12, 1))
+    for bias, surprised in ((0.0, False), (0.3, True)):
+        model = TwoPhysics(bias)
+        tracked = TrackedMembers(model, model.calibration, window=8)
+        assert tracked.history == 10
+        for i in range(20):
+            states = tracked.predict_candidates_members(x_hist, u_past, plans)
+            assert tracked.surprised == (surprised and i >= 15), (bias, i)
+        assert states.shape == (2, 5, 12, 13) and tracked.tracker.resolved == 20
+        mpc = MPPIController(model, LIMITS, replace(FAST, risk=0.5), PARAMS)
+        assert isinstance(mpc.model, TrackedMembers) and mpc.model.window == FAST.horizon
+        ref = ReferenceAhead(np.tile(hover_state()[:3], (FAST.horizon, 1)),
+                             np.zeros((FAST.horizon, 3)), np.zeros(FAST.horizon))  # fmt: skip
+        x = hover_state()
+        for _ in range(30):
+            u = mpc.step(x, ref)
+            x, _ = physics.step(torch.from_numpy(x), torch.tensor([u.thrust, *u.rates]),
+                                torch.zeros(6, dtype=torch.float64), PARAMS)  # fmt: skip
+            x = x.numpy()
+        assert (mpc.stats.surprised_steps > 0) == surprised, mpc.stats
+    with pytest.raises(ValueError, match="no members"):
+        TrackedMembers(model.physics, model.calibration, window=8)
+
+
+def test_the_interval_half_width_in_numpy_is_the_calibrations():
+    """``members_half_width`` (numpy, onboard) equals ``Calibration.half_width`` of the
+    members' spread, past the calibration's steps too, with a member in the other quaternion
+    hemisphere."""
+    from slungload.deploy.members import members_half_width
+    from slungload.layout import GROUPS
+    from slungload.models.ensemble import Calibration, spread
+
+    rng = np.random.default_rng(3)
+    scale = tuple(tuple(rng.uniform(0.5, 2.0, len(GROUPS))) for _ in range(4))
+    calibration = Calibration(scale, tuple((1.0,) * 13 for _ in range(4)), 1.0, level=0.8)
+    members = rng.standard_normal((3, 5, 6, 13))
+    members[1, ..., 6:10] *= -1
+    want = calibration.half_width(spread(torch.from_numpy(members)).std).numpy()
+    got = members_half_width(members, {"scale": scale, "level": 0.8})
+    np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
 # --- safety ----------------------------------------------------------------------------

@@ -27,7 +27,8 @@ class BridgeResult:
 
     def summary(self) -> str:
         """One line: how it ended, steps, set-points, safety events, the MPC's fallbacks, the
-        share of steps physics priced alone (a pair's trust window), the latency."""
+        share of steps physics priced alone (a pair's trust window) and of steps a calibrated
+        ensemble was surprised (``control.tracked``), the latency."""
         safety = ", ".join(f"{k} {n}" for k, n in self.safety.counts.items()) or "none"
         line = (f"{self.end}: {self.steps} MPC steps, {self.sent} set-points sent, safety "
                 f"events: {safety}")  # fmt: skip
@@ -37,6 +38,10 @@ class BridgeResult:
                 share = 100 * self.mpc.physics_only_steps / self.mpc.steps
                 line += (f", physics alone priced {share:.0f} % of the steps (the network "
                          "predicted the steps just flown worse)")  # fmt: skip
+            if self.mpc.surprised_steps and self.mpc.steps:
+                share = 100 * self.mpc.surprised_steps / self.mpc.steps
+                line += (f", the ensemble surprised on {share:.0f} % of the steps (its errors on "
+                         "the steps just flown beyond its calibration's)")  # fmt: skip
         if self.latency:
             ms = np.array(self.latency) * 1e3
             line += (f"; state -> command {np.median(ms):.2f} ms median, "

@@ -177,6 +177,7 @@ def _stats_dict(stats: Any) -> dict[str, Any]:
         "nonfinite_steps": stats.nonfinite_steps,
         "hover_steps": stats.hover_steps,
         "physics_only_steps": stats.physics_only_steps,
+        "surprised_steps": stats.surprised_steps,
     }
 
 

@@ -71,8 +71,9 @@ class TorchCandidates:
         self.history = model.history
         if hasattr(model, "prepare"):  # passed on: ``mppi.CandidateModel``
             self.prepare = model.prepare
-        if has_members(model):  # an ensemble's members
+        if has_members(model):  # an ensemble's members, and its calibration (``tracked``)
             self.predict_candidates_members = self._members
+            self.calibration = getattr(model, "calibration", None)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
@@ -103,7 +104,7 @@ class _NumpyEntry:
             self.prepare = model.prepare
         if hasattr(model, "numpy_candidates_members"):  # an ensemble's members
             self.predict_candidates_members = model.numpy_candidates_members
-            self.novel = model.novel
+            self.novel, self.calibration = model.novel, model.calibration
 
 
 def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:

@@ -70,6 +70,7 @@ from .cost import (
     yaw_of,
 )
 from .history import History
+from .tracked import TrackedMembers, calibration_of
 
 __all__ = [
     "COSTS",
@@ -217,6 +218,7 @@ class MPCStats:
     estimate_rejected: int = 0  # steps whose in-flight constants were not finite and positive
     novel_steps: int = 0  # with ``MPCConfig.risk``: nominal plans flagged (``Calibration.novel``)
     physics_only_steps: int = 0  # a network paired with physics had no say (``paired``'s window)
+    surprised_steps: int = 0  # a calibrated ensemble's tracked interval surprised (``tracked``)
 
     @property
     def fallback_steps(self) -> int:
@@ -272,9 +274,12 @@ class MPPIController:
         params: VehicleParams | None = None,
         estimate: ConstantsEstimate | None = None,
     ) -> None:
+        self.cfg = cfg = config or MPCConfig()
+        calibration = calibration_of(model)  # a calibrated ensemble's interval is tracked
+        if calibration is not None and has_members(model) and not isinstance(model, TrackedMembers):
+            model = TrackedMembers(model, calibration, cfg.horizon)
         self.model = model
         self.limits = limits
-        self.cfg = cfg = config or MPCConfig()
         if (cfg.constants == "window") != (estimate is not None):
             raise ValueError(
                 "MPPIController: constants='window' needs an estimate of the constants, and an "
@@ -436,6 +441,8 @@ class MPPIController:
             cost = costs[0]
         if members and not getattr(self.model, "trusted", True):
             self.stats.physics_only_steps += 1
+        if getattr(self.model, "surprised", False):  # ``tracked.TrackedMembers``
+            self.stats.surprised_steps += 1
         if members and hasattr(self.model, "novel"):  # sample 0 is the nominal plan
             self.stats.novel_steps += bool(self.model.novel(states[:, :1])[0])
         finite = np.isfinite(cost) & np.isfinite(states).transpose(1, 0, 2, 3).reshape(k, -1).all(1)

@@ -34,7 +34,8 @@ from .mppi import CandidateModel
 TRUST_WINDOW = 25
 TRUST_RATIO = 1.0  # the network takes part while its error is at most this x physics's ...
 TRUST_FLOOR = 0.01  # m, + this (RMS over the window's steps and the six position components)
-WEIGH_BY_RECORD = False  # a trusted network's cost weighted by 1 / (error + floor)^2 against physics's
+# a trusted network's cost and physics's weighted by 1 / (error over the window + floor)^2
+WEIGH_BY_RECORD = False
 
 
 def trust_steps(window: int | None, with_physics: bool) -> int:

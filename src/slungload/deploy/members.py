@@ -4,9 +4,13 @@ numpy only."""
 
 from __future__ import annotations
 
+from dataclasses import asdict, is_dataclass
+from statistics import NormalDist
+
 import numpy as np
 
-from ..layout import QUAT
+from ..layout import GROUPS, QUAT
+from ..online_interval import group_of_component
 
 
 def _aligned(members: np.ndarray) -> np.ndarray:
@@ -25,6 +29,29 @@ def members_mean(members: np.ndarray) -> np.ndarray:
     norm = np.linalg.norm(mean[..., QUAT], axis=-1, keepdims=True)
     mean[..., QUAT] /= np.maximum(norm, 1e-12)
     return mean
+
+
+def members_half_width(members: np.ndarray, calibration: dict) -> np.ndarray:
+    """Members' predictions (E, ..., N, 13) -> the calibrated interval's half width (..., N,
+    13): z(level) x the fitted scale per step and group x the members' std
+    (``models.ensemble.Calibration.half_width`` of ``spread``'s std in numpy, a test holds the
+    two equal); past the calibration's steps, its last row."""
+    std = _aligned(members).std(0, ddof=1)
+    scale = np.asarray(calibration["scale"], np.float64)  # (N_cal, G)
+    if scale.shape[1] != len(GROUPS):
+        raise ValueError(f"a calibration of {scale.shape[1]} groups, not {len(GROUPS)}")
+    rows = np.minimum(np.arange(std.shape[-2]), len(scale) - 1)
+    z = NormalDist().inv_cdf(0.5 + calibration["level"] / 2.0)
+    return z * scale[rows][:, group_of_component()] * std
+
+
+def calibration_of(model: object) -> dict | None:
+    """An ensemble's calibration as a dict (an exported file's already is one; the torch
+    ensemble's ``Calibration`` as its fields), None where it has none."""
+    calibration = getattr(model, "calibration", None)
+    if calibration is None or isinstance(calibration, dict):
+        return calibration
+    return asdict(calibration) if is_dataclass(calibration) else None
 
 
 def members_novel(members: np.ndarray, calibration: dict | None) -> np.ndarray:

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ...config import VehicleParams
+from ...control import paired
 from ...control.closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
 from ...control.controllers import REFERENCE, reference_maker
 from ...control.mpc import (
@@ -309,7 +310,8 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
         theirs = {k: settings["config"].get(k, was[k]) for k in SETTINGS_FIELDS}
         if theirs["trust_window"] is None:  # written when the default window was 10 steps
             theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
-        differ = [k for k in SETTINGS_FIELDS if theirs[k] != mine[k]]
+        theirs["pair_weighs"] = settings["config"].get("pair_weighs", False)  # equal before
+        differ = [k for k in (*SETTINGS_FIELDS, "pair_weighs") if theirs[k] != mine[k]]
         if differ:
             raise ValueError(
                 f"{path} was written for another study configuration ({', '.join(differ)} "
@@ -379,10 +381,12 @@ _EARLIER_WINDOW = 10
 
 def _config_record(cfg: StudyConfig) -> dict[str, Any]:
     """The study's configuration as ``settings.json`` records it, the pair's window resolved
-    (``pair_window``): a file must say the window its flights had, whatever the default
+    (``pair_window``) and whether the pair weighs its members by their record
+    (``paired.WEIGH_BY_RECORD``): a file must say what its flights had, whatever the default
     becomes."""
     record = _jsonable(asdict(cfg))
     record["trust_window"] = cfg.pair_window
+    record["pair_weighs"] = bool(cfg.pair_window) and paired.WEIGH_BY_RECORD
     return record
 
 

@@ -1,0 +1,101 @@
+"""An ensemble flown by the MPC, its interval tracked in flight.
+
+``TrackedMembers(model, calibration, window)`` is a numpy ``mppi.CandidateModel`` around a
+calibrated ensemble (any with ``predict_candidates_members``: the torch ensemble through
+``mpc.candidate_model``, its compiled or ONNX file onboard). Before each control step's
+prediction it resolves the one a vehicle can check now: the members predict the last H =
+min(window, N) states flown from the state H steps ago under the inputs since applied, and
+their errors over the calibrated half width move ``online_interval.OnlineInterval``. While it
+is ``surprised`` (errors some ``surprise`` times what the calibration expects: a longer cable,
+where the members agree on a wrong prediction and the spread-based novelty flag stays silent)
+the controller counts the step (``MPCStats.surprised_steps``). It flags; it does not change
+the plans. numpy only (the onboard path).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..deploy.members import calibration_of, members_half_width, members_mean
+from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
+from .contract import CandidateModel, has_members
+
+__all__ = ["TrackedMembers", "calibration_of"]
+
+
+class TrackedMembers:
+    """``model`` (an ensemble's numpy candidate model) whose interval is tracked over the
+    last ``window`` steps flown; ``calibration``: its ``Calibration`` as a dict."""
+
+    numpy = True
+
+    def __init__(
+        self,
+        model: CandidateModel,
+        calibration: dict,
+        window: int,
+        config: OnlineIntervalConfig | None = None,
+    ) -> None:
+        if not has_members(model):
+            raise ValueError(f"TrackedMembers: {getattr(model, 'name', model)!r} has no members")
+        if window < 1:
+            raise ValueError(f"TrackedMembers: window must be >= 1 step, got {window}")
+        self.model, self.window, self.calibration = model, window, calibration
+        self.name = model.name
+        self.history = model.history + window
+        self.horizon = getattr(model, "horizon", None)
+        self.tracker = OnlineInterval(window, calibration["level"], config)
+        self.unresolved = 0  # windows whose prediction raised or was not finite
+        if hasattr(model, "novel"):
+            self.novel = model.novel
+
+    @property
+    def surprised(self) -> bool:
+        """The tracked interval's multiplier on some step and group beyond ``surprise``."""
+        return self.tracker.surprised
+
+    def _last(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m = self.model.history  # the last M states and the M - 1 inputs between them
+        return x_hist[-m:], u_past[len(u_past) - (m - 1) :]
+
+    def resolve(self, x_hist: np.ndarray, u_past: np.ndarray, n: int) -> None:
+        """Move the tracker by the prediction of the last H = min(window, n) states flown
+        (padded to the plans' n steps: an exported ensemble's N is fixed). A prediction that
+        raises or is not finite moves nothing (``unresolved`` counts it)."""
+        h = min(self.window, n)
+        applied = u_past[len(u_past) - h :]
+        plan = np.concatenate([applied, np.repeat(applied[-1:], n - h, axis=0)])[None]
+        then = self._last(x_hist[: len(x_hist) - h], u_past[: len(u_past) - h])
+        with np.errstate(all="ignore"):
+            try:
+                members = self.model.predict_candidates_members(*then, plan)
+            except (RuntimeError, ValueError):  # the plans' call decides the fallback
+                self.unresolved += 1
+                return
+            members = np.asarray(members, np.float64)
+            ratio = normalized_errors(members_mean(members)[0, :h],
+                                      members_half_width(members, self.calibration)[0, :h],
+                                      x_hist[len(x_hist) - h :])  # fmt: skip
+        if np.isfinite(ratio).all():
+            self.tracker.update(ratio)
+        else:
+            self.unresolved += 1
+
+    def predict_candidates(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """(K, N, 13): the members' mean, after resolving the window just flown."""
+        self.resolve(x_hist, u_past, plans.shape[1])
+        return self.model.predict_candidates(*self._last(x_hist, u_past), plans)
+
+    def predict_candidates_members(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray:
+        """(E, K, N, 13): each member's prediction, after resolving the window just flown."""
+        self.resolve(x_hist, u_past, plans.shape[1])
+        return self.model.predict_candidates_members(*self._last(x_hist, u_past), plans)
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        prepare = getattr(self.model, "prepare", None)
+        if prepare is not None:
+            prepare(self.model.history, k, n)
