@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 import torch
 
+from slungload.control import paired as paired_module
 from slungload.control.closed_loop import flight_metrics, fly
 from slungload.control.geometric import GeometricGains, GeometricLoadController
 from slungload.control.mpc import InputLimits, MPCConfig, SamplingMPC
@@ -806,8 +807,9 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
     report = write_study_report(rows, paired, tmp_path / "paired", str(tiny_run.out)).read_text()
     assert "priced under it and under the physics model" in report
     assert f"no say while it predicted the last {TRUST_WINDOW} steps" in report  # the default
+    assert ("Otherwise each model's cost was weighted" in report) == paired_module.WEIGH_BY_RECORD
     assert "priced under" not in write_study_report(alone, config, tmp_path / "alone").read_text()
-    with pytest.raises(ValueError, match="risk, with_physics, trust_window differ"):
+    with pytest.raises(ValueError, match="risk, with_physics, trust_window(, pair_weighs)? differ"):
         run_study(tiny_run.out, tmp_path / "alone", paired, controllers=kinds, progress=None)
     with pytest.raises(ValueError, match="give both or neither"):
         replace(config, with_physics=True)
@@ -841,3 +843,14 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
     path.write_text(json.dumps(settings))
     with pytest.raises(ValueError, match="trust_window differ"):
         run_study(tiny_run.out, tmp_path / "paired", ten, controllers=kinds, progress=None)
+    # the file says whether the pair weighed its members by their record; one that lacks the
+    # field was flown with equal weights
+    assert settings["config"]["pair_weighs"] == paired_module.WEIGH_BY_RECORD
+    settings["config"]["trust_window"] = TRUST_WINDOW
+    del settings["config"]["pair_weighs"]
+    path.write_text(json.dumps(settings))
+    if paired_module.WEIGH_BY_RECORD:
+        with pytest.raises(ValueError, match="pair_weighs differ"):
+            run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
+    else:
+        run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)

@@ -52,7 +52,8 @@ class BridgeConfig:
     with_physics: bool = _option(
         False,
         "price each plan under the model and under the physics model (the file's constants): "
-        "their mean cost + --risk x their spread (control.paired; docs/control.md)",
+        "their mean cost + --risk x their spread, each weighted by how well it predicted the "
+        "steps just flown (control.paired; docs/control.md)",
     )
     trust_window: int | None = _option(
         None,

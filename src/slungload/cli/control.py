@@ -64,8 +64,9 @@ def add_flight_options(
     if hasattr(cfg, "with_physics"):
         p.add_argument("--with-physics", action="store_true",
                        help="price each --model's plans under it and under the physics model: "
-                       "their mean cost + --risk x their spread (--risk 1: the worse of the "
-                       "two; docs/control.md)")  # fmt: skip
+                       "their mean cost + --risk x their spread, each weighted by how "
+                       "well it predicted the steps just flown (--trust-window; "
+                       "docs/control.md)")  # fmt: skip
     if hasattr(cfg, "trust_window"):
         from ..control.paired import TRUST_WINDOW  # numpy only
 

@@ -17,6 +17,12 @@ steps the pair first asks each member to predict the H steps just flown, from th
 ago under the inputs that were applied: while the network's position error (vehicle and load)
 is above ``ratio`` x physics's + ``floor``, it has no say and physics prices the plans alone
 (``trusted`` False; the controller counts those steps, ``MPCStats.physics_only_steps``).
+
+While trusted, each member's cost is weighted by its record over the same window
+(``WEIGH_BY_RECORD``): weights 1 / (error + ``floor``)^2, the mean and the spread both
+weighted (``contract.priced``). Equal errors give the plain pair; on a network's own vehicle,
+where physics predicted the window 2-3x worse, physics no longer prices 75 % of a plan it
+calls worse (risk 0.5: 0.75 x the worse + 0.25 x the better) but 25-40 %.
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ TRUST_WINDOW = 25
 TRUST_RATIO = 1.0  # the network takes part while its error is at most this x physics's ...
 TRUST_FLOOR = 0.01  # m, + this (RMS over the window's steps and the six position components)
 # a trusted network's cost and physics's weighted by 1 / (error over the window + floor)^2
-WEIGH_BY_RECORD = False
+WEIGH_BY_RECORD = True
 
 
 def trust_steps(window: int | None, with_physics: bool) -> int:

@@ -30,6 +30,8 @@ from typing import Any, NamedTuple
 
 from matplotlib.figure import Figure
 
+from ...control import paired as pairing
+from ...control.paired import TRUST_FLOOR
 from ...fileio import read_json, write_text
 from ...models.prediction import PHYSICS
 from ...reporting import (
@@ -367,6 +369,9 @@ def _learned_line(
                  "steps flown (at most N) worse than physics (`--trust-window`)"
                  + (f": physics priced alone {100 * share:.0f} % of its steps." if share is not None
                     else "."))  # fmt: skip
+        if pairing.WEIGH_BY_RECORD:
+            line += (" Otherwise each model's cost was weighted by 1 / (its error over those "
+                     f"steps + {TRUST_FLOOR * 100:g} cm)^2.")  # fmt: skip
     return line
 
 
