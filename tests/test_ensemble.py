@@ -341,8 +341,10 @@ def test_members_mean_in_numpy_is_the_spreads_mean():
 
 def test_an_ensemble_exports_compiled_and_flies_onboard(trained_ensemble, tiny_run, tmp_path):
     """The compiled file of an ensemble: its mean equals the eager ensemble's, its members the
-    compiled backend's exactly, the calibration travels, and the onboard MPC prices members."""
+    compiled backend's exactly, the calibration travels, and the onboard MPC prices members
+    and tracks their interval over the steps just flown."""
     from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+    from slungload.control.tracked import TrackedMembers
     from slungload.deploy.candidates import export_for_mpc
     from slungload.deploy.compiled import with_backend
     from slungload.deploy.compiled.archive import load_columns
@@ -373,13 +375,16 @@ def test_an_ensemble_exports_compiled_and_flies_onboard(trained_ensemble, tiny_r
     x = arrays[0][-1]
     ref = ReferenceAhead(np.tile(x[:3], (n, 1)), np.zeros((n, 3)), np.zeros(n))
     assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
+    assert isinstance(mpc.model, TrackedMembers) and mpc.model.tracker.resolved == 1
 
 
 def test_an_ensemble_exports_to_onnx_and_flies_onboard(trained_ensemble, tiny_run, tmp_path):
     """The ONNX graph of an ensemble gives every member's states on ONNX Runtime: each within
     the export tolerance of the compiled file's, their mean the same numpy mean, the
-    calibration and its novelty flag carried; the onboard MPC prices the members."""
+    calibration and its novelty flag carried; the onboard MPC prices the members and tracks
+    their interval."""
     from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+    from slungload.control.tracked import TrackedMembers
     from slungload.deploy.backends import load_exported
     from slungload.deploy.candidates import export_for_mpc
     from slungload.deploy.members import members_mean
@@ -406,6 +411,7 @@ def test_an_ensemble_exports_to_onnx_and_flies_onboard(trained_ensemble, tiny_ru
     x = arrays[0][-1]
     ref = ReferenceAhead(np.tile(x[:3], (4, 1)), np.zeros((4, 3)), np.zeros(4))
     assert np.isfinite(mpc.step(x, ref).thrust) and mpc.stats.fallback_steps == 0
+    assert isinstance(mpc.model, TrackedMembers) and mpc.model.tracker.resolved == 1
     single = load_exported(export_for_mpc(tiny_run.out, tmp_path, horizon=4).model)
     assert not hasattr(single, "predict_candidates_members")  # one network is no ensemble
 
