@@ -6,10 +6,12 @@ read from these."""
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
+from ...control import paired
 from ...control.controllers import REFERENCE
 from ...control.mppi import COSTS, MPCConfig, knots_for
 from ...control.paired import trust_steps
@@ -314,3 +316,37 @@ class RecordConfig:
 def _check_cost(cost: str) -> None:
     if cost not in COSTS:
         raise ValueError(f"unknown MPC cost {cost!r}; known: {list(COSTS)}")
+
+
+# --- what a study folder's settings.json records of its configuration -----------------------
+
+# What a settings file's null window (the default, as given) meant when it was written.
+_EARLIER_WINDOW = 10
+
+
+def settings_record(cfg: StudyConfig) -> dict[str, Any]:
+    """The study's configuration as ``settings.json`` records it, the pair's window resolved
+    (``pair_window``) and whether the pair weighs its members by their record
+    (``paired.WEIGH_BY_RECORD``): a file must say what its flights had, whatever the default
+    becomes."""
+    record = _jsonable(asdict(cfg))
+    record["trust_window"] = cfg.pair_window
+    record["pair_weighs"] = bool(cfg.pair_window) and paired.WEIGH_BY_RECORD
+    return record
+
+
+def recorded_settings(config: dict[str, Any]) -> dict[str, Any]:
+    """A settings file's ``config`` as ``settings_record`` would write it today: a field the
+    file lacks was added since, with the value its flights had (no window, equal weights); a
+    null window meant the default then, ``_EARLIER_WINDOW``."""
+    was = _jsonable(asdict(StudyConfig()))
+    was.update(trust_window=0, pair_weighs=False)
+    theirs = {k: config.get(k, was[k]) for k in (*SETTINGS_FIELDS, "pair_weighs")}
+    if theirs["trust_window"] is None:
+        theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
+    return theirs
+
+
+def _jsonable(value: Any) -> Any:
+    """``value`` as JSON gives it back (tuples -> lists), to compare with a file's."""
+    return json.loads(json.dumps(value))

@@ -27,10 +27,9 @@ process (``controllers``) beside the rest, once the real MPCs' settings are writ
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -38,7 +37,6 @@ from typing import Any
 import numpy as np
 
 from ...config import VehicleParams
-from ...control import paired
 from ...control.closed_loop import FlightLog, flight_metrics, fly, log_path, read_log, write_log
 from ...control.controllers import REFERENCE, reference_maker
 from ...control.mpc import (
@@ -75,6 +73,8 @@ from .config import (
     TUNING_ROUNDS,
     UNSAFE_SWING,
     StudyConfig,
+    recorded_settings,
+    settings_record,
 )
 from .oracle import PlantCandidates
 from .results import mpc_label
@@ -303,14 +303,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
     network = learned_network(learned) if "learned" in models else None
     if path.exists():
         settings = read_json(path)
-        mine = _config_record(cfg)
-        # a field the file lacks was added since, with the value its flights had
-        was = _jsonable(asdict(StudyConfig()))
-        was["trust_window"] = 0  # a pair flown before the window existed had none
-        theirs = {k: settings["config"].get(k, was[k]) for k in SETTINGS_FIELDS}
-        if theirs["trust_window"] is None:  # written when the default window was 10 steps
-            theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
-        theirs["pair_weighs"] = settings["config"].get("pair_weighs", False)  # equal before
+        mine, theirs = settings_record(cfg), recorded_settings(settings["config"])
         differ = [k for k in (*SETTINGS_FIELDS, "pair_weighs") if theirs[k] != mine[k]]
         if differ:
             raise ValueError(
@@ -356,7 +349,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
             samples[PHYSICS][str(n)] = equal_compute_samples(
                 mpc_of(PHYSICS), mpc_of("learned"), cfg.samples
             )
-    settings = {"config": _config_record(cfg), "mpc": mpc, "samples": samples}
+    settings = {"config": settings_record(cfg), "mpc": mpc, "samples": samples}
     if cfg.tune:  # each choice's tuning_score, so that each model's best horizon can be named
         settings["tuning_score"] = {kind: {n: list(score) for n, (_, score) in per.items()}
                                     for kind, per in tuned.items()}  # fmt: skip
@@ -372,27 +365,6 @@ def learned_network(learned: str | Path) -> dict[str, str | None]:
     path = checkpoint_path(learned)
     preset = checkpoint_meta(path).get("preset")
     return {"checkpoint": str(path), "sha256": sha256(path), "preset": preset}
-
-
-# The pair's default window when settings files recorded the field as given (null: the
-# default); those files' null means this many steps.
-_EARLIER_WINDOW = 10
-
-
-def _config_record(cfg: StudyConfig) -> dict[str, Any]:
-    """The study's configuration as ``settings.json`` records it, the pair's window resolved
-    (``pair_window``) and whether the pair weighs its members by their record
-    (``paired.WEIGH_BY_RECORD``): a file must say what its flights had, whatever the default
-    becomes."""
-    record = _jsonable(asdict(cfg))
-    record["trust_window"] = cfg.pair_window
-    record["pair_weighs"] = bool(cfg.pair_window) and paired.WEIGH_BY_RECORD
-    return record
-
-
-def _jsonable(value: Any) -> Any:
-    """``value`` as JSON gives it back (tuples -> lists), to compare with a file's."""
-    return json.loads(json.dumps(value))
 
 
 def tune_settings(
