@@ -8,6 +8,8 @@ seen. numpy only: the onboard controller (``mppi``) keeps its history here witho
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 
@@ -41,3 +43,23 @@ class History:
         us = self.inputs or [np.asarray(first_input, dtype=float)]
         us = [us[0]] * (self.m - 1 - len(us)) + us
         return np.stack(xs), np.stack(us[-(self.m - 1) :])
+
+
+class FlownWindow(NamedTuple):
+    """The last h steps flown, as a prediction model is asked them: the history ending h steps
+    ago, the inputs applied since as one plan padded to n steps, the states flown since."""
+
+    x_hist: np.ndarray  # (M', 13): every state up to h steps ago
+    u_past: np.ndarray  # (M' - 1, 4)
+    plan: np.ndarray  # (1, n, 4): the h inputs applied since, the last held to n steps
+    flown: np.ndarray  # (h, 13)
+
+
+def flown_window(x_hist: np.ndarray, u_past: np.ndarray, h: int, n: int) -> FlownWindow:
+    """Cut ``x_hist`` (M, 13), ``u_past`` (M - 1, 4) at h steps ago (h <= n: an exported model's
+    N is fixed, so the plan is padded to the plans' n steps): what the pair's trust window and
+    an ensemble's tracked interval both ask the models to predict."""
+    applied = u_past[len(u_past) - h :]
+    plan = np.concatenate([applied, np.repeat(applied[-1:], n - h, axis=0)])[None]
+    return FlownWindow(x_hist[: len(x_hist) - h], u_past[: len(u_past) - h], plan,
+                       x_hist[len(x_hist) - h :])  # fmt: skip

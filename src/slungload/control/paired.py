@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from ..layout import LOAD_POS, POS
+from .history import flown_window
 from .mppi import CandidateModel
 
 # steps (0.75 s) each member predicts of the path just flown, at most the plans' N: as long as
@@ -118,15 +119,14 @@ class PhysicsPaired:
         before them under the inputs applied since (padded to the plans' n steps: an exported
         network's N is fixed); the network is trusted unless its position error is larger."""
         h = min(self.window, n)
-        applied = u_past[len(u_past) - h :]
-        plan = np.concatenate([applied, np.repeat(applied[-1:], n - h, axis=0)])[None]
-        flown = x_hist[len(x_hist) - h :]
+        w = flown_window(x_hist, u_past, h, n)
         errors = []
         for model in (self.network, self.physics):
             with np.errstate(all="ignore"):  # a diverging network is what this looks for
-                got = self._call(model, x_hist[: len(x_hist) - h], u_past[: len(u_past) - h], plan)
-            diff = np.concatenate([got[0, :h, POS] - flown[:, POS],
-                                   got[0, :h, LOAD_POS] - flown[:, LOAD_POS]], axis=1)  # fmt: skip
+                got = self._call(model, w.x_hist, w.u_past, w.plan)
+            got, flown = got[0, :h], w.flown
+            diff = np.concatenate([got[:, POS] - flown[:, POS],
+                                   got[:, LOAD_POS] - flown[:, LOAD_POS]], axis=1)  # fmt: skip
             errors.append(float(np.sqrt(np.mean(diff**2))))
         self.errors = (errors[0], errors[1])
         return math.isfinite(errors[0]) and errors[0] <= self.ratio * errors[1] + self.floor

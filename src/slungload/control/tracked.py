@@ -19,6 +19,7 @@ import numpy as np
 from ..deploy.members import calibration_of, members_half_width, members_mean
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
 from .contract import CandidateModel, has_members
+from .history import flown_window
 
 __all__ = ["TrackedMembers", "calibration_of"]
 
@@ -63,19 +64,18 @@ class TrackedMembers:
         (padded to the plans' n steps: an exported ensemble's N is fixed). A prediction that
         raises or is not finite moves nothing (``unresolved`` counts it)."""
         h = min(self.window, n)
-        applied = u_past[len(u_past) - h :]
-        plan = np.concatenate([applied, np.repeat(applied[-1:], n - h, axis=0)])[None]
-        then = self._last(x_hist[: len(x_hist) - h], u_past[: len(u_past) - h])
+        w = flown_window(x_hist, u_past, h, n)
         with np.errstate(all="ignore"):
             try:
-                members = self.model.predict_candidates_members(*then, plan)
+                members = self.model.predict_candidates_members(*self._last(w.x_hist, w.u_past),
+                                                                w.plan)  # fmt: skip
             except (RuntimeError, ValueError):  # the plans' call decides the fallback
                 self.unresolved += 1
                 return
             members = np.asarray(members, np.float64)
             ratio = normalized_errors(members_mean(members)[0, :h],
                                       members_half_width(members, self.calibration)[0, :h],
-                                      x_hist[len(x_hist) - h :])  # fmt: skip
+                                      w.flown)  # fmt: skip
         if np.isfinite(ratio).all():
             self.tracker.update(ratio)
         else:
