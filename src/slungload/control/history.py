@@ -45,6 +45,12 @@ class History:
         return np.stack(xs), np.stack(us[-(self.m - 1) :])
 
 
+def history_tail(x_hist: np.ndarray, u_past: np.ndarray, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """The last m states (m, 13) of ``x_hist`` and the m - 1 inputs between them: what a model
+    of history M = m is given from a longer history (a pair's, a tracked ensemble's)."""
+    return x_hist[len(x_hist) - m :], u_past[len(u_past) - (m - 1) :]
+
+
 class FlownWindow(NamedTuple):
     """The last h steps flown, as a prediction model is asked them: the history ending h steps
     ago, the inputs applied since as one plan padded to n steps, the states flown since."""

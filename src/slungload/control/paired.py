@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from ..layout import LOAD_POS, POS
-from .history import flown_window
+from .history import flown_window, history_tail
 from .mppi import CandidateModel
 
 # steps (0.75 s) each member predicts of the path just flown, at most the plans' N: as long as
@@ -90,9 +90,8 @@ class PhysicsPaired:
         self.member_weights: np.ndarray | None = None  # (2,), read by the controller's price
 
     def _call(self, model: CandidateModel, x_hist, u_past, plans) -> np.ndarray:
-        m = model.history  # the last M measured states and the M - 1 inputs between them
-        return np.asarray(model.predict_candidates(x_hist[-m:], u_past[len(u_past) - (m - 1):],
-                                                   plans), dtype=np.float64)  # fmt: skip
+        last = history_tail(x_hist, u_past, model.history)
+        return np.asarray(model.predict_candidates(*last, plans), dtype=np.float64)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray

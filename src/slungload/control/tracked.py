@@ -19,7 +19,7 @@ import numpy as np
 from ..deploy.members import calibration_of, members_half_width, members_mean
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
 from .contract import CandidateModel, has_members
-from .history import flown_window
+from .history import flown_window, history_tail
 
 __all__ = ["TrackedMembers", "calibration_of"]
 
@@ -55,10 +55,6 @@ class TrackedMembers:
         """The tracked interval's multiplier on some step and group beyond ``surprise``."""
         return self.tracker.surprised
 
-    def _last(self, x_hist: np.ndarray, u_past: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        m = self.model.history  # the last M states and the M - 1 inputs between them
-        return x_hist[-m:], u_past[len(u_past) - (m - 1) :]
-
     def resolve(self, x_hist: np.ndarray, u_past: np.ndarray, n: int) -> None:
         """Move the tracker by the prediction of the last H = min(window, n) states flown
         (padded to the plans' n steps: an exported ensemble's N is fixed). A prediction that
@@ -67,8 +63,8 @@ class TrackedMembers:
         w = flown_window(x_hist, u_past, h, n)
         with np.errstate(all="ignore"):
             try:
-                members = self.model.predict_candidates_members(*self._last(w.x_hist, w.u_past),
-                                                                w.plan)  # fmt: skip
+                then = history_tail(w.x_hist, w.u_past, self.model.history)
+                members = self.model.predict_candidates_members(*then, w.plan)
             except (RuntimeError, ValueError):  # the plans' call decides the fallback
                 self.unresolved += 1
                 return
@@ -86,14 +82,18 @@ class TrackedMembers:
     ) -> np.ndarray:
         """(K, N, 13): the members' mean, after resolving the window just flown."""
         self.resolve(x_hist, u_past, plans.shape[1])
-        return self.model.predict_candidates(*self._last(x_hist, u_past), plans)
+        return self.model.predict_candidates(
+            *history_tail(x_hist, u_past, self.model.history), plans
+        )
 
     def predict_candidates_members(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
     ) -> np.ndarray:
         """(E, K, N, 13): each member's prediction, after resolving the window just flown."""
         self.resolve(x_hist, u_past, plans.shape[1])
-        return self.model.predict_candidates_members(*self._last(x_hist, u_past), plans)
+        return self.model.predict_candidates_members(
+            *history_tail(x_hist, u_past, self.model.history), plans
+        )
 
     def prepare(self, m: int, k: int, n: int) -> None:
         prepare = getattr(self.model, "prepare", None)

@@ -30,6 +30,7 @@ import numpy as np
 
 from ...config import VehicleParams
 from ...control.closed_loop import fly
+from ...control.history import history_tail
 from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, candidate_model, reference_ahead
 from ...control.mppi import CandidateModel, knots_for, trajectory_cost
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
@@ -94,8 +95,8 @@ class Probe:
                 attach(plant)
 
     def _predict(self, name: str, x_hist, u_past, plans) -> np.ndarray:
-        m = self.models[name].history
-        return self.models[name].predict_candidates(x_hist[-m:], u_past[-(m - 1) :], plans)
+        model = self.models[name]
+        return model.predict_candidates(*history_tail(x_hist, u_past, model.history), plans)
 
     def predict_candidates(self, x_hist, u_past, plans) -> np.ndarray:
         out = self._predict(self.flying, x_hist, u_past, plans)

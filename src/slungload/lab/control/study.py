@@ -66,7 +66,6 @@ from .config import (
     NOMINAL,
     ORACLE,
     PHYSICS_SAMPLES,
-    SETTINGS_FIELDS,
     SHIFTS,
     STUDY_KINDS,
     TUNING_GRID,
@@ -304,7 +303,7 @@ def _settings(out, cfg, models, learned, params, limits, progress) -> dict[str, 
     if path.exists():
         settings = read_json(path)
         mine, theirs = settings_record(cfg), recorded_settings(settings["config"])
-        differ = [k for k in (*SETTINGS_FIELDS, "pair_weighs") if theirs[k] != mine[k]]
+        differ = [k for k in theirs if theirs[k] != mine[k]]
         if differ:
             raise ValueError(
                 f"{path} was written for another study configuration ({', '.join(differ)} "

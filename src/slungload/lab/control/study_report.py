@@ -31,7 +31,6 @@ from typing import Any, NamedTuple
 from matplotlib.figure import Figure
 
 from ...control import paired as pairing
-from ...control.paired import TRUST_FLOOR
 from ...fileio import read_json, write_text
 from ...models.prediction import PHYSICS
 from ...reporting import (
@@ -371,7 +370,7 @@ def _learned_line(
                     else "."))  # fmt: skip
         if pairing.WEIGH_BY_RECORD:
             line += (" Otherwise each model's cost was weighted by 1 / (its error over those "
-                     f"steps + {TRUST_FLOOR * 100:g} cm)^2.")  # fmt: skip
+                     f"steps + {pairing.TRUST_FLOOR * 100:g} cm)^2.")  # fmt: skip
     return line
 
 
