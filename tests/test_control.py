@@ -529,6 +529,14 @@ def test_a_network_is_compared_with_physics_on_the_flights_both_flew_to_the_end(
     (v,) = versus_physics(physics + audited)
     assert v.physics_only == pytest.approx(0.25)
     assert "physics alone priced 25 % of its steps" in versus_lines([v])[0]
+    assert v.surprised == 0.0 and "surprised" not in versus_lines([v])[0]
+    # A calibrated ensemble surprised on 40 of 100 steps of one flight and none of another's:
+    # the share is over all its steps, and the line says what to do about it.
+    tracked = [dict(r, mpc_steps=100, surprised_steps=40 * (s == 0)) for s, r in enumerate(good)]
+    (v,) = versus_physics(physics + tracked)
+    assert v.surprised == pytest.approx(40 / 300)
+    line = versus_lines([v])[0]
+    assert "surprised on 13 % of its steps" in line and "--with-physics" in line
 
 
 def test_the_control_report_shows_results_only():

@@ -83,6 +83,12 @@ def versus_lines(comparisons: list[VersusPhysics]) -> list[str]:
         if v.physics_only:
             parts.append(f"physics alone priced {100 * v.physics_only:.0f} % of its steps (the "
                          "network predicted the steps just flown worse)")  # fmt: skip
+        if v.surprised:
+            parts.append(f"its ensemble was surprised on {100 * v.surprised:.0f} % of its steps "
+                         "(its errors on the steps just flown beyond its calibration's: this "
+                         "vehicle is off what it was calibrated on; calibrate it on this "
+                         "vehicle's flights, `slungload calibrate`, or fly it with "
+                         "--with-physics)")  # fmt: skip
         lines.append(f"- {v.controller}: " + "; ".join(parts) + ".")
     return lines or ["- no network was flown in the MPC"]
 

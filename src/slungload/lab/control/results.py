@@ -130,11 +130,18 @@ def summary(rows: list[dict[str, Any]], by: tuple[str, ...]) -> list[dict[str, A
     return out
 
 
-def physics_only_share(rows: list[dict[str, Any]]) -> float | None:
-    """The share of the MPC steps of ``rows`` that physics priced alone (``PhysicsPaired``'s
-    trust window); None when the rows count no MPC step."""
+def step_share(rows: list[dict[str, Any]], key: str) -> float | None:
+    """The share of the MPC steps of ``rows`` that the flight rows' ``key`` counts, e.g.
+    "physics_only_steps" (``PhysicsPaired``'s trust window gave physics alone the say) or
+    "surprised_steps" (a calibrated ensemble's tracked interval, ``control.tracked``); None when
+    the rows count no MPC step."""
     steps = sum(r.get("mpc_steps", 0) for r in rows)
-    return sum(r.get("physics_only_steps", 0) for r in rows) / steps if steps else None
+    return sum(r.get(key, 0) for r in rows) / steps if steps else None
+
+
+def physics_only_share(rows: list[dict[str, Any]]) -> float | None:
+    """``step_share`` of the steps physics priced alone."""
+    return step_share(rows, "physics_only_steps")
 
 
 @dataclass(frozen=True)
@@ -156,6 +163,8 @@ class VersusPhysics:
     physics: dict[str, float]
     # share of the network's control steps priced by physics alone (``PhysicsPaired``'s window)
     physics_only: float = 0.0
+    # share of its control steps on which a calibrated ensemble's tracked interval was surprised
+    surprised: float = 0.0
 
     def lower(self, key: str) -> float:
         """How much lower the network's mean of ``key`` is, as a fraction of physics's."""
@@ -181,5 +190,6 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
             out.append(VersusPhysics(
                 net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
                 len(both), physics_failed, *means, physics_only_share(list(mine.values())) or 0.0,
+                step_share(list(mine.values()), "surprised_steps") or 0.0,
             ))  # fmt: skip
     return out
