@@ -488,6 +488,17 @@ def test_control_help_is_light_and_bad_maneuvers_are_a_user_error(run_cli, tmp_p
     assert done.returncode == 0, done.stderr[-2000:]
     code, _, err = run_cli("control", "--maneuvers", "loop_the_loop", "--out", tmp_path / "x")
     assert code == 2 and "unknown maneuvers ['loop_the_loop']" in err
+    # each command that flies the MPC takes the payload cost's lean
+    from slungload.cli import build_parser
+    from slungload.cli.autopilot import cmd_fly
+    from slungload.cli.control import cmd_control
+    from slungload.cli.study_control import cmd_study_control
+
+    for argv, func in ((["control", "--lean", "0.5", "--out", "x"], cmd_control),
+                       (["study", "control", "--lean", "0.5", "--out", "x"], cmd_study_control),
+                       (["fly", "m.mpc.npz", "--lean", "0.5"], cmd_fly)):  # fmt: skip
+        args = build_parser().parse_args(argv)
+        assert args.func is func and args.lean == 0.5
 
 
 def _row(controller, seed, load, swing, vehicle, completed=True, k=32):

@@ -28,6 +28,8 @@ from slungload.lab.control.config import (
     TUNING_GRID,
     UNSAFE_SWING,
     StudyConfig,
+    recorded_settings,
+    settings_record,
 )
 from slungload.lab.control.oracle import PlantCandidates
 from slungload.lab.control.oracle_gap import gap_closed
@@ -854,3 +856,16 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
             run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
     else:
         run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
+
+
+def test_the_settings_file_records_the_lean_only_where_the_cost_reads_it():
+    """The payload cost's lean is recorded as flown; for the vehicle cost, which never reads
+    it, as 0 whatever it was set to, so its folders do not depend on it; a file without the
+    field was flown before it existed, with the raw acceleration (0)."""
+    assert settings_record(StudyConfig(cost="payload", lean=1.0))["lean"] == 1.0
+    assert settings_record(StudyConfig(cost="payload", lean=0.0))["lean"] == 0.0
+    assert settings_record(StudyConfig(cost="vehicle", lean=1.0))["lean"] == 0.0
+    old = settings_record(StudyConfig(cost="payload", lean=1.0))
+    del old["lean"]
+    assert recorded_settings(old)["lean"] == 0.0
+    assert StudyConfig(lean=0.5).mpc(horizon=15).lean == 0.5

@@ -20,6 +20,7 @@ from slungload.control.mppi import (
     ReferenceAhead,
     mppi_weights,
     payload_first,
+    reference_ahead,
     trajectory_cost,
 )
 from slungload.frames import rotation_matrix, swing_angle
@@ -264,6 +265,55 @@ def test_the_payload_cost_needs_the_references_acceleration_and_flies_with_it():
     assert LIMITS.contains([command.thrust, *command.rates]) and mpc.stats.fallback_steps == 0
     with pytest.raises(ValueError, match="unknown 'payload-first'"):
         MPCConfig(cost="payload-first")
+
+
+def doublet_reference(t: int = 200, start: int = 60, width: int = 8, a: float = 4.6):
+    """A whole flight's reference (``sim.maneuvers.Reference``'s fields): hover, then +a for
+    ``width`` rows, -a for 2 ``width``, +a for ``width`` along x (a roll doublet), then hover."""
+    acc = np.zeros((t, 3))
+    acc[start : start + width, 0] = a
+    acc[start + width : start + 3 * width, 0] = -a
+    acc[start + 3 * width : start + 4 * width, 0] = a
+    zero = np.zeros((t, 3))
+    return type("Reference", (), dict(position=zero + [0, 0, 1.5], velocity=zero,
+                                      acceleration=acc, yaw=np.zeros(t)))  # fmt: skip
+
+
+def test_the_lean_averages_the_flights_acceleration_with_no_lag_and_no_window_edge():
+    """lean 0: the rows as they are. lean > 0: a constant acceleration is unchanged; a doublet
+    (net zero, faster than the average) shrinks, symmetric about its middle as it was (no lag);
+    each row's value is the flight's, whatever step k and horizon n the window starts at."""
+    ref = doublet_reference()
+    np.testing.assert_array_equal(reference_ahead(ref, 50, 40).acceleration,
+                                  ref.acceleration[51:91])  # fmt: skip
+    steady = type("R", (), dict(vars(ref), acceleration=np.tile([1.0, -2.0, 0.5], (200, 1))))
+    np.testing.assert_allclose(reference_ahead(steady, 3, 25, lean=9.0).acceleration,
+                               np.tile([1.0, -2.0, 0.5], (25, 1)), rtol=1e-12)  # fmt: skip
+    leaned = reference_ahead(ref, 40, 60, lean=9.0).acceleration[:, 0]  # rows 41..100
+    raw = ref.acceleration[41:101, 0]
+    assert np.abs(leaned).max() < 0.5 * np.abs(raw).max()
+    # the doublet (rows 60-91) is even about row 75.5: so is its average, with no lag
+    rows = np.arange(52, 76)
+    np.testing.assert_allclose(leaned[rows - 41], leaned[151 - rows - 41], rtol=1e-9)
+    for k, n in ((40, 60), (55, 10), (70, 3)):
+        window = reference_ahead(ref, k, n, lean=9.0).acceleration[:, 0]
+        np.testing.assert_allclose(window, leaned[k - 40 : k - 40 + n], rtol=1e-12)
+    with pytest.raises(ValueError, match="lean must be a finite number >= 0"):
+        MPCConfig(lean=-1.0)
+
+
+def test_the_controller_leans_only_the_payload_costs_acceleration():
+    """``MPPIController.ahead``: the payload cost reads the flight's acceleration averaged over
+    lean x sqrt(l / g) (in rows of dt), the vehicle cost (which never reads it) the raw rows."""
+    ref = doublet_reference()
+    rows = math.sqrt(PARAMS.cable_length / PARAMS.gravity) / PARAMS.dt
+    for cost, lean, expect in (("payload", 1.0, rows), ("payload", 0.0, 0.0),
+                               ("vehicle", 1.0, 0.0)):  # fmt: skip
+        mpc = MPPIController(HoldModel(), LIMITS, replace(SMALL, cost=cost, lean=lean), PARAMS)
+        got = mpc.ahead(ref, 58)
+        want = reference_ahead(ref, 58, SMALL.horizon, lean=expect)
+        np.testing.assert_array_equal(got.acceleration, want.acceleration)
+        assert (np.abs(got.acceleration - ref.acceleration[59:65]).max() > 0.1) == (expect > 0)
 
 
 class ClimbEnsemble:

@@ -46,7 +46,6 @@ from ..control.mppi import (
     InputLimits,
     MPPIController,
     check_members,
-    reference_ahead,
     yaw_of,
 )
 from ..evaluation.verdicts import note
@@ -229,7 +228,7 @@ class Bridge:
             return
         k = self.result.steps
         hovered = self.mpc.stats.hover_steps
-        command = self.mpc.step(state, reference_ahead(self.reference, k, self.mpc.cfg.horizon))
+        command = self.mpc.step(state, self.mpc.ahead(self.reference, k))
         self.result.steps += 1
         self.result.states.append(state)
         self.result.commands.append(np.array([command.thrust, *command.rates]))

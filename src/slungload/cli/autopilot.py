@@ -90,6 +90,9 @@ def add_fly(sub: Any) -> None:
                    f"{MPCConfig.samples})")  # fmt: skip
     p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "
                    f"(default {MPCConfig.cost})")  # fmt: skip
+    p.add_argument("--lean", type=float, metavar="X", help="with --cost payload: the "
+                   "reference's acceleration the cable follows, averaged over X x sqrt(cable "
+                   f"length / g) each way (default {MPCConfig.lean:g})")  # fmt: skip
     p.add_argument("--risk", type=float, metavar="BETA", help="price each plan by the mean "
                    "of its members' costs + BETA x their spread: an ensemble's members, or the "
                    "model and physics with --with-physics (docs/control.md)")  # fmt: skip
@@ -102,7 +105,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    mpc = given(samples=args.samples, cost=args.cost, risk=args.risk)
+    mpc = given(samples=args.samples, cost=args.cost, lean=args.lean, risk=args.risk)
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)

@@ -55,6 +55,12 @@ def add_flight_options(
         p.add_argument("--cost", choices=list(COSTS),
                        help=f"the MPC's cost: {shown} (docs/control.md) "
                        f"(default {cfg.cost})")  # fmt: skip
+    if hasattr(cfg, "lean"):
+        p.add_argument("--lean", type=float, metavar="X",
+                       help="with --cost payload: the reference's acceleration the cable's "
+                       "direction follows, averaged over X x sqrt(cable length / g) each way "
+                       "(the cable leans only as fast as the load swings; 0: the reference's "
+                       f"own; docs/control.md) (default {cfg.lean:g})")  # fmt: skip
     if hasattr(cfg, "risk"):
         p.add_argument("--risk", type=float, metavar="BETA",
                        help="price an ensemble's candidates (--model an ensemble folder) by "
@@ -153,7 +159,7 @@ def cmd_control(args: argparse.Namespace) -> int:
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
-                                         cost=args.cost, risk=args.risk,
+                                         cost=args.cost, lean=args.lean, risk=args.risk,
                                          with_physics=args.with_physics or None,
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)

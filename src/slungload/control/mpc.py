@@ -176,7 +176,7 @@ class SamplingMPC:
 
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         """One control step (the ``Controller`` contract): (thrust N, body rates (3,) rad/s)."""
-        ref = reference_ahead(reference, k, self.cfg.horizon)
+        ref = self.core.ahead(reference, k)
         command = self.core.step(measurement.state, ref, rotation=measurement.rotation)
         return command.thrust, command.rates
 

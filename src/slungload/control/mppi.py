@@ -176,6 +176,12 @@ class MPCConfig:
     # the reference itself and a vertical cable; "payload" the vehicle's position, velocity and
     # cable direction that the load's reference path requires (``payload_first``).
     cost: str = "vehicle"
+    # "payload": the reference's acceleration the cable's direction is derived from, averaged
+    # over time with weights exp(-|t| / tau), tau = lean x sqrt(l / g) (a first-order low-pass
+    # run forward and backward: no lag), so that the cable is asked to lean only about as fast
+    # as the load swings (a doublet faster than the swing does not flip it); 0: the reference's
+    # own acceleration (``reference_ahead``)
+    lean: float = 0.0
     # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
     # Every member then predicts every candidate: E x one network's compute at equal K.
@@ -196,6 +202,8 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
             )
+        if not 0.0 <= self.lean < math.inf:
+            raise ValueError(f"MPCConfig.lean must be a finite number >= 0, got {self.lean}")
         if self.risk is not None and not 0.0 <= self.risk < math.inf:
             raise ValueError(
                 f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"
@@ -225,13 +233,26 @@ class MPCStats:
         return sum(self.fallbacks.values())
 
 
-def reference_ahead(ref, k: int, n: int) -> ReferenceAhead:
+def reference_ahead(ref, k: int, n: int, lean: float = 0.0) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
     velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
-    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64."""
-    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
+    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64.
+
+    lean > 0: a time constant in rows; each row's acceleration is the flight's averaged about
+    it with weights exp(-|j| / lean) over rows j away (zero phase; the flight's first and last
+    rows held beyond its ends), truncated where they fall below exp(-8). Taken from the whole
+    flight, not the n rows: a target that moved with the window would change from one step
+    to the next."""
+    last = len(ref.yaw) - 1
+    idx = np.minimum(np.arange(k + 1, k + n + 1), last)
+    acceleration = ref.acceleration[idx]
+    if lean > 0:
+        j = np.arange(-math.ceil(8 * lean), math.ceil(8 * lean) + 1)
+        w = np.exp(-np.abs(j) / lean)
+        rows = np.clip(idx[:, None] + j, 0, last)  # (n, 2J + 1)
+        acceleration = np.einsum("j,njd->nd", w / w.sum(), ref.acceleration[rows])
     return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
-                          ref.yaw[idx].copy(), ref.acceleration[idx].copy())  # fmt: skip
+                          ref.yaw[idx].copy(), np.array(acceleration, dtype=float))  # fmt: skip
 
 
 class Command(NamedTuple):
@@ -394,6 +415,16 @@ class MPPIController:
         if not all(np.isfinite(a).all() for a in ahead if a is not None):
             raise ValueError("reference: the N steps ahead hold NaN or infinite values")
         return ahead
+
+    def ahead(self, reference, k: int) -> ReferenceAhead:
+        """Rows k+1 .. k+N of a whole flight's reference as this controller's cost reads them
+        (``reference_ahead``): for the "payload" cost the acceleration leaned over
+        ``MPCConfig.lean`` x sqrt(l / g), with the cable length the cost uses."""
+        lean = 0.0
+        if self.cfg.cost == "payload" and self.cfg.lean > 0:
+            swing = math.sqrt(self.cable_length / self.params.gravity)  # s
+            lean = self.cfg.lean * swing / self.params.dt
+        return reference_ahead(reference, k, self.cfg.horizon, lean)
 
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
         """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of

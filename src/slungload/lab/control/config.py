@@ -74,7 +74,7 @@ TUNING_ROUNDS = 4
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
-    "tune", "backend", "cost", "risk", "with_physics", "trust_window",
+    "tune", "backend", "cost", "lean", "risk", "with_physics", "trust_window",
 )  # fmt: skip
 
 
@@ -92,6 +92,7 @@ class ComparisonConfig:
     backend: str = "eager"  # what the prediction models run on (``config.PREDICTION_BACKENDS``)
     plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
+    lean: float = MPCConfig.lean  # the "payload" cost's lean (``MPCConfig.lean``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
     # with ``with_physics``: steps of the flown path on which the network must predict at least
@@ -118,7 +119,7 @@ class ComparisonConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots); ``risk``
         prices an ensemble's candidates only (``comparison``)."""
         return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
-                         risk=self.risk)  # fmt: skip
+                         lean=self.lean, risk=self.risk)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,7 @@ class StudyConfig:
     # model's, the shifts are of it
     plant: str = DEFAULT_PLANT
     cost: str = MPCConfig.cost  # every MPC's cost (``control.mppi.COSTS``)
+    lean: float = MPCConfig.lean  # the "payload" cost's lean (``MPCConfig.lean``)
     # the learned MPC's plans priced under the network and the physics model by ``risk``
     # (``control.paired``): tuned, timed and matched at equal compute as that pair
     risk: float | None = MPCConfig.risk
@@ -158,7 +160,8 @@ class StudyConfig:
     def mpc(self, *, members: bool = False, **fields: Any) -> MPCConfig:
         """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
         ``members``: over a model of members (the paired learned one), priced by ``risk``."""
-        return MPCConfig(cost=self.cost, risk=self.risk if members else None, **fields)
+        return MPCConfig(cost=self.cost, lean=self.lean, risk=self.risk if members else None,
+                         **fields)  # fmt: skip
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -326,21 +329,23 @@ _EARLIER_WINDOW = 10
 
 def settings_record(cfg: StudyConfig) -> dict[str, Any]:
     """The study's configuration as ``settings.json`` records it, the pair's window resolved
-    (``pair_window``) and whether the pair weighs its members by their record
-    (``paired.WEIGH_BY_RECORD``): a file must say what its flights had, whatever the default
-    becomes."""
+    (``pair_window``), whether the pair weighs its members by their record
+    (``paired.WEIGH_BY_RECORD``) and the lean (0 for a cost that does not read it): a file
+    must say what its flights had, whatever the default becomes."""
     record = _jsonable(asdict(cfg))
     record["trust_window"] = cfg.pair_window
     record["pair_weighs"] = bool(cfg.pair_window) and paired.WEIGH_BY_RECORD
+    record["lean"] = cfg.lean if cfg.cost == "payload" else 0.0  # only that cost reads it
     return record
 
 
 def recorded_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A settings file's ``config`` as ``settings_record`` would write it today: a field the
-    file lacks was added since, with the value its flights had (no window, equal weights); a
+    file lacks was added since, with the value its flights had (no window, equal weights, the
+    payload cost's raw acceleration); a
     null window meant the default then, ``_EARLIER_WINDOW``."""
     was = _jsonable(asdict(StudyConfig()))
-    was.update(trust_window=0, pair_weighs=False)
+    was.update(trust_window=0, pair_weighs=False, lean=0.0)
     theirs = {k: config.get(k, was[k]) for k in (*SETTINGS_FIELDS, "pair_weighs")}
     if theirs["trust_window"] is None:
         theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0

@@ -31,7 +31,7 @@ import numpy as np
 from ...config import VehicleParams
 from ...control.closed_loop import fly
 from ...control.history import history_tail
-from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, candidate_model, reference_ahead
+from ...control.mpc import InputLimits, MPCConfig, SamplingMPC, candidate_model
 from ...control.mppi import CandidateModel, knots_for, trajectory_cost
 from ...layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from ...sim.controller import Measurement
@@ -149,7 +149,7 @@ class ProbedMPC:
     def __call__(self, measurement: Measurement, reference: Reference, k: int):
         i = k - self.warm
         self.probe.probe_now = i >= 0 and i % self.probe.cfg.every == 0
-        self.probe.reference = reference_ahead(reference, k, self.probe.mpc.horizon)
+        self.probe.reference = self.mpc.core.ahead(reference, k)
         return self.mpc(measurement, reference, k)
 
     @property
