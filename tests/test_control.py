@@ -597,6 +597,26 @@ def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_it
     assert cost["vehicle"] == cost["velocity"] == cost["inputs"] == 0.0
     # the terminal weight is left out: a flight is scored step by step, not as one horizon
     assert realized_cost(log, ref, replace(cfg, terminal=50.0), PARAMS) == cost
+    # the payload cost scores the flight against the acceleration its controller read, leaned
+    pulse = np.zeros((s, 3))
+    pulse[5:7, 0] = 3.0
+    payload = replace(cfg, cost="payload", lean=1.0)
+    jolted = replace(ref, acceleration=pulse)
+    from slungload.control.mppi import MPPIController
+
+    class Still:  # a numpy model: nothing moves
+        name, history = "still", 2
+
+        def predict_candidates(self, x_hist, u_past, plans):
+            return np.broadcast_to(x_hist[-1], (*plans.shape[:2], 13)).copy()
+
+    seen = MPPIController(Still(), LIMITS, replace(payload, horizon=n, knots=3), PARAMS)
+    as_read = replace(
+        ref, acceleration=np.concatenate([pulse[:warm], seen.ahead(jolted, warm - 1).acceleration])
+    )
+    raw = realized_cost(log, as_read, replace(payload, lean=0.0), PARAMS)
+    assert realized_cost(log, jolted, payload, PARAMS) == pytest.approx(raw, rel=1e-12)
+    assert realized_cost(log, jolted, replace(payload, lean=0.0), PARAMS)["swing"] != raw["swing"]
 
 
 def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):

@@ -73,6 +73,31 @@ def cost_target(
     return payload_first(ref, cable_length, gravity)
 
 
+def lean_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float:
+    """The time constant, in reference rows dt s apart, over which ``cfg``'s cost (``cfg`` an
+    ``mppi.MPCConfig``) averages the reference's acceleration: ``cfg.lean`` x sqrt(l / g), the
+    load's swing, for the "payload" cost; 0 (the rows as they are) for a cost that does not
+    read it."""
+    if cfg.cost != "payload" or cfg.lean == 0:
+        return 0.0
+    return cfg.lean * math.sqrt(cable_length / gravity) / dt
+
+
+def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarray:
+    """Rows ``rows`` (n,) of a whole flight's acceleration (T, 3), each averaged about its row
+    with weights exp(-|j| / lean) over the rows j away (zero phase: a first-order low-pass
+    run forward and backward; the flight's first and last rows held beyond its ends; cut
+    where the weights fall below exp(-8)); lean 0: the rows as they are. (n, 3), float64.
+    From the whole flight, not a window: a target that moved with the window would change from
+    one control step to the next."""
+    if lean == 0:
+        return np.array(acceleration[rows], dtype=float)
+    j = np.arange(-math.ceil(8 * lean), math.ceil(8 * lean) + 1)
+    w = np.exp(-np.abs(j) / lean)
+    near = np.clip(rows[:, None] + j, 0, len(acceleration) - 1)  # (n, 2J + 1)
+    return np.einsum("j,njd->nd", w / w.sum(), np.asarray(acceleration, dtype=float)[near])
+
+
 def yaw_of(q: np.ndarray) -> np.ndarray:
     """Yaw (...,) rad of w-x-y-z quaternions (..., 4)."""
     w, x, y, z = np.moveaxis(q, -1, 0)

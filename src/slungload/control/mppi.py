@@ -64,6 +64,8 @@ from .cost import (
     ReferenceAhead,
     VehicleTarget,
     cost_target,
+    lean_rows,
+    leaned,
     payload_first,
     tilt_of,
     trajectory_cost,
@@ -236,23 +238,11 @@ class MPCStats:
 def reference_ahead(ref, k: int, n: int, lean: float = 0.0) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
     velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
-    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64.
-
-    lean > 0: a time constant in rows; each row's acceleration is the flight's averaged about
-    it with weights exp(-|j| / lean) over rows j away (zero phase; the flight's first and last
-    rows held beyond its ends), truncated where they fall below exp(-8). Taken from the whole
-    flight, not the n rows: a target that moved with the window would change from one step
-    to the next."""
-    last = len(ref.yaw) - 1
-    idx = np.minimum(np.arange(k + 1, k + n + 1), last)
-    acceleration = ref.acceleration[idx]
-    if lean > 0:
-        j = np.arange(-math.ceil(8 * lean), math.ceil(8 * lean) + 1)
-        w = np.exp(-np.abs(j) / lean)
-        rows = np.clip(idx[:, None] + j, 0, last)  # (n, 2J + 1)
-        acceleration = np.einsum("j,njd->nd", w / w.sum(), ref.acceleration[rows])
+    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the
+    acceleration averaged over ``lean`` rows each way (``cost.leaned``; 0: as it is)."""
+    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
     return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
-                          ref.yaw[idx].copy(), np.array(acceleration, dtype=float))  # fmt: skip
+                          ref.yaw[idx].copy(), leaned(ref.acceleration, idx, lean))  # fmt: skip
 
 
 class Command(NamedTuple):
@@ -420,10 +410,7 @@ class MPPIController:
         """Rows k+1 .. k+N of a whole flight's reference as this controller's cost reads them
         (``reference_ahead``): for the "payload" cost the acceleration leaned over
         ``MPCConfig.lean`` x sqrt(l / g), with the cable length the cost uses."""
-        lean = 0.0
-        if self.cfg.cost == "payload" and self.cfg.lean > 0:
-            swing = math.sqrt(self.cable_length / self.params.gravity)  # s
-            lean = self.cfg.lean * swing / self.params.dt
+        lean = lean_rows(self.cfg, self.cable_length, self.params.gravity, self.params.dt)
         return reference_ahead(reference, k, self.cfg.horizon, lean)
 
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
