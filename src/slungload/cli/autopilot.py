@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..autopilot.config import HANDBACK, BridgeConfig, SilConfig, option_help
+from ..control.cost import LEAN_HELP
 from ..control.mppi import COSTS, MPCConfig
 from .common import choices, given, new_command, plants_help
 
@@ -90,9 +91,8 @@ def add_fly(sub: Any) -> None:
                    f"{MPCConfig.samples})")  # fmt: skip
     p.add_argument("--cost", choices=list(COSTS), help=f"the MPC's cost (docs/control.md) "
                    f"(default {MPCConfig.cost})")  # fmt: skip
-    p.add_argument("--lean", type=float, metavar="X", help="with --cost payload: the "
-                   "reference's acceleration the cable follows, averaged over X x sqrt(cable "
-                   f"length / g) each way (default {MPCConfig.lean:g})")  # fmt: skip
+    p.add_argument("--lean", type=float, metavar="X",
+                   help=f"{LEAN_HELP} (default {MPCConfig.lean:g})")  # fmt: skip
     p.add_argument("--risk", type=float, metavar="BETA", help="price each plan by the mean "
                    "of its members' costs + BETA x their spread: an ensemble's members, or the "
                    "model and physics with --with-physics (docs/control.md)")  # fmt: skip

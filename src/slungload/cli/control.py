@@ -56,11 +56,10 @@ def add_flight_options(
                        help=f"the MPC's cost: {shown} (docs/control.md) "
                        f"(default {cfg.cost})")  # fmt: skip
     if hasattr(cfg, "lean"):
+        from ..control.cost import LEAN_HELP  # numpy only
+
         p.add_argument("--lean", type=float, metavar="X",
-                       help="with --cost payload: the reference's acceleration the cable's "
-                       "direction follows, averaged over X x sqrt(cable length / g) each way "
-                       "(the cable leans only as fast as the load swings; 0: the reference's "
-                       f"own; docs/control.md) (default {cfg.lean:g})")  # fmt: skip
+                       help=f"{LEAN_HELP} (default {cfg.lean:g})")  # fmt: skip
     if hasattr(cfg, "risk"):
         p.add_argument("--risk", type=float, metavar="BETA",
                        help="price an ensemble's candidates (--model an ensemble folder) by "

@@ -22,6 +22,12 @@ COSTS: dict[str, str] = {
 }
 
 
+# What ``MPCConfig.lean`` does, for the help of each command that flies the MPC.
+LEAN_HELP = ("with the payload cost: the reference's acceleration the cable's direction "
+             "follows, averaged over X x sqrt(cable length / g) each way (the cable leans only "
+             "as fast as the load swings; 0: the reference's own; docs/control.md)")  # fmt: skip
+
+
 class ReferenceAhead(NamedTuple):
     """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up): the
     vehicle's; the load's is l e3 below (``MPCConfig.cost`` "payload" reads it as the load's
