@@ -28,6 +28,7 @@ from slungload.lab.control.config import (
     TUNING_GRID,
     UNSAFE_SWING,
     StudyConfig,
+    cost_changes,
     recorded_settings,
     settings_record,
 )
@@ -869,3 +870,17 @@ def test_the_settings_file_records_the_lean_only_where_the_cost_reads_it():
     del old["lean"]
     assert recorded_settings(old)["lean"] == 0.0
     assert StudyConfig(lean=0.5).mpc(horizon=15).lean == 0.5
+
+
+def test_tuning_tries_the_lean_only_where_the_cost_reads_it():
+    """The vehicle cost's changes are the grid's; the payload cost's each also with the lean
+    (once: not again where the study already leans), and a choice's own lean is flown."""
+    grid = [{}, *COST_GRID]
+    assert cost_changes("vehicle", 0.0) == grid == cost_changes("vehicle", 1.0)
+    assert cost_changes("payload", 1.0) == grid
+    leaning = cost_changes("payload", 0.0)
+    assert leaning[: len(grid)] == grid and leaning[len(grid) :] == [
+        {**c, "lean": 1.0} for c in grid
+    ]
+    cfg = StudyConfig(cost="payload", lean=0.0)
+    assert cfg.mpc(horizon=15).lean == 0.0 and cfg.mpc(horizon=15, lean=1.0).lean == 1.0

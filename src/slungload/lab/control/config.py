@@ -66,6 +66,19 @@ COST_GRID: tuple[dict[str, float], ...] = (
 )
 # at most this many alternating rounds (noise, cost, noise, ...) of ``tune_settings``
 TUNING_ROUNDS = 4
+# the payload cost's lean (``MPCConfig.lean``) tuning also tries with each cost change: it
+# helped the default plant at N = 15 and hurt the chain plant (docs/BENCHMARKS.md)
+LEAN_CHOICE = 1.0
+
+
+def cost_changes(cost: str, lean: float) -> list[dict[str, float]]:
+    """The cost changes ``tune_settings`` tries (``MPCConfig`` fields) for a study of ``cost``
+    at ``lean``: none, then each of ``COST_GRID``; for the "payload" cost each of those also
+    with the lean ``LEAN_CHOICE`` (unless it is the study's own)."""
+    changes: list[dict[str, float]] = [{}, *COST_GRID]
+    if cost != "payload" or lean == LEAN_CHOICE:
+        return changes
+    return [*changes, *({**c, "lean": LEAN_CHOICE} for c in changes)]
 
 
 # The ``StudyConfig`` fields that settle what a study folder's flights are: the MPC settings and
@@ -160,8 +173,9 @@ class StudyConfig:
     def mpc(self, *, members: bool = False, **fields: Any) -> MPCConfig:
         """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
         ``members``: over a model of members (the paired learned one), priced by ``risk``."""
-        return MPCConfig(cost=self.cost, lean=self.lean, risk=self.risk if members else None,
-                         **fields)  # fmt: skip
+        # a tuned choice may carry its own lean (``cost_changes``)
+        return MPCConfig(**{"cost": self.cost, "lean": self.lean, **fields},
+                         risk=self.risk if members else None)  # fmt: skip
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:

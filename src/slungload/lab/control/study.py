@@ -62,7 +62,6 @@ from ...sim.dataset import vehicle_params
 from ...sim.plants import plant_config as named_plant
 from ...workers import run_jobs
 from .config import (
-    COST_GRID,
     NOMINAL,
     ORACLE,
     PHYSICS_SAMPLES,
@@ -72,6 +71,7 @@ from .config import (
     TUNING_ROUNDS,
     UNSAFE_SWING,
     StudyConfig,
+    cost_changes,
     recorded_settings,
     settings_record,
 )
@@ -378,7 +378,7 @@ def tune_settings(
     ``cfg.samples`` for every model) best by ``tuning_score`` (the fewest lost flights, then
     the fewest swinging the load past ``UNSAFE_SWING``, then the lowest mean load RMSE),
     chosen by alternating rounds: the sampling noise scale and temperature of ``TUNING_GRID``
-    at the cost chosen so far (first the default cost), then the cost changes of ``COST_GRID``
+    at the cost chosen so far (first the default cost), then the cost changes of ``cost_changes``
     at the noise chosen so far, until a round keeps the choice or ``TUNING_ROUNDS`` have run.
     Alternating, because a noise that swings the load under the default cost may fly best
     under the swing bound. A choice is flown once; the current one is kept unless another
@@ -388,7 +388,7 @@ def tune_settings(
     noises = [{"temperature": temperature, "thrust_std": base.thrust_std * scale,
                "rate_std": tuple(r * scale for r in base.rate_std)}
               for temperature, scale in TUNING_GRID]  # fmt: skip
-    costs: list[dict[str, float]] = [{}, *COST_GRID]
+    costs = cost_changes(cfg.cost, cfg.lean)
     flown: dict[tuple, tuple[int, int, float]] = {}
 
     def score(noise: dict[str, Any], cost: dict[str, float]) -> tuple[int, int, float]:
