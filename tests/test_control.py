@@ -530,6 +530,9 @@ def test_a_network_is_compared_with_physics_on_the_flights_both_flew_to_the_end(
     (line,) = versus_lines([v])
     assert line.startswith("- mpc-net K=32: 1 of 3 flights ended early (vehicle left")
     assert "over the 2 flights" in line
+    # worse than physics reads as higher, not as a negative lower
+    worse = [_row("mpc-net K=32", s, 0.30, 21, 0.1) for s in range(2)]
+    assert "0.300 vs 0.200 m (50 % higher)" in versus_lines(versus_physics(physics + worse))[0]
     # No flight both flew to the end: said so, no means.
     lost = [_row("mpc-net K=32", 2, 0.1, 10, 0.1)]
     assert (

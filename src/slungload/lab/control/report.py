@@ -60,6 +60,11 @@ def summary_table(entries: list[dict[str, Any]], first: tuple[str, ...]) -> str:
     return markdown_table(head, rows)
 
 
+def _lower(fraction: float) -> str:
+    """A fraction lower as words: "30 % lower", or "93 % higher" for -0.93."""
+    return f"{100 * abs(fraction):.0f} % {'lower' if fraction >= 0 else 'higher'}"
+
+
 def versus_lines(comparisons: list[VersusPhysics]) -> list[str]:
     """One bullet per network and K: its early ends and its means against physics's."""
     lines = []
@@ -73,8 +78,8 @@ def versus_lines(comparisons: list[VersusPhysics]) -> list[str]:
             got, ref = v.network, v.physics
             parts.append(
                 f"load RMSE {got['load_rmse']:.3f} vs {ref['load_rmse']:.3f} m "
-                f"({100 * v.lower('load_rmse'):.0f} % lower), swing RMS {got['swing_rms']:.1f} "
-                f"vs {ref['swing_rms']:.1f} deg ({100 * v.lower('swing_rms'):.0f} % lower), "
+                f"({_lower(v.lower('load_rmse'))}), swing RMS {got['swing_rms']:.1f} "
+                f"vs {ref['swing_rms']:.1f} deg ({_lower(v.lower('swing_rms'))}), "
                 f"vehicle RMSE {got['vehicle_rmse']:.3f} vs {ref['vehicle_rmse']:.3f} m, over "
                 f"the {v.paired} flights both flew to the end"
                 + (f" (MPC + physics ended {v.physics_failed} more early)" if v.physics_failed
