@@ -27,6 +27,7 @@ from slungload.lab.control.config import (
     SWING_BOUND,
     TUNING_GRID,
     UNSAFE_SWING,
+    ComparisonConfig,
     StudyConfig,
     cost_changes,
     recorded_settings,
@@ -859,24 +860,25 @@ def test_the_learned_mpc_priced_with_physics(tiny_run, tmp_path):
         run_study(tiny_run.out, tmp_path / "paired", paired, controllers=kinds, progress=None)
 
 
-def test_the_settings_file_records_the_lean_only_where_the_cost_reads_it():
-    """The payload cost's lean is recorded as flown; for the vehicle cost, which never reads
-    it, as 0 whatever it was set to, so its folders do not depend on it; a file without the
-    field was flown before it existed, with the raw acceleration (0)."""
+def test_the_settings_file_records_the_lean_and_only_the_payload_cost_takes_one():
+    """The lean is recorded as flown; a file without the field was flown before it existed,
+    with the reference's own acceleration (0); the vehicle cost refuses a lean by name."""
     assert settings_record(StudyConfig(cost="payload", lean=1.0))["lean"] == 1.0
-    assert settings_record(StudyConfig(cost="payload", lean=0.0))["lean"] == 0.0
-    assert settings_record(StudyConfig(cost="vehicle", lean=1.0))["lean"] == 0.0
+    assert settings_record(StudyConfig())["lean"] == 0.0
     old = settings_record(StudyConfig(cost="payload", lean=1.0))
     del old["lean"]
     assert recorded_settings(old)["lean"] == 0.0
-    assert StudyConfig(lean=0.5).mpc(horizon=15).lean == 0.5
+    assert StudyConfig(cost="payload", lean=0.5).mpc(horizon=15).lean == 0.5
+    for config in (StudyConfig, ComparisonConfig):
+        with pytest.raises(ValueError, match="lean is the payload cost's .* 'vehicle' cost"):
+            config(lean=1.0)
 
 
 def test_tuning_tries_the_lean_only_where_the_cost_reads_it():
     """The vehicle cost's changes are the grid's; the payload cost's each also with the lean
     (once: not again where the study already leans), and a choice's own lean is flown."""
     grid = [{}, *COST_GRID]
-    assert cost_changes("vehicle", 0.0) == grid == cost_changes("vehicle", 1.0)
+    assert cost_changes("vehicle", 0.0) == grid
     assert cost_changes("payload", 1.0) == grid
     leaning = cost_changes("payload", 0.0)
     assert leaning[: len(grid)] == grid and leaning[len(grid) :] == [

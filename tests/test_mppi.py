@@ -304,16 +304,19 @@ def test_the_lean_averages_the_flights_acceleration_with_no_lag_and_no_window_ed
 
 def test_the_controller_leans_only_the_payload_costs_acceleration():
     """``MPPIController.ahead``: the payload cost reads the flight's acceleration averaged over
-    lean x sqrt(l / g) (in rows of dt), the vehicle cost (which never reads it) the raw rows."""
+    lean x sqrt(l / g) (in rows of dt), the vehicle cost (which never reads it) the raw rows
+    and refuses a lean."""
     ref = doublet_reference()
     rows = math.sqrt(PARAMS.cable_length / PARAMS.gravity) / PARAMS.dt
     for cost, lean, expect in (("payload", 1.0, rows), ("payload", 0.0, 0.0),
-                               ("vehicle", 1.0, 0.0)):  # fmt: skip
+                               ("vehicle", 0.0, 0.0)):  # fmt: skip
         mpc = MPPIController(HoldModel(), LIMITS, replace(SMALL, cost=cost, lean=lean), PARAMS)
         got = mpc.ahead(ref, 58)
         want = reference_ahead(ref, 58, SMALL.horizon, lean=expect)
         np.testing.assert_array_equal(got.acceleration, want.acceleration)
         assert (np.abs(got.acceleration - ref.acceleration[59:65]).max() > 0.1) == (expect > 0)
+    with pytest.raises(ValueError, match="lean is the payload cost's"):
+        replace(SMALL, lean=1.0)
 
 
 class ClimbEnsemble:

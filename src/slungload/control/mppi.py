@@ -182,7 +182,7 @@ class MPCConfig:
     # over time with weights exp(-|t| / tau), tau = lean x sqrt(l / g) (a first-order low-pass
     # run forward and backward: no lag), so that the cable is asked to lean only about as fast
     # as the load swings (a doublet faster than the swing does not flip it); 0: the reference's
-    # own acceleration (``reference_ahead``)
+    # own acceleration (``cost.leaned``); only the payload cost takes one
     lean: float = 0.0
     # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
@@ -206,6 +206,10 @@ class MPCConfig:
             )
         if not 0.0 <= self.lean < math.inf:
             raise ValueError(f"MPCConfig.lean must be a finite number >= 0, got {self.lean}")
+        if self.lean and self.cost != "payload":
+            raise ValueError(f"MPCConfig.lean is the payload cost's (the {self.cost!r} cost "
+                             f"reads no acceleration): give cost 'payload', or lean 0; got "
+                             f"lean {self.lean:g}")  # fmt: skip
         if self.risk is not None and not 0.0 <= self.risk < math.inf:
             raise ValueError(
                 f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"

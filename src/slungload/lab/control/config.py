@@ -116,7 +116,7 @@ class ComparisonConfig:
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
         trust_steps(self.trust_window, self.with_physics)  # refuses a window without physics
-        _check_cost(self.cost)
+        _check_cost(self.cost, self.lean)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
@@ -184,7 +184,7 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         _check_steps("StudyConfig", self.steps)
-        _check_cost(self.cost)
+        _check_cost(self.cost, self.lean)
         _check_plant(self.plant)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
@@ -330,9 +330,10 @@ class RecordConfig:
         return range(self.first_seed, self.first_seed + max(n for _, n in self.flights))
 
 
-def _check_cost(cost: str) -> None:
+def _check_cost(cost: str, lean: float) -> None:
     if cost not in COSTS:
         raise ValueError(f"unknown MPC cost {cost!r}; known: {list(COSTS)}")
+    MPCConfig(cost=cost, lean=lean)  # its rules for the lean
 
 
 # --- what a study folder's settings.json records of its configuration -----------------------
@@ -344,20 +345,18 @@ _EARLIER_WINDOW = 10
 def settings_record(cfg: StudyConfig) -> dict[str, Any]:
     """The study's configuration as ``settings.json`` records it, the pair's window resolved
     (``pair_window``), whether the pair weighs its members by their record
-    (``paired.WEIGH_BY_RECORD``) and the lean (0 for a cost that does not read it): a file
-    must say what its flights had, whatever the default becomes."""
+    (``paired.WEIGH_BY_RECORD``): a file must say what its flights had, whatever the default
+    becomes."""
     record = _jsonable(asdict(cfg))
     record["trust_window"] = cfg.pair_window
     record["pair_weighs"] = bool(cfg.pair_window) and paired.WEIGH_BY_RECORD
-    record["lean"] = cfg.lean if cfg.cost == "payload" else 0.0  # only that cost reads it
     return record
 
 
 def recorded_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A settings file's ``config`` as ``settings_record`` would write it today: a field the
-    file lacks was added since, with the value its flights had (no window, equal weights, the
-    payload cost's raw acceleration); a
-    null window meant the default then, ``_EARLIER_WINDOW``."""
+    file lacks was added since, with the value its flights had (no window, equal weights, no
+    lean); a null window meant the default then, ``_EARLIER_WINDOW``."""
     was = _jsonable(asdict(StudyConfig()))
     was.update(trust_window=0, pair_weighs=False, lean=0.0)
     theirs = {k: config.get(k, was[k]) for k in (*SETTINGS_FIELDS, "pair_weighs")}
