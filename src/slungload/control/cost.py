@@ -81,10 +81,10 @@ def cost_target(
 
 def lean_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float:
     """The time constant, in reference rows dt s apart, over which ``cfg``'s cost (``cfg`` an
-    ``mppi.MPCConfig``) averages the reference's acceleration: ``cfg.lean`` x sqrt(l / g), the
-    load's swing, for the "payload" cost; 0 (the rows as they are) for a cost that does not
-    read it."""
-    if cfg.cost != "payload" or cfg.lean == 0:
+    ``mppi.MPCConfig``, which takes a lean with the "payload" cost only) averages the
+    reference's acceleration: ``cfg.lean`` x sqrt(l / g), the load's swing; 0: the rows as
+    they are."""
+    if not cfg.lean:
         return 0.0
     return cfg.lean * math.sqrt(cable_length / gravity) / dt
 
@@ -102,6 +102,16 @@ def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarra
     w = np.exp(-np.abs(j) / lean)
     near = np.clip(rows[:, None] + j, 0, len(acceleration) - 1)  # (n, 2J + 1)
     return np.einsum("j,njd->nd", w / w.sum(), np.asarray(acceleration, dtype=float)[near])
+
+
+def reference_ahead(ref, k: int, n: int, lean: float = 0.0) -> ReferenceAhead:
+    """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
+    velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
+    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the
+    acceleration averaged over ``lean`` rows each way (``leaned``; 0: as it is)."""
+    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
+    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
+                          ref.yaw[idx].copy(), leaned(ref.acceleration, idx, lean))  # fmt: skip
 
 
 def yaw_of(q: np.ndarray) -> np.ndarray:

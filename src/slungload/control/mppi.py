@@ -65,8 +65,8 @@ from .cost import (
     VehicleTarget,
     cost_target,
     lean_rows,
-    leaned,
     payload_first,
+    reference_ahead,
     tilt_of,
     trajectory_cost,
     yaw_of,
@@ -178,11 +178,8 @@ class MPCConfig:
     # the reference itself and a vertical cable; "payload" the vehicle's position, velocity and
     # cable direction that the load's reference path requires (``payload_first``).
     cost: str = "vehicle"
-    # "payload": the reference's acceleration the cable's direction is derived from, averaged
-    # over time with weights exp(-|t| / tau), tau = lean x sqrt(l / g) (a first-order low-pass
-    # run forward and backward: no lag), so that the cable is asked to lean only about as fast
-    # as the load swings (a doublet faster than the swing does not flip it); 0: the reference's
-    # own acceleration (``cost.leaned``); only the payload cost takes one
+    # the payload cost only: the reference's acceleration the cable follows averaged over lean x
+    # sqrt(l / g) each way, so the cable leans only as fast as the load swings (``cost.leaned``)
     lean: float = 0.0
     # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
@@ -237,16 +234,6 @@ class MPCStats:
     @property
     def fallback_steps(self) -> int:
         return sum(self.fallbacks.values())
-
-
-def reference_ahead(ref, k: int, n: int, lean: float = 0.0) -> ReferenceAhead:
-    """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
-    velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
-    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the
-    acceleration averaged over ``lean`` rows each way (``cost.leaned``; 0: as it is)."""
-    idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
-                          ref.yaw[idx].copy(), leaned(ref.acceleration, idx, lean))  # fmt: skip
 
 
 class Command(NamedTuple):

@@ -139,11 +139,6 @@ def step_share(rows: list[dict[str, Any]], key: str) -> float | None:
     return sum(r.get(key, 0) for r in rows) / steps if steps else None
 
 
-def physics_only_share(rows: list[dict[str, Any]]) -> float | None:
-    """``step_share`` of the steps physics priced alone."""
-    return step_share(rows, "physics_only_steps")
-
-
 @dataclass(frozen=True)
 class VersusPhysics:
     """One network's MPC against MPC + physics at the same K, over every maneuver flown.
@@ -181,15 +176,16 @@ def versus_physics(rows: list[dict[str, Any]]) -> list[VersusPhysics]:
         physics = by_flight(mpc, K=k, controller=reference)
         for net in sorted({r["controller"] for r in mpc if r["K"] == k} - {reference}):
             mine = by_flight(mpc, K=k, controller=net)
+            flown = list(mine.values())
             both = both_completed(mine, physics)
             means = [{key: mean_of([pair[i] for pair in both], key) for key in PAIRED} if both
                      else {} for i in (0, 1)]  # fmt: skip
-            failed = [r for r in mine.values() if not r["completed"]]
+            failed = [r for r in flown if not r["completed"]]
             physics_failed = sum(r["completed"] and f in physics and not physics[f]["completed"]
                                  for f, r in mine.items())  # fmt: skip
             out.append(VersusPhysics(
                 net, k, len(mine), len(failed), failed[0]["stopped"] if failed else None,
-                len(both), physics_failed, *means, physics_only_share(list(mine.values())) or 0.0,
-                step_share(list(mine.values()), "surprised_steps") or 0.0,
+                len(both), physics_failed, *means, step_share(flown, "physics_only_steps") or 0.0,
+                step_share(flown, "surprised_steps") or 0.0,
             ))  # fmt: skip
     return out

@@ -56,8 +56,8 @@ from .results import (
     label_model,
     mean_of,
     mpc_label,
-    physics_only_share,
     ratio,
+    step_share,
     summary,
 )
 from .study import best_horizons, load_log
@@ -363,7 +363,9 @@ def _learned_line(
                  f"their mean cost + {config.risk:g} x their spread; tuned, timed and matched "
                  "as that pair.")  # fmt: skip
     if config.pair_window:
-        share = physics_only_share([r for r in rows if label_model(r["controller"]) == LEARNED])
+        share = step_share(
+            [r for r in rows if label_model(r["controller"]) == LEARNED], "physics_only_steps"
+        )
         line += (f" The network had no say while it predicted the last {config.pair_window} "
                  "steps flown (at most N) worse than physics (`--trust-window`)"
                  + (f": physics priced alone {100 * share:.0f} % of its steps." if share is not None
