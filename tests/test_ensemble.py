@@ -329,6 +329,52 @@ def test_control_prices_an_ensembles_members_with_risk(
     assert code == 2 and "no --model is an ensemble" in err
 
 
+def test_split_members_are_each_members_own_prediction_on_every_backend(
+    trained_ensemble, tiny_run, run_cli, tmp_path
+):
+    """``--members split``: candidate k is member k mod E's own prediction, eager, compiled and
+    in the exported .mpc.npz alike; the ONNX graph, which predicts the members together, is
+    refused by name; ``control`` flies it under its label."""
+    from slungload.control.mpc import candidate_model
+    from slungload.control.mppi import InputLimits, MPCConfig, MPPIController
+    from slungload.control.split import SplitMembers
+    from slungload.deploy.backends import load_exported
+    from slungload.deploy.candidates import export_for_mpc
+    from slungload.deploy.compiled import with_backend
+    from slungload.models.prediction import load_prediction_model
+
+    model = load_prediction_model(trained_ensemble)
+    w = tiny_run.dataset.splits["test"][:1]
+    m = model.history
+    noise = torch.randn(5, 4, 4, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+    arrays = [w.states[0, :m].double().numpy(), w.inputs[0, : m - 1].double().numpy(),
+              (w.inputs[0, m - 1 : m + 3].double() + noise).numpy()]  # fmt: skip
+    exported = export_for_mpc(trained_ensemble, tmp_path, horizon=4, format="compiled").model
+    for backend in (model, with_backend(model, "compiled"), load_exported(exported)):
+        numpy_model = candidate_model(backend)
+        members = numpy_model.predict_candidates_members(*arrays)  # (2, 5, 4, 13)
+        got = SplitMembers(numpy_model, 5).predict_candidates(*arrays)
+        np.testing.assert_allclose(got[0::2], members[0, 0::2], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got[1::2], members[1, 1::2], rtol=0, atol=1e-12)
+    onnx = load_exported(export_for_mpc(trained_ensemble, tmp_path / "G.mpc.onnx", horizon=4).model)
+    with pytest.raises(ValueError, match="no members to call one by one"):
+        MPPIController(onnx, InputLimits(4.0, 30.0, 4.0),
+                       MPCConfig(samples=8, horizon=4, knots=2, members="split"))  # fmt: skip
+    out = tmp_path / "ctl"
+    code, _, err = run_cli(
+        "control", "--model", trained_ensemble, "--maneuvers", "roll_35", "--seeds", "100",
+        "--samples", "4", "--horizon", "5", "--steps", "6", "--backend", "compiled",
+        "--members", "split", "--out", out, "--quiet",
+    )  # fmt: skip
+    assert code == 0, err
+    rows = json.loads((out / "results.json").read_text())["rows"]
+    assert {r["controller"] for r in rows} == {"pid", "mpc-physics K=4", "mpc-E split K=4"}
+    assert all(r["completed"] for r in rows)
+    code, _, err = run_cli("control", "--model", tiny_run.out, "--members", "split", "--steps",
+                           "2", "--out", tmp_path / "x")  # fmt: skip
+    assert code == 2 and "no --model is an ensemble" in err and not (tmp_path / "x").exists()
+
+
 def test_members_mean_in_numpy_is_the_spreads_mean():
     from slungload.deploy.members import members_mean
 

@@ -376,3 +376,61 @@ def test_a_risk_priced_mpc_counts_the_nominal_plans_its_ensemble_flags():
     for _ in range(3):
         flagged.step(x, up), plain.step(x, up)
     assert (flagged.stats.novel_steps, plain.stats.novel_steps) == (3, 0)
+
+
+class Marked(HoldModel):
+    """A member whose every prediction carries its mark in the load's z, counting its calls."""
+
+    def __init__(self, mark: float) -> None:
+        self.mark, self.calls, self.prepared = mark, [], None
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        self.calls.append(len(plans))
+        out = super().predict_candidates(x_hist, u_past, plans)
+        out[..., 12] = self.mark
+        return out
+
+    def prepare(self, m, k, n):
+        self.prepared = (m, k, n)
+
+
+class MarkedEnsemble(ClimbEnsemble):
+    """Three ``Marked`` members behind an ensemble's calls."""
+
+    def __init__(self) -> None:
+        super().__init__((0.0, 0.0, 0.0))
+        self.members = tuple(Marked(float(i)) for i in range(3))
+
+
+def test_split_members_predict_every_eth_candidate_each_at_one_networks_compute():
+    from slungload.control.split import SplitMembers
+
+    ens = MarkedEnsemble()
+    split = SplitMembers(ens, 8)
+    x = np.tile(hover_state(), (3, 1))
+    plans = np.tile(HOVER_T, (8, 6, 4))
+    out = split.predict_candidates(x, np.zeros((2, 4)), plans)
+    np.testing.assert_array_equal(out[:, 0, 12], [0, 1, 2, 0, 1, 2, 0, 1])
+    assert [m.calls for m in ens.members] == [[3], [3], [2]]  # 8 candidates, not 3 x 8
+    split.prepare(3, 8, 6)
+    assert [m.prepared for m in ens.members] == [(3, 3, 6), (3, 3, 6), (3, 2, 6)]
+    # the controller shares its K candidates out and scores each by its own member's cost
+    mpc = MPPIController(MarkedEnsemble(), LIMITS, replace(SMALL, members="split"), PARAMS)
+    assert np.isfinite(mpc.step(hover_state(), hold(hover_state()[:3], 6)).thrust)
+    assert [m.calls[-1] for m in mpc.model.members] == [6, 5, 5]
+    assert mpc.stats.fallback_steps == 0
+
+
+def test_split_members_are_refused_where_they_cannot_be():
+    from slungload.control.split import SplitMembers
+
+    with pytest.raises(ValueError, match="'hold' has no members to call one by one"):
+        MPPIController(HoldModel(), LIMITS, replace(SMALL, members="split"), PARAMS)
+    with pytest.raises(ValueError, match="'climb' has no members to call one by one"):
+        SplitMembers(ClimbEnsemble(), 16)  # members only together (a pair, an ONNX graph)
+    with pytest.raises(ValueError, match="K = 2 candidates for 3 members"):
+        SplitMembers(MarkedEnsemble(), 2)
+    with pytest.raises(ValueError, match="'split' gives each candidate one member's cost"):
+        replace(SMALL, members="split", risk=0.5)
+    with pytest.raises(ValueError, match="MPCConfig.members: unknown 'some'"):
+        replace(SMALL, members="some")

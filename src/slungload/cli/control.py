@@ -66,6 +66,14 @@ def add_flight_options(
                        "the mean of its members' costs + BETA x their standard deviation "
                        "(each member predicts each candidate: E x the compute; docs/control.md) "
                        "(default: the cost of the members' mean)")  # fmt: skip
+    if hasattr(cfg, "members"):
+        from ..control.split import MEMBER_USES  # numpy only
+
+        shown = "; ".join(f"{name}: {text}" for name, text in MEMBER_USES.items())
+        p.add_argument("--members", choices=list(MEMBER_USES),
+                       help=f"how an ensemble's members (--model an ensemble folder) predict "
+                       f"the MPC's candidates: {shown} (docs/control.md) "
+                       f"(default {cfg.members})")  # fmt: skip
     if hasattr(cfg, "with_physics"):
         p.add_argument("--with-physics", action="store_true",
                        help="price each --model's plans under it and under the physics model: "
@@ -159,6 +167,7 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
                                          cost=args.cost, lean=args.lean, risk=args.risk,
+                                         members=args.members,
                                          with_physics=args.with_physics or None,
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)

@@ -74,6 +74,8 @@ class TorchCandidates:
         if has_members(model):  # an ensemble's members, and its calibration (``tracked``)
             self.predict_candidates_members = self._members
             self.calibration = getattr(model, "calibration", None)
+            # each member alone (``split.SplitMembers``)
+            self.members = tuple(candidate_model(m) for m in getattr(model, "members", ()))
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
@@ -105,6 +107,8 @@ class _NumpyEntry:
         if hasattr(model, "numpy_candidates_members"):  # an ensemble's members
             self.predict_candidates_members = model.numpy_candidates_members
             self.novel, self.calibration = model.novel, model.calibration
+            # each member alone (``split.SplitMembers``)
+            self.members = tuple(candidate_model(m) for m in getattr(model, "members", ()))
 
 
 def candidate_model(model: PredictionModel | CandidateModel) -> CandidateModel:

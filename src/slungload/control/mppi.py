@@ -72,6 +72,8 @@ from .cost import (
     yaw_of,
 )
 from .history import History
+from .limits import InputLimits
+from .split import MEMBER_USES, SPLIT, SplitMembers
 from .tracked import TrackedMembers, calibration_of
 
 __all__ = [
@@ -80,6 +82,7 @@ __all__ = [
     "Command",
     "ConstantsEstimate",
     "InputLimits",
+    "MEMBER_USES",
     "MPCConfig",
     "MPCStats",
     "MPPIController",
@@ -95,45 +98,6 @@ __all__ = [
     "trajectory_cost",
     "yaw_of",
 ]
-
-
-@dataclass(frozen=True)
-class InputLimits:
-    """Box on the commands: thrust N in [thrust_min, thrust_max], |body rate| <= rate_max."""
-
-    thrust_min: float  # N
-    thrust_max: float  # N
-    rate_max: float  # rad/s, each axis
-
-    @classmethod
-    def from_sim(cls, cfg) -> InputLimits:
-        """The simulator's limits (a ``sim.config.SimConfig``): thrust up to ``max_thrust``,
-        rates up to ``max_rate`` (the PID's own), and at least 30 % of hover thrust (the PID's
-        floor on the vertical force)."""
-        return cls(0.3 * cfg.total_mass * cfg.gravity, cfg.max_thrust, cfg.max_rate)
-
-    def lower(self) -> np.ndarray:
-        return np.array([self.thrust_min] + [-self.rate_max] * 3)
-
-    def upper(self) -> np.ndarray:
-        return np.array([self.thrust_max] + [self.rate_max] * 3)
-
-    def clamp(self, u: np.ndarray) -> np.ndarray:
-        """u (..., 4) clamped into the box."""
-        return np.minimum(np.maximum(u, self.lower()), self.upper())
-
-    def contains(self, u, tol: float = 1e-9) -> bool:
-        """Every row of u (..., 4) finite and inside the box."""
-        u = np.asarray(u, dtype=np.float64)
-        if not np.isfinite(u).all():
-            return False
-        return bool(((u >= self.lower() - tol) & (u <= self.upper() + tol)).all())
-
-    def at_limit(self, u: np.ndarray, rel: float = 1e-3) -> bool:
-        """Whether a command (4,) sits at a bound (within ``rel`` of the range)."""
-        thrust_tol = rel * (self.thrust_max - self.thrust_min)
-        thrust = u[0] <= self.thrust_min + thrust_tol or u[0] >= self.thrust_max - thrust_tol
-        return bool(thrust or (np.abs(u[1:]) >= self.rate_max * (1.0 - rel)).any())
 
 
 @dataclass(frozen=True)
@@ -185,6 +149,9 @@ class MPCConfig:
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
     # Every member then predicts every candidate: E x one network's compute at equal K.
     risk: float | None = None
+    # How an ensemble's members predict the candidates (a name of ``MEMBER_USES``): "all"
+    # every member each candidate; "split" candidate k by member k mod E (``SplitMembers``).
+    members: str = "all"
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -211,6 +178,12 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"
             )
+        if self.members not in MEMBER_USES:
+            raise ValueError(f"MPCConfig.members: unknown {self.members!r}; known: "
+                             f"{list(MEMBER_USES)}")  # fmt: skip
+        if self.members == SPLIT and self.risk is not None:
+            raise ValueError("MPCConfig.members 'split' gives each candidate one member's cost, "
+                             "and risk prices every member's: give one of the two")  # fmt: skip
 
 
 def knots_for(horizon: int) -> int:
@@ -277,6 +250,8 @@ class MPPIController:
         estimate: ConstantsEstimate | None = None,
     ) -> None:
         self.cfg = cfg = config or MPCConfig()
+        if cfg.members == SPLIT:
+            model = SplitMembers(model, cfg.samples)
         calibration = calibration_of(model)  # a calibrated ensemble's interval is tracked
         if calibration is not None and has_members(model) and not isinstance(model, TrackedMembers):
             model = TrackedMembers(model, calibration, cfg.horizon)

@@ -65,9 +65,10 @@ def compare(
         physics = candidate_model(predictors[0])
         predictors[1:] = [PhysicsPaired(candidate_model(p), physics, cfg.pair_window)
                           for p in predictors[1:]]  # fmt: skip
-    if cfg.risk is not None and not any(has_members(p) for p in predictors):
-        raise ValueError("--risk prices an ensemble's candidates, and no --model is an ensemble")
     base = cfg.mpc
+    if (cfg.risk is not None or cfg.members != "all") and not any(map(has_members, predictors)):
+        raise ValueError("--risk and --members act on an ensemble's members, and no --model is "
+                         "an ensemble")  # fmt: skip
     out_dir = Path(out) if out is not None else None
     if out_dir is not None and (out_dir / "settings.json").exists():
         raise ValueError(f"{out_dir} holds a control study (settings.json), whose flights lie "
@@ -100,13 +101,14 @@ def _plans(
     params: VehicleParams,
 ) -> list[_Plan]:
     """The controllers to fly: the PID, then one MPC per K and prediction model (``base.risk``
-    for an ensemble only, named in its label)."""
+    and ``base.members`` for an ensemble only, named in its label)."""
     plans: list[_Plan] = [(PID, None, reference_maker(PID, cfg))]
     for k in samples:
         for model in predictors:
-            risk = base.risk if has_members(model) else None
-            mpc_cfg = replace(base, samples=int(k), risk=risk)
+            risk, members = (base.risk, base.members) if has_members(model) else (None, "all")
+            mpc_cfg = replace(base, samples=int(k), risk=risk, members=members)
             label = f"mpc-{model.name}" + ("" if risk is None else f" risk {risk:g}")
+            label += "" if members == "all" else f" {members}"
             plans.append((label, int(k), mpc_maker(model, limits, mpc_cfg, params)))
     return plans
 

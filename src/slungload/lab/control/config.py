@@ -107,6 +107,7 @@ class ComparisonConfig:
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
     lean: float = MPCConfig.lean  # the "payload" cost's lean (``MPCConfig.lean``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
+    members: str = MPCConfig.members  # how an ensemble's members share the candidates
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
     # with ``with_physics``: steps of the flown path on which the network must predict at least
     # as well as physics to take part (``control.paired.trust_steps``: None, its default; 0:
@@ -130,9 +131,9 @@ class ComparisonConfig:
     @property
     def mpc(self) -> MPCConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots); ``risk``
-        prices an ensemble's candidates only (``comparison``)."""
+        and ``members`` are an ensemble's only (``comparison``)."""
         return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
-                         lean=self.lean, risk=self.risk)  # fmt: skip
+                         lean=self.lean, risk=self.risk, members=self.members)  # fmt: skip
 
 
 @dataclass(frozen=True)
