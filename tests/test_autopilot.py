@@ -250,8 +250,8 @@ def test_the_fifo_scheduler_is_asked_for_and_given_back(tmp_path, model_file, ru
 def test_a_lockstep_flight_priced_with_physics(tmp_path):
     """`fly --with-physics --risk 1 --trust-window 5`: the compiled file's model and the physics
     model of its constants as two members (numpy only), the file's model trusted throughout (it
-    predicts the flown steps as physics does); a --risk without members, or a trust window
-    without physics, is refused before any link is opened."""
+    predicts the flown steps as physics does); a --risk without members, --members split of
+    one network, or a trust window without physics, is refused before any link is opened."""
     from slungload.autopilot.bridge import fly
 
     compiled = export_for_mpc("physics", tmp_path / "p.mpc.npz", horizon=10,
@@ -279,6 +279,9 @@ def test_a_lockstep_flight_priced_with_physics(tmp_path):
     assert_finite_on_the_wire(endpoint)
     with pytest.raises(ValueError, match="one network"):
         fly(compiled, replace(bridge, with_physics=False))
+    split = MPCConfig(samples=16, horizon=8, members="split")
+    with pytest.raises(ValueError, match="no members to call one by one"):
+        fly(compiled, replace(bridge, with_physics=False, mpc=split))
     with pytest.raises(ValueError, match="give --risk"):
         replace(bridge, mpc=MPCConfig())
     with pytest.raises(ValueError, match="give --with-physics"):

@@ -48,6 +48,7 @@ from ..control.mppi import (
     check_members,
     yaw_of,
 )
+from ..control.split import SPLIT, SplitMembers
 from ..evaluation.verdicts import note
 from ..layout import LOAD_POS, POS, QUAT, STATE_DIM, VEL
 from . import px4
@@ -467,4 +468,6 @@ def fly(
         physics = PhysicsColumns(VehicleConstants.of(exported.params), params=exported.params)
         flown = PhysicsPaired(exported, physics, config.pair_window)
     check_members(flown, config.mpc.risk)  # before any link is opened
+    if config.mpc.members == SPLIT:
+        SplitMembers(flown, config.mpc.samples)  # refuses, naming why, before any link too
     return Bridge(config, flown, exported.params, load_source=load_source, log=log).run()

@@ -13,6 +13,7 @@ from typing import Any
 from ..autopilot.config import HANDBACK, BridgeConfig, SilConfig, option_help
 from ..control.cost import LEAN_HELP
 from ..control.mppi import COSTS, MPCConfig
+from ..control.split import MEMBER_USES, MEMBERS_HELP
 from .common import choices, given, new_command, plants_help
 
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
@@ -96,6 +97,8 @@ def add_fly(sub: Any) -> None:
     p.add_argument("--risk", type=float, metavar="BETA", help="price each plan by the mean "
                    "of its members' costs + BETA x their spread: an ensemble's members, or the "
                    "model and physics with --with-physics (docs/control.md)")  # fmt: skip
+    p.add_argument("--members", choices=list(MEMBER_USES),
+                   help=f"{MEMBERS_HELP} (default {MPCConfig.members})")  # fmt: skip
     _add_options(p, BridgeConfig, FLY_OPTIONS)
     p.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     p.set_defaults(func=cmd_fly)
@@ -105,7 +108,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    mpc = given(samples=args.samples, cost=args.cost, lean=args.lean, risk=args.risk)
+    mpc = given(
+        samples=args.samples, cost=args.cost, lean=args.lean, risk=args.risk, members=args.members
+    )
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)

@@ -67,13 +67,10 @@ def add_flight_options(
                        "(each member predicts each candidate: E x the compute; docs/control.md) "
                        "(default: the cost of the members' mean)")  # fmt: skip
     if hasattr(cfg, "members"):
-        from ..control.split import MEMBER_USES  # numpy only
+        from ..control.split import MEMBER_USES, MEMBERS_HELP  # numpy only
 
-        shown = "; ".join(f"{name}: {text}" for name, text in MEMBER_USES.items())
         p.add_argument("--members", choices=list(MEMBER_USES),
-                       help=f"how an ensemble's members (--model an ensemble folder) predict "
-                       f"the MPC's candidates: {shown} (docs/control.md) "
-                       f"(default {cfg.members})")  # fmt: skip
+                       help=f"{MEMBERS_HELP} (default {cfg.members})")  # fmt: skip
     if hasattr(cfg, "with_physics"):
         p.add_argument("--with-physics", action="store_true",
                        help="price each --model's plans under it and under the physics model: "

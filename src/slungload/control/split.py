@@ -17,7 +17,7 @@ import numpy as np
 from ..layout import STATE_DIM
 from .contract import CandidateModel, has_members
 
-__all__ = ["MEMBER_USES", "SPLIT", "SplitMembers"]
+__all__ = ["MEMBERS_HELP", "MEMBER_USES", "SPLIT", "SplitMembers"]
 
 SPLIT = "split"
 # ``MPCConfig.members``: how an ensemble's members predict the K candidates (the CLI's help)
@@ -27,6 +27,11 @@ MEMBER_USES: dict[str, str] = {
     SPLIT: "candidate k by member k mod E alone, one network's compute at equal K (each "
     "candidate's cost its own member's)",
 }
+MEMBERS_HELP = (
+    "how an ensemble's members predict the MPC's candidates: "
+    + "; ".join(f"{name}: {text}" for name, text in MEMBER_USES.items())
+    + " (docs/control.md)"
+)
 
 
 class SplitMembers:
