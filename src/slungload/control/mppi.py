@@ -73,7 +73,7 @@ from .cost import (
 )
 from .history import History
 from .limits import InputLimits
-from .split import MEMBER_USES, SPLIT, SplitMembers
+from .split import ALL, MEMBER_USES, SPLIT, SplitMembers
 from .tracked import TrackedMembers, calibration_of
 
 __all__ = [
@@ -151,7 +151,7 @@ class MPCConfig:
     risk: float | None = None
     # How an ensemble's members predict the candidates (a name of ``MEMBER_USES``): "all"
     # every member each candidate; "split" candidate k by member k mod E (``SplitMembers``).
-    members: str = "all"
+    members: str = ALL
     seed: int = 0
 
     def __post_init__(self) -> None:

@@ -5,9 +5,9 @@ members can be called one by one (``members``: the torch ensemble through
 ``mpc.candidate_model``, its compiled ``.mpc.npz`` onboard): candidate k is predicted by member
 k mod E alone. The MPC then pays one network's compute at equal K, where "all" (every member
 predicts every candidate) pays E x, and each candidate's cost is its own member's, as
-risk-aware MPPI samples its dynamics: a plan is weighted up only where the member that flew it
-agrees. Each member's own calls and the calibrated interval (``tracked``) go through as they
-are. numpy only (the onboard path).
+risk-aware MPPI samples its dynamics: the weighted plan averages over the members' views of
+the plans, not over one mean view. The members' joint call and the calibrated interval
+(``tracked``) go through as they are. numpy only (the onboard path).
 """
 
 from __future__ import annotations
@@ -17,12 +17,12 @@ import numpy as np
 from ..layout import STATE_DIM
 from .contract import CandidateModel, has_members
 
-__all__ = ["MEMBERS_HELP", "MEMBER_USES", "SPLIT", "SplitMembers"]
+__all__ = ["ALL", "MEMBERS_HELP", "MEMBER_USES", "SPLIT", "SplitMembers"]
 
-SPLIT = "split"
+ALL, SPLIT = "all", "split"
 # ``MPCConfig.members``: how an ensemble's members predict the K candidates (the CLI's help)
 MEMBER_USES: dict[str, str] = {
-    "all": "every member predicts every candidate, E x one network's compute at equal K (the "
+    ALL: "every member predicts every candidate, E x one network's compute at equal K (the "
     "members' mean, or priced by --risk)",
     SPLIT: "candidate k by member k mod E alone, one network's compute at equal K (each "
     "candidate's cost its own member's)",

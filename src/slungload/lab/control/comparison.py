@@ -25,6 +25,7 @@ from ...control.controllers import PID, reference_maker
 from ...control.mpc import InputLimits, MPCConfig, candidate_model, mpc_maker
 from ...control.mppi import has_members
 from ...control.paired import PhysicsPaired
+from ...control.split import ALL
 from ...deploy.backends import load_model
 from ...deploy.predictor import torch_threads
 from ...fileio import write_json
@@ -66,7 +67,7 @@ def compare(
         predictors[1:] = [PhysicsPaired(candidate_model(p), physics, cfg.pair_window)
                           for p in predictors[1:]]  # fmt: skip
     base = cfg.mpc
-    if (cfg.risk is not None or cfg.members != "all") and not any(map(has_members, predictors)):
+    if (cfg.risk is not None or cfg.members != ALL) and not any(map(has_members, predictors)):
         raise ValueError("--risk and --members act on an ensemble's members, and no --model is "
                          "an ensemble")  # fmt: skip
     out_dir = Path(out) if out is not None else None
@@ -105,10 +106,10 @@ def _plans(
     plans: list[_Plan] = [(PID, None, reference_maker(PID, cfg))]
     for k in samples:
         for model in predictors:
-            risk, members = (base.risk, base.members) if has_members(model) else (None, "all")
+            risk, members = (base.risk, base.members) if has_members(model) else (None, ALL)
             mpc_cfg = replace(base, samples=int(k), risk=risk, members=members)
             label = f"mpc-{model.name}" + ("" if risk is None else f" risk {risk:g}")
-            label += "" if members == "all" else f" {members}"
+            label += "" if members == ALL else f" {members}"
             plans.append((label, int(k), mpc_maker(model, limits, mpc_cfg, params)))
     return plans
 
