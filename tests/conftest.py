@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import flights
 import pytest
 import torch
-from flights import SMALL, TINY, WINDOW_ARGS
+from flights import ADAPTIVE, ADAPTIVE_WINDOW, SMALL, TINY, VARIED_LOADS, WINDOW_ARGS
 
 from slungload.config import ModelConfig, VehicleParams, WindowConfig
 from slungload.data.dataset import Dataset, load_dataset
@@ -143,3 +143,27 @@ def weights_of() -> Callable[[Path], dict[str, torch.Tensor]]:
         return torch.load(path, map_location="cpu", weights_only=True)["state_dict"]
 
     return weights
+
+
+@pytest.fixture(scope="module")
+def varied(tmp_path_factory: pytest.TempPathFactory) -> tuple[Dataset, Any]:
+    """Four simulated flights of loads drawn from ``flights.VARIED_LOADS``: the dataset read
+    with ``ADAPTIVE_WINDOW`` and every window of its flights."""
+    from slungload.sim import SimConfig, simulate_dataset
+
+    out = tmp_path_factory.mktemp("adaptive") / "d"
+    simulate_dataset(out, flights=4, seed=11, config=SimConfig().with_loads(**VARIED_LOADS),
+                     workers=1, progress=False,
+                     maneuvers=("roll_35", "xy_step", "baf_fast"))  # fmt: skip
+    ds = load_dataset(out, window=ADAPTIVE_WINDOW, use_cache=False)
+    return ds, make_windows(list(ds.flights.values()), ADAPTIVE_WINDOW, ds.params)
+
+
+@pytest.fixture(scope="module")
+def adaptive_run(varied, train_tiny, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One quick epoch of the adaptive network on the ``varied`` flights (a run folder)."""
+    ds, _ = varied
+    out = tmp_path_factory.mktemp("adaptive_run") / "run"
+    train_tiny(ds, out, variant="no-physics", model=ADAPTIVE, window=ADAPTIVE_WINDOW,
+               max_epochs=1)  # fmt: skip
+    return out

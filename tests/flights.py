@@ -36,6 +36,13 @@ WXYZ_TO_XYZW = [1, 2, 3, 0]  # written out here, independently of state.py's hel
 TINY = ModelConfig(embed_sizes=(16, 16), hidden_size=8, num_layers=1, head_sizes=(16,), dropout=0)
 SMALL = WindowConfig(history=6, horizon=4)
 WINDOW_ARGS = ("--history", str(SMALL.history), "--horizon", str(SMALL.horizon))  # on the CLI
+# The loads' tests: flights of loads drawn from ranges, their windows, an adaptive network.
+ADAPTIVE_WINDOW = WindowConfig(history=50, horizon=25, stride=7)
+ADAPTIVE = ModelConfig(
+    architecture="physics-step", embed_sizes=(16, 16, 16), hidden_size=8, num_layers=2,
+    head_sizes=(16, 16, 16), constants="window",
+)  # fmt: skip
+VARIED_LOADS = {"load_mass": (0.08, 0.30), "cable_length": (0.5, 1.0)}  # SimConfig.with_loads
 
 
 class Flight(NamedTuple):

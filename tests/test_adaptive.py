@@ -11,9 +11,10 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from flights import predict_args
+from flights import ADAPTIVE, predict_args
+from flights import ADAPTIVE_WINDOW as WINDOW
 
-from slungload.config import ModelConfig, VehicleParams, WindowConfig
+from slungload.config import ModelConfig, VehicleParams
 from slungload.constants_estimate import ADAPT_RANGE, adapted
 from slungload.data import load_dataset
 from slungload.deploy.compiled import CompiledNetworkModel, CompiledPhysicsModel, CompiledPredictor
@@ -26,33 +27,9 @@ from slungload.models import PhysicsStepNet
 from slungload.models.prediction import NetworkModel, PhysicsModel
 from slungload.physics import VehicleConstants, rollout
 from slungload.run_config import RunConfig
-from slungload.sim import SimConfig, simulate_dataset
+from slungload.sim import SimConfig
 
 torch.set_num_threads(1)
-
-VARIED = SimConfig().with_loads(load_mass=(0.08, 0.30), cable_length=(0.5, 1.0))
-WINDOW = WindowConfig(history=50, horizon=25, stride=7)
-ADAPTIVE = ModelConfig(
-    architecture="physics-step", embed_sizes=(16, 16, 16), hidden_size=8, num_layers=2,
-    head_sizes=(16, 16, 16), constants="window",
-)  # fmt: skip
-
-
-@pytest.fixture(scope="module")
-def varied(tmp_path_factory):
-    """Every window of four simulated flights of loads drawn from ``VARIED``'s ranges."""
-    out = tmp_path_factory.mktemp("adaptive") / "d"
-    simulate_dataset(out, flights=4, seed=11, config=VARIED, workers=1, progress=False,
-                     maneuvers=("roll_35", "xy_step", "baf_fast"))  # fmt: skip
-    ds = load_dataset(out, window=WINDOW, use_cache=False)
-    return ds, _joined(ds)
-
-
-def _joined(ds):
-    from slungload.data.windows import make_windows
-
-    flights = list(ds.flights.values())
-    return make_windows(flights, WINDOW, ds.params)
 
 
 def _rmse(pred, windows) -> float:
@@ -261,15 +238,6 @@ def test_train_takes_the_constants_option():
 # --- in closed loop: the MPC on loads it never saw ----------------------------------------
 
 
-@pytest.fixture(scope="module")
-def adaptive_run(varied, train_tiny, tmp_path_factory):
-    """One quick epoch of the adaptive network on the varied flights (a run folder)."""
-    ds, _ = varied
-    out = tmp_path_factory.mktemp("adaptive_run") / "run"
-    train_tiny(ds, out, variant="no-physics", model=ADAPTIVE, window=WINDOW, max_epochs=1)
-    return out
-
-
 class _Still:
     """A numpy candidate model: every candidate stays where the history ends."""
 
@@ -338,90 +306,6 @@ def test_a_network_given_the_constants_is_the_adaptive_one_at_its_estimate(adapt
     assert (moved - want).abs().max() > 1e-3
     with pytest.raises(ValueError, match="only a physics-step network"):
         load_prediction_model(tiny_run.out, constants=truth)
-
-
-def test_the_mpc_flies_an_unseen_load_in_flight_and_given_it(adaptive_run, tiny_run, tmp_path):
-    from slungload.lab.control.config import UnseenLoadsConfig
-    from slungload.lab.control.unseen_loads import fly_loads, plant_name, write_loads_report
-
-    cfg = UnseenLoadsConfig(loads=((0.3, 0.95),), maneuvers=("xy_step",), seeds=(100,),
-                            samples=16, steps=12, backend="eager")  # fmt: skip
-    rows = fly_loads(adaptive_run, tmp_path, cfg, progress=None)
-    assert {r["controller"] for r in rows} == {
-        "pid", "mpc-physics (in-flight)", "mpc-physics (true constants)",
-        "mpc-adaptive (in-flight)", "mpc-adaptive (true constants)",
-    }  # fmt: skip
-    assert all(r["plant"] == plant_name(0.3, 0.95) and r["completed"] for r in rows)
-    assert all(np.isfinite(r["load_rmse"]) for r in rows)
-    report = write_loads_report(rows, cfg, tmp_path).read_text()
-    assert "| 0.30 kg, 0.95 m | " in report and (tmp_path / "control-loads.png").exists()
-    flown = f"swing bound {np.degrees(cfg.max_swing):.0f} deg, floor {cfg.min_height} m"
-    assert flown in report  # the settings flown
-    # the network's training preset is kept beside its flights; a smoke run's is bannered
-    from slungload.fileio import read_json, write_json
-    from slungload.models.checkpoints import load_checkpoint
-    from slungload.run_config import SMOKE_PRESET
-
-    kept = tmp_path / "loads-mpc-adaptive.json"
-    assert read_json(kept)["preset"] == load_checkpoint(adaptive_run).meta.get("preset")
-    assert (read_json(kept)["preset"] == SMOKE_PRESET) == ("Smoke run" in report)
-    write_json(kept, read_json(kept) | {"preset": SMOKE_PRESET})
-    bannered = write_loads_report(rows, cfg, tmp_path).read_text()
-    assert "Smoke run: these numbers are not results" in bannered.split("| load |")[0]
-    write_json(kept, read_json(kept) | {"preset": "default"})
-    assert "Smoke run" not in write_loads_report(rows, cfg, tmp_path).read_text()
-    stamps = {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
-    assert fly_loads(adaptive_run, tmp_path, cfg, progress=None) == rows  # nothing flown again
-    assert stamps == {p: p.stat().st_mtime_ns for p in tmp_path.glob("flights/*/*/*.json")}
-    with pytest.raises(ValueError, match="not a physics-step network"):
-        fly_loads(tiny_run.out, tmp_path / "other", cfg, progress=None)
-    # a folder holding flights of a network with another nominal vehicle is refused: its PID
-    # and physics flights (built on that nominal) would be reused
-    other = tmp_path / "other_nominal"
-    other.mkdir()
-    (other / "loads-mpc-fixed.json").write_text('{"nominal": {"mass_load": 0.5}}')
-    with pytest.raises(ValueError, match="another nominal vehicle"):
-        fly_loads(adaptive_run, other, cfg, progress=None)
-
-
-def test_control_loads_refuses_a_zero_horizon_instead_of_flying_the_default(
-    adaptive_run, run_cli, tmp_path
-):
-    fast = ("--load", "0.3,0.95", "--maneuvers", "xy_step", "--seeds", "100", "--samples", "4",
-            "--steps", "2", "--backend", "eager", "--quiet")  # fmt: skip
-    code, _, err = run_cli("study", "control-loads", "--model", str(adaptive_run), "--horizon", "0",
-                           "--out", str(tmp_path / "x"), *fast)  # fmt: skip
-    assert code == 2 and "got 4, 0, " in err and "Traceback" not in err
-    assert not (tmp_path / "x").exists()
-    code, _, err = run_cli("study", "control-loads", "--model", str(adaptive_run), *fast,
-                           "--maneuvers", ",", "--out", str(tmp_path / "y"))  # fmt: skip
-    assert code == 2 and "--maneuvers: give at least one value" in err
-
-
-def test_a_network_with_f_fixed_flies_the_same_loads_beside_the_adaptive_one(
-    varied, train_tiny, adaptive_run, tmp_path
-):
-    from slungload.lab.control.config import UnseenLoadsConfig
-    from slungload.lab.control.unseen_loads import fly_loads, write_loads_report
-
-    ds, _ = varied
-    fixed = dataclasses.replace(ADAPTIVE, constants="dataset")
-    train_tiny(ds, tmp_path / "fixed", variant="no-physics", model=fixed, window=WINDOW,
-               max_epochs=1)  # fmt: skip
-    cfg = UnseenLoadsConfig(loads=((0.3, 0.95),), maneuvers=("xy_step",), seeds=(100,),
-                            samples=16, steps=12, backend="eager")  # fmt: skip
-    rows = fly_loads(tmp_path / "fixed", tmp_path / "flown", cfg, progress=None)
-    fixed_labels = {"mpc-fixed (in-flight)", "mpc-fixed (true constants)"}
-    assert {r["controller"] for r in rows} >= fixed_labels
-    in_flight = next(r for r in rows if r["controller"] == "mpc-fixed (in-flight)")
-    given = next(r for r in rows if r["controller"] == "mpc-fixed (true constants)")
-    assert in_flight["load_rmse"] != given["load_rmse"]  # its f runs its own constants in flight
-    report = write_loads_report(rows, cfg, tmp_path / "flown").read_text()
-    assert "fixed: load RMSE" in report and "adaptive: load RMSE" not in report
-    both = fly_loads(adaptive_run, tmp_path / "flown", cfg, progress=None)  # into the same folder
-    assert [r for r in both if r["controller"] in {r["controller"] for r in rows}] == rows
-    report = write_loads_report(both, cfg, tmp_path / "flown").read_text()
-    assert "| mpc-adaptive (in-flight) - mpc-fixed (in-flight) | 1 |" in report
 
 
 # --- a network that sees its constants (``ModelConfig.constants_input``) ------------------

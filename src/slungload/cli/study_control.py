@@ -107,13 +107,14 @@ def add_study_control_loads(kinds: Any) -> None:
         "control-loads",
         help="the MPC flying loads its model never saw",
         description="A physics-step network (--model: adaptive, trained with --constants "
-        "window, or with f fixed, e.g. trained on one load) and the physics model, each with "
-        "the load estimated in flight and given the true load, beside the PID, on loads the "
-        "model never saw; control-loads.md in OUT; a second run flies only what is missing, "
-        "and a second network flown into the same folder is compared with the first "
-        "(docs/control.md).",
+        "window, or with f fixed, e.g. trained on one load; or an ensemble folder of one kind) "
+        "and the physics model, each with the load estimated in flight and given the true "
+        "load, beside the PID, on loads the model never saw; control-loads.md in OUT; a second "
+        "run flies only what is missing, and a second network flown into the same folder is "
+        "compared with the first (docs/control.md).",
     )
-    add_model_option(s, "the physics-step network's run folder or .ckpt (one)")
+    add_model_option(s, "the physics-step network's run folder or .ckpt, or an ensemble "
+                     "folder of them (one)")  # fmt: skip
     s.add_argument("--load", action="append", type=_load, metavar="KG,M",
                    help="a load mass (kg) and cable length (m) to fly; repeat for more (default "
                    + " ".join(f"{m},{length}" for m, length in cfg.loads) + ")")  # fmt: skip
@@ -149,7 +150,8 @@ def cmd_study_control_loads(args: argparse.Namespace) -> int:
     changes = plan_changes(args) | given(loads=args.load and tuple(args.load),
                                          samples=args.samples, horizon=args.horizon,
                                          steps=args.steps, backend=args.backend,
-                                         temperature=args.temperature)  # fmt: skip
+                                         temperature=args.temperature,
+                                         risk=args.risk)  # fmt: skip
     config = replace(UnseenLoadsConfig(), **changes)
     warn_model_notes(args.model, config.horizon)
     rows = fly_loads(args.model[0], args.out, config, threads=args.threads,

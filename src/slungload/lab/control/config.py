@@ -227,6 +227,8 @@ class UnseenLoadsConfig:
     min_height: float = FLOOR
     steps: int | None = STEPS
     backend: str = BACKEND
+    # an ensemble's pricing in the network's MPCs (``MPCConfig.risk``): None, its members' mean
+    risk: float | None = None
 
     def __post_init__(self) -> None:
         _check_steps("UnseenLoadsConfig", self.steps)

@@ -16,6 +16,10 @@ unmodelled effect on) x maneuver x evaluation seed:
   the MPC's cost the estimate, so that it differs from the adaptive MPC only in its model;
   "true constants" as above. Flown into the same folder as an adaptive network, the report
   pairs the two.
+- In place of one network, an ensemble of them (``models.ensemble``; every member adaptive or
+  every member fixed): ``mpc-adaptive ensemble`` (or ``mpc-fixed ensemble``), with
+  ``UnseenLoadsConfig.risk`` its pricing (``MPCConfig.risk``; "... risk 0.5" in the label),
+  flown into the folder of one of its members to be paired with it.
 - ``pid``: the simulator's PID built for the network's nominal vehicle.
 
 Every MPC flies the same settings (``UnseenLoadsConfig``: K, N, temperature, swing bound,
@@ -42,7 +46,7 @@ from ...deploy.backends import load_model
 from ...deploy.compiled.batched import with_backend
 from ...deploy.predictor import torch_threads
 from ...fileio import read_json, write_json, write_text
-from ...models.checkpoints import checkpoint_meta
+from ...models.ensemble import model_meta
 from ...models.prediction import PHYSICS, PhysicsModel, load_prediction_model
 from ...reporting import markdown_table, networks_banner, save_figure
 from ...run_config import SMOKE_PRESET
@@ -74,6 +78,20 @@ def label(model: str, constants: str) -> str:
     return f"{model} ({constants})"
 
 
+def network_name(kind: str, ensemble: bool, risk: float | None) -> str:
+    """The MPC of a network (``kind``: ``ADAPTIVE`` or ``FIXED``) or of an ensemble of them
+    priced with ``risk``: "mpc-adaptive", "mpc-adaptive ensemble", "mpc-adaptive ensemble
+    risk 0.5" (no commas: a CSV cell)."""
+    if not ensemble:
+        return kind
+    return f"{kind} ensemble" + ("" if risk is None else f" risk {risk:g}")
+
+
+def _networks(model: Any) -> list[Any]:
+    """The physics-step networks of a loaded model: its own, or each ensemble member's."""
+    return [m.net for m in getattr(model, "members", (model,))]
+
+
 def fly_loads(
     network: str | Path,
     out: str | Path,
@@ -85,26 +103,36 @@ def fly_loads(
     """Fly what is missing into ``out`` and return every row flown so far (see the module).
 
     network: a run folder of a physics-step network: adaptive (``--constants window``,
-    flown as ``mpc-adaptive``) or with f on its training constants (``mpc-fixed``).
+    flown as ``mpc-adaptive``) or with f on its training constants (``mpc-fixed``); or an
+    ensemble folder of such networks, all of one kind (priced with ``config.risk``).
     threads: torch threads while flying (restored after).
     """
     cfg = config or UnseenLoadsConfig()
     network = Path(network)
     eager = load_prediction_model(network)
-    if getattr(eager.net, "architecture", None) != "physics-step":
+    nets = _networks(eager)
+    if any(getattr(n, "architecture", None) != "physics-step" for n in nets):
         raise ValueError(
-            f"{network}: not a physics-step network; the loads flights give its f the true "
-            "constants, which only a physics-step network runs"
+            f"{network}: not a physics-step network (or an ensemble of them); the loads flights "
+            "give its f the true constants, which only a physics-step network runs"
         )
-    name = ADAPTIVE if eager.net.config.constants == "window" else FIXED
+    kinds = {ADAPTIVE if n.config.constants == "window" else FIXED for n in nets}
+    if len(kinds) > 1:
+        raise ValueError(f"{network}: an ensemble of adaptive and fixed networks; fly each kind "
+                         "as an ensemble of its own")  # fmt: skip
+    ensemble = hasattr(eager, "members")
+    if cfg.risk is not None and not ensemble:
+        raise ValueError(f"{network}: --risk prices an ensemble's members, and this is one "
+                         "network; give an ensemble folder (slungload ensemble)")  # fmt: skip
+    name = network_name(kinds.pop(), ensemble, cfg.risk)
     trained = with_backend(eager, cfg.backend)
-    nominal: VehicleParams = eager.net.params  # the prior of the in-flight estimate
+    nominal: VehicleParams = nets[0].params  # the prior of the in-flight estimate
     nominal_sim = SimConfig().with_load(
         load_mass=nominal.mass_load, cable_length=nominal.cable_length
     )
     mpc = MPCConfig(samples=cfg.samples, horizon=cfg.horizon, temperature=cfg.temperature,
                     max_swing=cfg.max_swing, min_height=cfg.min_height)  # fmt: skip
-    window = replace(mpc, constants="window")
+    priced = replace(mpc, risk=cfg.risk)  # the network's MPCs (a single one refuses a risk)
     physics = with_backend(PhysicsModel(nominal, constants="window"), cfg.backend)
     out = Path(out)
     for other in out.glob("loads-*.json"):  # the PID and physics rows are shared by the networks
@@ -113,10 +141,10 @@ def fly_loads(
                 f"{other} holds flights built for another nominal vehicle than {network}'s "
                 "(its PID and physics flights would be reused for this one); use another --out"
             )
-    preset = checkpoint_meta(network).get("preset")  # for the report's smoke banner
-    write_json(out / f"loads-{name}.json", {"network": str(network), "config": asdict(cfg),
-                                            "nominal": asdict(nominal),
-                                            "preset": preset})  # fmt: skip
+    preset = model_meta(network).get("preset")  # for the report's smoke banner
+    write_json(out / f"loads-{name.replace(' ', '-')}.json",
+               {"network": str(network), "model": name, "config": asdict(cfg),
+                "nominal": asdict(nominal), "preset": preset})  # fmt: skip
     with torch_threads(threads):
         for load_mass, cable_length in cfg.loads:
             plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
@@ -125,14 +153,16 @@ def fly_loads(
             told_nothing = InputLimits.from_sim(nominal_sim)  # thrust floor from the nominal mass
             plant_label = plant_name(load_mass, cable_length)
             flown = [Flown(plant_label, PID, reference_maker(PID, nominal_sim))]
-            for model, in_flight, given in (
-                (f"mpc-{PHYSICS}", physics, load_model(PHYSICS, truth, backend=cfg.backend)),
-                (name, trained, load_model(network, backend=cfg.backend, constants=truth)),
+            for model, in_flight, given, config in (
+                (f"mpc-{PHYSICS}", physics, load_model(PHYSICS, truth, backend=cfg.backend), mpc),
+                (name, trained, load_model(network, backend=cfg.backend, constants=truth), priced),
             ):  # fmt: skip
                 flown += [
                     Flown(plant_label, label(model, IN_FLIGHT),
-                          mpc_maker(in_flight, told_nothing, window, nominal)),
-                    Flown(plant_label, label(model, TRUE), mpc_maker(given, limits, mpc, truth)),
+                          mpc_maker(in_flight, told_nothing, replace(config, constants="window"),
+                                    nominal)),
+                    Flown(plant_label, label(model, TRUE),
+                          mpc_maker(given, limits, config, truth)),
                 ]  # fmt: skip
             for f in flown:
                 for maneuver in cfg.maneuvers:
@@ -159,7 +189,11 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     out = Path(out)
     plants = [plant_name(*load) for load in config.loads]
     flown = {r["controller"] for r in rows}
-    networks = [m for m in NETWORKS if label(m, IN_FLIGHT) in flown]
+    flown_with = [read_json(f) | {"file": f} for f in sorted(out.glob("loads-*.json"))]
+    named = [f.get("model", f["file"].stem.removeprefix("loads-")) for f in flown_with]
+    networks = sorted((m for m in named if label(m, IN_FLIGHT) in flown),
+                      key=lambda m: (m not in NETWORKS, NETWORKS.index(m) if m in NETWORKS else 0,
+                                     m))  # fmt: skip
     models = [*networks, f"mpc-{PHYSICS}"]
     header = ["load"]
     for model in models:
@@ -177,9 +211,10 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         summary.append(cells)
     pairs = [(label(m, IN_FLIGHT), label(m, TRUE)) for m in models]
     pairs += [(label(m, IN_FLIGHT), label(f"mpc-{PHYSICS}", TRUE)) for m in networks]
-    if len(networks) == 2:  # what adapting f buys, both MPCs in flight
+    if {ADAPTIVE, FIXED} <= set(networks):  # what adapting f buys, both MPCs in flight
         pairs.append((label(ADAPTIVE, IN_FLIGHT), label(FIXED, IN_FLIGHT)))
-    flown_with = [read_json(f) for f in sorted(out.glob("loads-*.json"))]
+    pairs += [(label(m, IN_FLIGHT), label(kind, IN_FLIGHT)) for m in networks for kind in NETWORKS
+              if m.startswith(f"{kind} ensemble") and kind in networks]  # fmt: skip
     smoke = [f["network"] for f in flown_with if f.get("preset") == SMOKE_PRESET]
     lines = [
         "# The MPC on loads its model never saw",
