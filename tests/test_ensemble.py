@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 
 import numpy as np
@@ -216,6 +217,10 @@ def test_uncertainty_command_writes_its_report_and_resume_keeps_members(
         assert (tmp_path / "u" / name).is_file()
     rows = (tmp_path / "u" / "coverage.csv").read_text().splitlines()
     assert len(rows) == 1 + 4  # a header and the tiny windows' N = 4 steps
+    code, every, _ = run_cli("uncertainty", trained_ensemble, "--split", "all")
+    count = re.compile(r"(\d+) windows")
+    assert code == 0 and int(count.search(every)[1]) > int(count.search(out)[1])
+    assert "every flight of" in every  # train included: another vehicle's data
     before = (trained_ensemble / "member-0" / "best.ckpt").stat().st_mtime_ns
     code, out, _ = run_cli("train", "--data", tiny_run.data, "--out", trained_ensemble,
                            "--preset", "quick", "--size", "tiny", "--device", "cpu",

@@ -265,6 +265,12 @@ def test_horizon_windows_come_from_the_same_test_flights(flights):
             np.testing.assert_allclose(w.states[i].numpy(), f.states[s : s + M + n], rtol=1e-6)
     # A longer horizon leaves N fewer windows per flight.
     assert len(per_n[N]) - len(per_n[2 * N]) == N * 2
+    # "all": every flight of the dataset (one no model trained on), train included
+    every = horizon_windows(dataset, history=M, horizons=(N,), split="all")[N]
+    assert set(every.names) == {"f0", "f1", "f2"}
+    assert len(every) == len(per_n[N]) + len(flights[0].states) - M - N + 1
+    with pytest.raises(ValueError, match="split must be one of"):
+        horizon_windows(dataset, history=M, horizons=(N,), split="train+test")
 
 
 def test_evaluate_predictors_mean_and_std_across_seeds(flights):

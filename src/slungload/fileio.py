@@ -48,6 +48,7 @@ OPTIONAL_KEYS = ("t_sampling", *CONSTANT_KEYS)
 IGNORED_KEYS = ("__header__", "__version__", "__globals__")
 SPLITS = ("train", "val", "test")
 HELD_OUT = "held-out"  # val and test together: every flight training did not fit
+EVERY = "all"  # every flight: a dataset (another vehicle, another load) training never saw
 
 # A fixed timestamp for zip members, so the same arrays give the same bytes.
 _ZIP_DATE = (2024, 1, 1, 0, 0, 0)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..config import ENSEMBLE_LEVEL as LEVEL
+from ..fileio import EVERY
 from .common import new_command, positive_int
 
 
@@ -20,12 +21,15 @@ def _level(text: str) -> float:
     return value
 
 
-def _add_data_options(p: argparse.ArgumentParser, split: str) -> None:
+def _add_data_options(p: argparse.ArgumentParser, split: str, every: bool = False) -> None:
+    """ENSEMBLE_DIR, --data, --split (with ``every``, also all: every flight) and --horizon."""
     p.add_argument("ensemble", type=Path, metavar="ENSEMBLE_DIR", help="ensemble folder")
     p.add_argument("--data", type=Path, help="dataset folder (default: the members' own)")
     p.add_argument(
-        "--split", default=split, choices=("val", "test"), help=f"flights (default {split})"
-    )
+        "--split", default=split, choices=("val", "test", *((EVERY,) if every else ())),
+        help=f"flights (default {split}"
+        + (f"; {EVERY}: every flight, for a dataset the members never saw)" if every else ")"),
+    )  # fmt: skip
     p.add_argument(
         "--horizon",
         type=positive_int,
@@ -112,7 +116,7 @@ def add_uncertainty(sub: Any) -> None:
         "Give --data a dataset the ensemble was not trained on (another load, another "
         "vehicle) to see whether its spread says so.",
     )
-    _add_data_options(p, "test")
+    _add_data_options(p, "test", every=True)
     p.add_argument(
         "--level", type=_level, help="the interval's coverage (default: the calibration's)"
     )

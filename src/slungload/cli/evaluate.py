@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..fileio import EVERY, HELD_OUT
 from .common import (
     add_cluster_option,
     choices,
@@ -40,9 +41,10 @@ def add_evaluate(sub: Any) -> None:
     p.add_argument(
         "--split",
         default="test",
-        choices=("test", "val"),
+        choices=("test", "val", EVERY),
         help="flights to evaluate on (default test; val to choose a configuration without "
-        "looking at the test flights)",
+        f"looking at the test flights; {EVERY}: every flight, for a dataset the models never "
+        "saw: another vehicle's or load's)",
     )
     p.add_argument("--no-physics", action="store_true", help="leave out the physics predictor")
     _add_timing_options(p)
@@ -88,7 +90,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def add_check(sub: Any) -> None:
     from ..config import PreflightConfig
-    from ..fileio import HELD_OUT
 
     cfg = PreflightConfig()
     p = new_command(
@@ -107,9 +108,9 @@ def add_check(sub: Any) -> None:
     )
     p.add_argument("run", type=Path, metavar="RUN_DIR", help="run folder, .ckpt or ensemble")
     p.add_argument("--data", type=Path, help="dataset folder (default: the run's own)")
-    p.add_argument("--split", default=cfg.split, choices=(HELD_OUT, "test", "val"),
-                   help=f"flights to judge on: {HELD_OUT} is val and test together (default "
-                   f"{cfg.split})")  # fmt: skip
+    p.add_argument("--split", default=cfg.split, choices=(HELD_OUT, "test", "val", EVERY),
+                   help=f"flights to judge on: {HELD_OUT} is val and test together, {EVERY} "
+                   f"every flight (a vehicle the run never saw) (default {cfg.split})")  # fmt: skip
     p.add_argument("--horizon", type=positive_int, default=cfg.horizon, metavar="N",
                    help=f"the MPC's horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
     p.add_argument("--pays-below", type=float, default=cfg.pays_below, metavar="R",

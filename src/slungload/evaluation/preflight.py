@@ -40,14 +40,14 @@ from torch import Tensor
 from ..config import PreflightConfig, VehicleParams, WindowConfig, from_dict
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
-from ..fileio import HELD_OUT, write_json, write_text
+from ..fileio import write_json, write_text
 from ..layout import LOAD_POS, LOAD_VEL, POS, QUAT, VEL
 from ..models.ensemble import model_meta
 from ..models.prediction import PhysicsModel, PredictionModel, load_prediction_model
 from ..reporting import markdown_table, model_colors, save_figure
 from ..vehicle_file import load_vehicle, simulated_without_excitation
 from .verdicts import NOT, PAYS, read_verdicts, verdicts_path
-from .windows import horizon_windows
+from .windows import horizon_windows, split_name
 
 GROUPS_CHECKED = {"load position": LOAD_POS, "vehicle position": POS}  # the MPC's targets
 
@@ -287,7 +287,7 @@ def check(
     kept = windows[finite]
     if diverged and kept.flight.unique().numel() < 3:
         raise ValueError(f"check: {run} predicts states that are not finite on {diverged} of "
-                         f"{len(windows)} windows of {folder} ({_flights(split)}): it diverges "
+                         f"{len(windows)} windows of {folder} ({split_name(split)}): it diverges "
                          "there (a network of another vehicle?) and cannot pay")  # fmt: skip
     physics = PhysicsModel(dataset.params)
     response, logged, curves = measure(_Predicted(predicted[finite]), physics, kept, cfg)
@@ -340,10 +340,6 @@ def record_verdict(result: PreflightResult) -> Path:
 # --- the report ----------------------------------------------------------------------------
 
 
-def _flights(split: str) -> str:
-    return "held-out flights (val and test)" if split == HELD_OUT else f"{split} split"
-
-
 def render(result: PreflightResult) -> str:
     """check.md: the verdict and its evidence."""
     rows = [[g, result.response[g].text(), result.logged[g].text()] for g in GROUPS_CHECKED]
@@ -356,7 +352,7 @@ def render(result: PreflightResult) -> str:
     lines = [
         "# Pre-flight check", "",
         f"**{result.summary()}**", "",
-        f"{result.model} against the physics model on the {_flights(result.split)} of "
+        f"{result.model} against the physics model on the {split_name(result.split)} of "
         f"{result.data}: {result.flights} flights, {result.windows} windows at N = {n}. The "
         "response score is the share of the commands' true effect on a displacement over the "
         "N steps that a model's predicted effect leaves unexplained (each fitted on the start "

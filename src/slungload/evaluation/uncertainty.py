@@ -48,7 +48,7 @@ from ..models.ensemble import (
 from ..models.prediction import ensemble_model
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, group_of_component
 from ..reporting import markdown_table, save_figure
-from .windows import horizon_windows
+from .windows import horizon_windows, split_name
 
 NOVELTY_QUANTILE = 0.99  # the share of in-distribution windows not flagged novel
 REPORT_STEPS = (1, 5, 10, 25, 50, 75, 100)  # the table's horizon steps (those within N)
@@ -201,7 +201,8 @@ def _ensemble_and_windows(
     window = WindowConfig(history=first.window.history, horizon=n, stride=1)
     dataset = load_dataset(folder, window=window, params=first.params)
     windows = horizon_windows(dataset, history=window.history, horizons=(n,), split=split)[n]
-    return ensemble_model(manifest, loaded), windows, f"{split} split of {Path(folder)}, N = {n}"
+    about = f"{split_name(split)} of {Path(folder)}, N = {n}"
+    return ensemble_model(manifest, loaded), windows, about
 
 
 def calibrate(

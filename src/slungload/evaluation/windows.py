@@ -7,10 +7,18 @@ from typing import Any
 
 from ..config import WindowConfig
 from ..data.windows import Windows, make_windows
-from ..fileio import HELD_OUT
+from ..fileio import EVERY, HELD_OUT
+from ..fileio import SPLITS as PARTS
 
 SPLITS = ("test", "val")
 # the splits ``evaluate`` measures on: report on test, choose on val
+
+
+def split_name(split: str) -> str:
+    """What a ``horizon_windows`` split is, in a report: "test split", "held-out flights (val
+    and test)", "every flight"."""
+    named = {HELD_OUT: "held-out flights (val and test)", EVERY: "every flight"}
+    return named.get(split, f"{split} split")
 
 
 def horizon_windows(
@@ -21,11 +29,15 @@ def horizon_windows(
     dataset: a ``data.Dataset`` (``.splits[split].names``, ``.flights[name].states`` ...,
     ``.params``: the constants of flights that record none of their own).
     Every horizon uses the same flights; a flight shorter than M + N gives no window at N.
-    ``split``: one of ``SPLITS``, or ``HELD_OUT`` for the val flights then the test flights.
+    ``split``: one of ``SPLITS``, ``HELD_OUT`` for the val flights then the test flights, or
+    ``EVERY`` for every flight (train, val, test: a dataset the model never saw).
     """
-    if split not in (*SPLITS, HELD_OUT):
-        raise ValueError(f"evaluate: split must be one of {(*SPLITS, HELD_OUT)}, got {split!r}")
-    parts = ("val", "test") if split == HELD_OUT else (split,)
+    if split not in (*SPLITS, HELD_OUT, EVERY):
+        raise ValueError(
+            f"evaluate: split must be one of {(*SPLITS, HELD_OUT, EVERY)}, got {split!r}"
+        )
+    every = tuple(part for part in PARTS if part in dataset.splits)
+    parts = {HELD_OUT: ("val", "test"), EVERY: every}.get(split, (split,))
     names = [name for part in parts for name in dataset.splits[part].names]
     flights = [dataset.flights[name] for name in names if name in dataset.flights]
     if not flights:
