@@ -117,8 +117,8 @@ def test_an_ensemble_of_adaptive_networks_flies_priced_beside_its_member(
                   progress=None)  # fmt: skip
     assert not (tmp_path / "flown").exists()  # refused before anything is written
     single = fly_loads(adaptive_run, tmp_path / "flown", cfg, progress=None)
-    rows = fly_loads(tmp_path / "ens", tmp_path / "flown", dataclasses.replace(cfg, risk=0.5),
-                     progress=None)  # fmt: skip
+    priced = dataclasses.replace(cfg, risk=0.5, samples=8)  # fewer samples: equal compute
+    rows = fly_loads(tmp_path / "ens", tmp_path / "flown", priced, progress=None)
     ours = {"mpc-adaptive ensemble risk 0.5 (in-flight)",
             "mpc-adaptive ensemble risk 0.5 (true constants)"}  # fmt: skip
     assert {r["controller"] for r in rows} == {r["controller"] for r in single} | ours
@@ -129,6 +129,9 @@ def test_an_ensemble_of_adaptive_networks_flies_priced_beside_its_member(
     assert "adaptive ensemble risk 0.5: load RMSE" in report.split("\n## ")[0]
     pair = "| mpc-adaptive ensemble risk 0.5 (in-flight) - mpc-adaptive (in-flight) | 1 |"
     assert pair in report
+    # the shared rows were flown with the first network's K, and the report says so
+    ks = "mpc-adaptive: K = 16; mpc-adaptive ensemble risk 0.5: K = 8; physics: K = 16."
+    assert ks in write_loads_report(rows, priced, tmp_path / "flown").read_text()
     # its members must be of one kind: an adaptive and a fixed network are refused
     fixed = dataclasses.replace(ADAPTIVE, constants="dataset")
     train_tiny(ds, tmp_path / "fixed", variant="no-physics", model=fixed, window=WINDOW,

@@ -142,9 +142,12 @@ def fly_loads(
                 "(its PID and physics flights would be reused for this one); use another --out"
             )
     preset = model_meta(network).get("preset")  # for the report's smoke banner
-    write_json(out / f"loads-{name.replace(' ', '-')}.json",
-               {"network": str(network), "model": name, "config": asdict(cfg),
-                "nominal": asdict(nominal), "preset": preset})  # fmt: skip
+    mine = out / f"loads-{name.replace(' ', '-')}.json"
+    # the first network flown into the folder flies the shared rows (PID, physics) with its K
+    earlier = read_json(mine) if mine.is_file() else {"first": not any(out.glob("loads-*.json"))}
+    first = earlier.get("first", False)
+    write_json(mine, {"network": str(network), "model": name, "config": asdict(cfg),
+                      "nominal": asdict(nominal), "preset": preset, "first": first})  # fmt: skip
     with torch_threads(threads):
         for load_mass, cable_length in cfg.loads:
             plant = SimConfig().with_load(load_mass=load_mass, cable_length=cable_length)
@@ -216,11 +219,18 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     pairs += [(label(m, IN_FLIGHT), label(kind, IN_FLIGHT)) for m in networks for kind in NETWORKS
               if m.startswith(f"{kind} ensemble") and kind in networks]  # fmt: skip
     smoke = [f["network"] for f in flown_with if f.get("preset") == SMOKE_PRESET]
+    ks = {f.get("model"): f["config"]["samples"] for f in flown_with if "model" in f}
+    shared = [f["config"]["samples"] for f in flown_with if f.get("first")]
+    if len(set(ks.values()) | {config.samples}) > 1:  # flown at several K: say which
+        ks_line = ("K per MPC: " + "; ".join(f"{m}: K = {ks[m]}" for m in networks if m in ks)
+                   + (f"; physics: K = {shared[0]}" if shared else "") + ". ")  # fmt: skip
+    else:
+        ks_line = f"K = {config.samples}, "
     lines = [
         "# The MPC on loads its model never saw",
         "",
         *networks_banner(smoke, SMOKE_PRESET),
-        f"K = {config.samples}, N = {config.horizon} "
+        f"{ks_line}N = {config.horizon} "
         f"({config.horizon * SimConfig.control_dt:.2f} s), temperature {config.temperature}, "
         f"swing bound {math.degrees(config.max_swing):.0f} deg, floor {config.min_height} m; "
         f"maneuvers {', '.join(config.maneuvers)} x seeds "
