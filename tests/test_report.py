@@ -203,6 +203,11 @@ def test_evaluate_on_the_validation_split(tmp_path, monkeypatch, tiny_run):
     assert "validation flights (1): val_2" in text and "RMSE over the validation set" in text
     with pytest.raises(ValueError, match="split must be one of"):
         evaluate([tiny_run.out], horizons=(4,), split="train", progress=False)
+    # every flight: a dataset the run never saw (here its own five, train included)
+    report = evaluate([tiny_run.out], out=tmp_path / "all", horizons=(4,), split="all",
+                      progress=False)  # fmt: skip
+    assert len(report.test_flights) == 5
+    assert "RMSE over every flight, N = 4" in (tmp_path / "all" / "report.md").read_text()
 
 
 def test_labels_name_the_step_weighting_and_another_training_horizon(

@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..config import to_dict
-from ..fileio import write_json, write_text
+from ..fileio import EVERY, write_json, write_text
 from ..reporting import markdown_table, smoke_banner, write_csv
 from ..run_config import SMOKE_PRESET
 from ..state import GROUPS
@@ -367,7 +367,8 @@ def _rmse_section(report: Report, n: int) -> list[str]:
         for r in rows
     ]
     table = markdown_table(_table_header("Model (ours)"), cells)
-    return [f"## RMSE over the {_split_name(report)} set, N = {n}{note}", "", table, ""]
+    judged = "every flight" if report.split == EVERY else f"the {_split_name(report)} set"
+    return [f"## RMSE over {judged}, N = {n}{note}", "", table, ""]
 
 
 def _paper_rmse_section() -> list[str]:
