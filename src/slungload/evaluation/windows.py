@@ -36,8 +36,10 @@ def horizon_windows(
         raise ValueError(
             f"evaluate: split must be one of {(*SPLITS, HELD_OUT, EVERY)}, got {split!r}"
         )
-    every = tuple(part for part in PARTS if part in dataset.splits)
-    parts = {HELD_OUT: ("val", "test"), EVERY: every}.get(split, (split,))
+    if split == EVERY:
+        parts = tuple(part for part in PARTS if part in dataset.splits)
+    else:
+        parts = ("val", "test") if split == HELD_OUT else (split,)
     names = [name for part in parts for name in dataset.splits[part].names]
     flights = [dataset.flights[name] for name in names if name in dataset.flights]
     if not flights:

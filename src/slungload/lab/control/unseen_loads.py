@@ -192,11 +192,12 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
     out = Path(out)
     plants = [plant_name(*load) for load in config.loads]
     flown = {r["controller"] for r in rows}
-    flown_with = [read_json(f) | {"file": f} for f in sorted(out.glob("loads-*.json"))]
-    named = [f.get("model", f["file"].stem.removeprefix("loads-")) for f in flown_with]
-    networks = sorted((m for m in named if label(m, IN_FLIGHT) in flown),
-                      key=lambda m: (m not in NETWORKS, NETWORKS.index(m) if m in NETWORKS else 0,
-                                     m))  # fmt: skip
+    # each network flown into the folder, by its MPC's name (files before "model": the stem)
+    kept = {path: read_json(path) for path in sorted(out.glob("loads-*.json"))}
+    flown_with = {f.get("model", path.stem.removeprefix("loads-")): f for path, f in kept.items()}
+    # single networks first (NETWORKS is in order), then the ensembles
+    networks = sorted((m for m in flown_with if label(m, IN_FLIGHT) in flown),
+                      key=lambda m: (m not in NETWORKS, m))  # fmt: skip
     models = [*networks, f"mpc-{PHYSICS}"]
     header = ["load"]
     for model in models:
@@ -218,11 +219,11 @@ def write_loads_report(rows: list[dict[str, Any]], config: UnseenLoadsConfig, ou
         pairs.append((label(ADAPTIVE, IN_FLIGHT), label(FIXED, IN_FLIGHT)))
     pairs += [(label(m, IN_FLIGHT), label(kind, IN_FLIGHT)) for m in networks for kind in NETWORKS
               if m.startswith(f"{kind} ensemble") and kind in networks]  # fmt: skip
-    smoke = [f["network"] for f in flown_with if f.get("preset") == SMOKE_PRESET]
-    ks = {f.get("model"): f["config"]["samples"] for f in flown_with if "model" in f}
-    shared = [f["config"]["samples"] for f in flown_with if f.get("first")]
+    smoke = [f["network"] for f in flown_with.values() if f.get("preset") == SMOKE_PRESET]
+    ks = {m: f["config"]["samples"] for m, f in flown_with.items()}
+    shared = [f["config"]["samples"] for f in flown_with.values() if f.get("first")]
     if len(set(ks.values()) | {config.samples}) > 1:  # flown at several K: say which
-        ks_line = ("K per MPC: " + "; ".join(f"{m}: K = {ks[m]}" for m in networks if m in ks)
+        ks_line = ("K per MPC: " + "; ".join(f"{m}: K = {ks[m]}" for m in networks)
                    + (f"; physics: K = {shared[0]}" if shared else "") + ". ")  # fmt: skip
     else:
         ks_line = f"K = {config.samples}, "
