@@ -167,3 +167,16 @@ def adaptive_run(varied, train_tiny, tmp_path_factory: pytest.TempPathFactory) -
     train_tiny(ds, out, variant="no-physics", model=ADAPTIVE, window=ADAPTIVE_WINDOW,
                max_epochs=1)  # fmt: skip
     return out
+
+
+@pytest.fixture(scope="session")
+def trained_ensemble(tmp_path_factory: pytest.TempPathFactory, tiny_run) -> Path:
+    """``train --ensemble 2`` of the tiny network on the tiny run's dataset (calibrated)."""
+    from slungload.cli import main
+
+    out = tmp_path_factory.mktemp("ensemble") / "E"
+    code = main(["train", "--data", str(tiny_run.data), "--out", str(out), "--preset", "quick",
+                 "--size", "tiny", "--device", "cpu", "--threads", "1", "--quiet",
+                 "--ensemble", "2", "--epochs", "1", *WINDOW_ARGS])  # fmt: skip
+    assert code == 0
+    return out

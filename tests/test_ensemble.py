@@ -160,19 +160,6 @@ def test_manifest_round_trip_moves_with_its_folder_and_names_bad_files(tmp_path)
         write_manifest(tmp_path / "one", runs[:1])
 
 
-@pytest.fixture(scope="module")
-def trained_ensemble(tmp_path_factory, tiny_run):
-    """``train --ensemble 2`` of the tiny network on the tiny run's dataset (calibrated)."""
-    from slungload.cli import main
-
-    out = tmp_path_factory.mktemp("ensemble") / "E"
-    code = main(["train", "--data", str(tiny_run.data), "--out", str(out), "--preset", "quick",
-                 "--size", "tiny", "--device", "cpu", "--threads", "1", "--quiet",
-                 "--ensemble", "2", "--epochs", "1", *WINDOW_ARGS])  # fmt: skip
-    assert code == 0
-    return out
-
-
 def test_train_ensemble_writes_calibrated_members_of_consecutive_seeds(trained_ensemble):
     from slungload.models.checkpoints import load_checkpoint
     from slungload.models.prediction import load_prediction_model

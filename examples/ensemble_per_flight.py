@@ -1,0 +1,61 @@
+"""An ensemble's mean against each of its members, flight by flight: the combined RMSE at N
+(the sum of the four groups' RMSE) on every flight of a split, and on how many flights the
+mean is below every member (issue 50's count beyond the load range).
+
+    python examples/ensemble_per_flight.py EA --data beyond --split all --horizon 50
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from slungload.config import WindowConfig
+from slungload.data.dataset import load_dataset
+from slungload.evaluation.metrics import COMBINED, compute_metrics
+from slungload.evaluation.windows import horizon_windows
+from slungload.fileio import EVERY
+from slungload.models.ensemble import load_members, spread
+from slungload.models.prediction import load_prediction_model
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("ensemble", help="ensemble folder")
+    parser.add_argument("--data", required=True, help="dataset folder")
+    parser.add_argument("--split", default="test", choices=("test", "val", EVERY),
+                        help="flights (default test; all: every flight)")  # fmt: skip
+    parser.add_argument("--horizon", type=int, default=50, help="N (default 50)")
+    args = parser.parse_args()
+    _, members = load_members(args.ensemble)
+    m, n = members[0].window.history, args.horizon
+    # the members' own constants, as `evaluate` and `uncertainty` read a dataset
+    dataset = load_dataset(args.data, window=WindowConfig(history=m, horizon=n, stride=1),
+                           params=members[0].params)  # fmt: skip
+    windows = horizon_windows(dataset, history=m, horizons=(n,), split=args.split)[n]
+    each = load_prediction_model(args.ensemble).predict_windows_members(windows)  # (E, W, N, 13)
+    mean = spread(each).mean
+
+    def rmse(pred, mask=None) -> float:
+        if mask is None:
+            return compute_metrics(pred, windows).rmse[COMBINED]
+        return compute_metrics(pred[mask], windows[mask]).rmse[COMBINED]
+
+    below = flown = 0
+    for i, name in enumerate(windows.names):
+        mine = windows.flight == i
+        if not bool(mine.any()):
+            continue
+        ours, theirs = rmse(mean, mine), [rmse(e, mine) for e in each]
+        flown += 1
+        best = ours < min(theirs)
+        below += best
+        cells = " ".join(f"{v:.3f}" for v in theirs)
+        print(
+            f"{name}: mean {ours:.3f}, members {cells}" + ("  (below every member)" if best else "")
+        )
+    print(f"N = {n}: the mean below every member on {below} of {flown} flights")
+    print(f"pooled: mean {rmse(mean):.3f}, members " + " ".join(f"{rmse(e):.3f}" for e in each))
+
+
+if __name__ == "__main__":
+    main()
