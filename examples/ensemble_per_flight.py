@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+import torch
+
 from slungload.config import WindowConfig
 from slungload.data.dataset import load_dataset
 from slungload.evaluation.metrics import COMBINED, compute_metrics
@@ -35,7 +37,8 @@ def main() -> None:
     each = load_prediction_model(args.ensemble).predict_windows_members(windows)  # (E, W, N, 13)
     mean = spread(each).mean
 
-    def rmse(pred, mask=None) -> float:
+    def rmse(pred: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+        """Combined RMSE of ``pred`` (W, N, 13) over the windows of ``mask`` (all: None)."""
         if mask is None:
             return compute_metrics(pred, windows).rmse[COMBINED]
         return compute_metrics(pred[mask], windows[mask]).rmse[COMBINED]
