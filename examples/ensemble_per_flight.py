@@ -11,13 +11,10 @@ import argparse
 
 import torch
 
-from slungload.config import WindowConfig
-from slungload.data.dataset import load_dataset
 from slungload.evaluation.metrics import COMBINED, compute_metrics
-from slungload.evaluation.windows import horizon_windows
+from slungload.evaluation.uncertainty import ensemble_and_windows
 from slungload.fileio import EVERY
-from slungload.models.ensemble import load_members, spread
-from slungload.models.prediction import load_prediction_model
+from slungload.models.ensemble import spread
 
 
 def main() -> None:
@@ -28,13 +25,10 @@ def main() -> None:
                         help="flights (default test; all: every flight)")  # fmt: skip
     parser.add_argument("--horizon", type=int, default=50, help="N (default 50)")
     args = parser.parse_args()
-    _, members = load_members(args.ensemble)
-    m, n = members[0].window.history, args.horizon
-    # the members' own constants, as `evaluate` and `uncertainty` read a dataset
-    dataset = load_dataset(args.data, window=WindowConfig(history=m, horizon=n, stride=1),
-                           params=members[0].params)  # fmt: skip
-    windows = horizon_windows(dataset, history=m, horizons=(n,), split=args.split)[n]
-    each = load_prediction_model(args.ensemble).predict_windows_members(windows)  # (E, W, N, 13)
+    n = args.horizon
+    # the windows as `uncertainty` cuts them: the members' own constants, stride 1
+    model, windows, _ = ensemble_and_windows(args.ensemble, args.data, args.split, n)
+    each = model.predict_windows_members(windows)  # (E, W, N, 13)
     mean = spread(each).mean
 
     def rmse(pred: torch.Tensor, mask: torch.Tensor | None = None) -> float:

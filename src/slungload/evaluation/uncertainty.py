@@ -185,7 +185,7 @@ def uncertainty_stats(
     return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised)
 
 
-def _ensemble_and_windows(
+def ensemble_and_windows(
     ensemble: str | Path, data: str | Path | None, split: str, horizon: int | None
 ) -> tuple[EnsembleModel, Windows, str]:
     """The ensemble folder's model, the split's windows (stride 1) at ``horizon`` (default:
@@ -215,7 +215,7 @@ def calibrate(
 ) -> tuple[Calibration, UncertaintyStats]:
     """Fit the ensemble folder's calibration on a split (default val), store it in its
     manifest, and return it with its in-sample stats."""
-    model, windows, about = _ensemble_and_windows(ensemble, data, split, horizon)
+    model, windows, about = ensemble_and_windows(ensemble, data, split, horizon)
     members, truth = member_predictions(model, windows)
     calibration = fit_calibration(members, truth, level=level, fitted_on=about)
     set_calibration(ensemble, calibration)
@@ -234,7 +234,7 @@ def assess(
     """The calibrated ensemble folder's stats on a dataset's split: the interval as
     calibrated, as tracked in flight (``online``, default ``OnlineIntervalConfig()``), and
     what they are of."""
-    model, windows, about = _ensemble_and_windows(ensemble, data, split, horizon)
+    model, windows, about = ensemble_and_windows(ensemble, data, split, horizon)
     if model.calibration is None:
         raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
     members, truth = member_predictions(model, windows)
