@@ -208,6 +208,11 @@ def test_uncertainty_command_writes_its_report_and_resume_keeps_members(
     count = re.compile(r"(\d+) windows")
     assert code == 0 and int(count.search(every)[1]) > int(count.search(out)[1])
     assert "every flight of" in every  # train included: another vehicle's data
+    code, carried, _ = run_cli("uncertainty", trained_ensemble, "--carry", "--out", tmp_path / "c")
+    assert code == 0 and "one after another" in carried and "one after another" not in out
+    assert "one after another" in (tmp_path / "c" / "uncertainty.md").read_text()
+    as_calibrated = [line for line in out.splitlines() if line.startswith("as calibrated")]
+    assert as_calibrated and as_calibrated[0] in carried  # the calibrated interval is unchanged
     before = (trained_ensemble / "member-0" / "best.ckpt").stat().st_mtime_ns
     code, out, _ = run_cli("train", "--data", tiny_run.data, "--out", trained_ensemble,
                            "--preset", "quick", "--size", "tiny", "--device", "cpu",

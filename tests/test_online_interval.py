@@ -119,6 +119,27 @@ def test_the_replay_is_causal_and_restarts_with_each_flight():
     assert np.all(sparse[:2] == 1.0) and np.any(sparse[2] != 1.0)  # start 4 takes start 0
 
 
+def test_carried_the_next_flight_starts_where_the_last_left_off():
+    n, w = 3, 12
+    rng = np.random.default_rng(3)
+    ratio = torch.as_tensor(rng.uniform(0, 3, (2 * w, n, STATE_DIM)))
+    flight = torch.tensor([0] * w + [1] * w)
+    start = torch.cat([torch.arange(w), torch.arange(w)])
+    fresh, _ = tracked_multipliers(ratio, flight, start, LEVEL)
+    carried, surprised = tracked_multipliers(ratio, flight, start, LEVEL, carry=True)
+    np.testing.assert_allclose(carried[:w], fresh[:w])  # the first flight: as before
+    tracker = OnlineInterval(n, LEVEL)  # one vehicle: every window of flight 0 resolved ...
+    for row in range(w):
+        tracker.update(ratio[row].numpy())
+    for row in range(w, w + n):  # ... before flight 1 issues its first N windows
+        np.testing.assert_allclose(carried[row], tracker.multiplier)
+    assert not np.allclose(carried[w], 1.0)
+    for row in range(w + n, 2 * w):  # then flight 1's own windows, N steps late
+        tracker.update(ratio[row - n].numpy())
+        np.testing.assert_allclose(carried[row], tracker.multiplier)
+        assert surprised[row] == tracker.surprised
+
+
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="horizon"):
         OnlineInterval(0, LEVEL)

@@ -120,20 +120,37 @@ def add_uncertainty(sub: Any) -> None:
     p.add_argument(
         "--level", type=_level, help="the interval's coverage (default: the calibration's)"
     )
+    p.add_argument(
+        "--carry",
+        action="store_true",
+        help="track the interval across the flights one after another, as one vehicle "
+        "keeping its predictor between flights (default: each flight from the calibration)",
+    )
     p.add_argument("--out", type=Path, help="write uncertainty.md, coverage.csv and a figure")
     p.set_defaults(func=cmd_uncertainty)
 
 
 def cmd_uncertainty(args: argparse.Namespace) -> int:
-    from ..evaluation.uncertainty import assess, stats_table, summary_line, write_assessment
+    from ..evaluation.uncertainty import (
+        TRACKED_FROM,
+        assess,
+        stats_table,
+        summary_line,
+        write_assessment,
+    )
 
     stats, tracked, about = assess(
-        args.ensemble, args.data, split=args.split, horizon=args.horizon, level=args.level
+        args.ensemble,
+        args.data,
+        split=args.split,
+        horizon=args.horizon,
+        level=args.level,
+        carry=args.carry,
     )
     print(f"{about}, {stats.windows} windows, {stats.level:.0%} interval:")
     print(stats_table(stats))
     print(f"as calibrated: {summary_line(stats)}")
-    print(f"tracked in flight: {summary_line(tracked)}")
+    print(f"tracked in flight ({TRACKED_FROM[tracked.carried]}): {summary_line(tracked)}")
     if args.out is not None:
         for path in write_assessment(stats, tracked, about, args.out):
             print(f"wrote {path}")

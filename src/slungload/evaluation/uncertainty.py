@@ -52,6 +52,10 @@ from .windows import horizon_windows, split_name
 
 NOVELTY_QUANTILE = 0.99  # the share of in-distribution windows not flagged novel
 REPORT_STEPS = (1, 5, 10, 25, 50, 75, 100)  # the table's horizon steps (those within N)
+TRACKED_FROM = {  # where the tracked interval of each flight starts (``UncertaintyStats.carried``)
+    False: "each flight from the calibration",
+    True: "the flights one after another, each from where the last left it",
+}
 
 
 def member_predictions(model: EnsembleModel, windows: Windows) -> tuple[Tensor, Tensor]:
@@ -113,6 +117,7 @@ class UncertaintyStats:
     level: float
     windows: int
     surprised: float | None = None  # tracked in flight: share of windows issued surprised
+    carried: bool = False  # tracked from flight to flight (``tracked_multipliers``'s carry)
 
 
 def tracked_multipliers(
@@ -121,6 +126,7 @@ def tracked_multipliers(
     start: Tensor,
     level: float,
     config: OnlineIntervalConfig | None = None,
+    carry: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The multipliers (W, N, G) each window's interval had in flight, and (W,) bool whether
     the tracker was surprised when it was issued.
@@ -129,16 +135,20 @@ def tracked_multipliers(
     flight and first step. Per flight in time order the tracker starts at the calibration
     (multiplier 1) and, before window s is issued, takes every window up to s - N not taken
     yet: the predictions whose every step has been flown (with stride 1, window s - N alone; a
-    vehicle re-predicts it from the state then under the inputs since applied)."""
+    vehicle re-predicts it from the state then under the inputs since applied). ``carry``: one
+    tracker for the flights flown one after another in index order, as one vehicle keeping its
+    ``EnsemblePredictor`` between flights; a flight's last N windows resolve at its end."""
     r = ratio.double().numpy()
     n = r.shape[1]
     out = np.ones((r.shape[0], n, len(GROUPS)))
     surprised = np.zeros(r.shape[0], bool)
     fl, st = flight.numpy(), start.numpy()
+    tracker = OnlineInterval(n, level, config)
     for f in np.unique(fl):
         rows = np.flatnonzero(fl == f)
         rows = rows[np.argsort(st[rows], kind="stable")]
-        tracker = OnlineInterval(n, level, config)
+        if not carry:
+            tracker = OnlineInterval(n, level, config)
         taken = 0  # rows[:taken] are resolved and fed
         for row in rows:
             while taken < len(rows) and st[rows[taken]] <= st[row] - n:
@@ -146,6 +156,8 @@ def tracked_multipliers(
                 taken += 1
             out[row] = tracker.multiplier
             surprised[row] = tracker.surprised
+        for row in rows[taken:] if carry else ():  # flown by the flight's end
+            tracker.update(r[row])
     return out, surprised
 
 
@@ -156,10 +168,12 @@ def uncertainty_stats(
     level: float | None = None,
     tracked_in: Windows | None = None,
     online: OnlineIntervalConfig | None = None,
+    carry: bool = False,
 ) -> UncertaintyStats:
     """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13); with
     ``tracked_in`` (the windows they are of) the interval as tracked in flight over their
-    flights (``tracked_multipliers``, ``online`` its constants)."""
+    flights (``tracked_multipliers``, ``online`` its constants, ``carry`` from flight to
+    flight)."""
     lvl = calibration.level if level is None else level
     mean, std = spread(members)
     half = calibration.half_width(std, lvl)
@@ -167,7 +181,7 @@ def uncertainty_stats(
     if tracked_in is not None:
         ratio = (truth - mean).abs() / half.clamp_min(1e-12)
         factor, flagged = tracked_multipliers(ratio, tracked_in.flight, tracked_in.start, lvl,
-                                              online)  # fmt: skip
+                                              online, carry)  # fmt: skip
         half = half * torch.as_tensor(factor[..., group_of_component()]).to(half.dtype)
         surprised = float(flagged.mean())
     inside = ((truth - mean).abs() <= half).double()
@@ -182,7 +196,8 @@ def uncertainty_stats(
         sig[g] = sq_sig[..., cols].sum(-1).mean(0).sqrt().numpy()
         cov[g] = inside[..., cols].mean(dim=(0, 2)).numpy()
     novel = float(calibration.novel(std).double().mean())
-    return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised)
+    carried = carry and tracked_in is not None
+    return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised, carried)
 
 
 def ensemble_and_windows(
@@ -230,16 +245,17 @@ def assess(
     horizon: int | None = None,
     level: float | None = None,
     online: OnlineIntervalConfig | None = None,
+    carry: bool = False,
 ) -> tuple[UncertaintyStats, UncertaintyStats, str]:
     """The calibrated ensemble folder's stats on a dataset's split: the interval as
-    calibrated, as tracked in flight (``online``, default ``OnlineIntervalConfig()``), and
-    what they are of."""
+    calibrated, as tracked in flight (``online``, default ``OnlineIntervalConfig()``; ``carry``:
+    from flight to flight), and what they are of."""
     model, windows, about = ensemble_and_windows(ensemble, data, split, horizon)
     if model.calibration is None:
         raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
     members, truth = member_predictions(model, windows)
     fixed = uncertainty_stats(members, truth, model.calibration, level)
-    tracked = uncertainty_stats(members, truth, model.calibration, level, windows, online)
+    tracked = uncertainty_stats(members, truth, model.calibration, level, windows, online, carry)
     return fixed, tracked, about
 
 
@@ -294,7 +310,7 @@ def write_assessment(
     text = (
         f"# Ensemble uncertainty\n\n{about}, {stats.windows} windows.\n\n"
         f"As calibrated: {summary_line(stats)}.\n\n" + stats_table(stats) + "\n\n"
-        f"Tracked in flight (each flight from the calibration, moved by the predictions it "
+        f"Tracked in flight ({TRACKED_FROM[tracked.carried]}, moved by the predictions it "
         f"resolves; docs/uncertainty.md): {summary_line(tracked)}.\n\n"
         + stats_table(tracked)
         + "\n"
