@@ -91,12 +91,16 @@ def test_normalized_errors_ignore_the_quaternion_sign():
     assert group_of_component()[QUAT].tolist() == [list(GROUPS).index("quaternion")] * 4
 
 
+def two_flights(seed: int, n: int = 3, w: int = 12):
+    """ratio (2w, n, 13) uniform in [0, 3), flight and start (2w,): two flights of w windows."""
+    rng = np.random.default_rng(seed)
+    ratio = torch.as_tensor(rng.uniform(0, 3, (2 * w, n, STATE_DIM)))
+    return ratio, torch.tensor([0] * w + [1] * w), torch.cat([torch.arange(w), torch.arange(w)])
+
+
 def test_the_replay_is_causal_and_restarts_with_each_flight():
     n, w = 3, 12
-    rng = np.random.default_rng(2)
-    ratio = torch.as_tensor(rng.uniform(0, 3, (2 * w, n, STATE_DIM)))
-    flight = torch.tensor([0] * w + [1] * w)
-    start = torch.cat([torch.arange(w), torch.arange(w)])
+    ratio, flight, start = two_flights(2, n, w)
     order = torch.randperm(2 * w, generator=torch.Generator().manual_seed(0))
     mult, _ = tracked_multipliers(ratio[order], flight[order], start[order], LEVEL)
     back = np.empty_like(mult)
@@ -121,10 +125,7 @@ def test_the_replay_is_causal_and_restarts_with_each_flight():
 
 def test_carried_the_next_flight_starts_where_the_last_left_off():
     n, w = 3, 12
-    rng = np.random.default_rng(3)
-    ratio = torch.as_tensor(rng.uniform(0, 3, (2 * w, n, STATE_DIM)))
-    flight = torch.tensor([0] * w + [1] * w)
-    start = torch.cat([torch.arange(w), torch.arange(w)])
+    ratio, flight, start = two_flights(3, n, w)
     fresh, _ = tracked_multipliers(ratio, flight, start, LEVEL)
     carried, surprised = tracked_multipliers(ratio, flight, start, LEVEL, carry=True)
     np.testing.assert_allclose(carried[:w], fresh[:w])  # the first flight: as before
