@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from ..autopilot.config import HANDBACK, BridgeConfig, SilConfig, option_help
-from ..control.cost import LEAN_HELP
+from ..control.cost import LEAN_HELP, SHAPE_HELP
 from ..control.mppi import COSTS, MPCConfig
 from ..control.split import MEMBER_USES, MEMBERS_HELP
 from .common import choices, given, new_command, plants_help
@@ -94,6 +94,8 @@ def add_fly(sub: Any) -> None:
                    f"(default {MPCConfig.cost})")  # fmt: skip
     p.add_argument("--lean", type=float, metavar="X",
                    help=f"{LEAN_HELP} (default {MPCConfig.lean:g})")  # fmt: skip
+    p.add_argument("--shape", type=float, metavar="X",
+                   help=f"{SHAPE_HELP} (default {MPCConfig.shape:g})")  # fmt: skip
     p.add_argument("--risk", type=float, metavar="BETA", help="price each plan by the mean "
                    "of its members' costs + BETA x their spread: an ensemble's members, or the "
                    "model and physics with --with-physics (docs/control.md)")  # fmt: skip
@@ -109,7 +111,12 @@ def cmd_fly(args: argparse.Namespace) -> int:
 
     changes = _changes(args, FLY_OPTIONS)
     mpc = given(
-        samples=args.samples, cost=args.cost, lean=args.lean, risk=args.risk, members=args.members
+        samples=args.samples,
+        cost=args.cost,
+        lean=args.lean,
+        shape=args.shape,
+        risk=args.risk,
+        members=args.members,
     )
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)

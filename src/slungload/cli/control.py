@@ -56,10 +56,12 @@ def add_flight_options(
                        help=f"the MPC's cost: {shown} (docs/control.md) "
                        f"(default {cfg.cost})")  # fmt: skip
     if hasattr(cfg, "lean"):
-        from ..control.cost import LEAN_HELP  # numpy only
+        from ..control.cost import LEAN_HELP, SHAPE_HELP  # numpy only
 
         p.add_argument("--lean", type=float, metavar="X",
                        help=f"{LEAN_HELP} (default {cfg.lean:g})")  # fmt: skip
+        p.add_argument("--shape", type=float, metavar="X",
+                       help=f"{SHAPE_HELP} (default {cfg.shape:g})")  # fmt: skip
     if hasattr(cfg, "risk"):
         p.add_argument("--risk", type=float, metavar="BETA",
                        help="price an ensemble's candidates (--model an ensemble folder) by "
@@ -163,8 +165,8 @@ def cmd_control(args: argparse.Namespace) -> int:
     changes = plan_changes(args) | given(samples=args.samples and tuple(args.samples),
                                          horizon=args.horizon, steps=args.steps,
                                          backend=args.backend, plant=args.plant,
-                                         cost=args.cost, lean=args.lean, risk=args.risk,
-                                         members=args.members,
+                                         cost=args.cost, lean=args.lean, shape=args.shape,
+                                         risk=args.risk, members=args.members,
                                          with_physics=args.with_physics or None,
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)

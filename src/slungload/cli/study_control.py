@@ -87,7 +87,7 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      shift_horizons=args.shift_horizons and tuple(args.shift_horizons),
                      oracle_samples=args.oracle_samples, samples=args.samples,
                      backend=args.backend, steps=args.steps, plant=args.plant,
-                     cost=args.cost, lean=args.lean, risk=args.risk,
+                     cost=args.cost, lean=args.lean, shape=args.shape, risk=args.risk,
                      with_physics=args.with_physics or None,
                      trust_window=args.trust_window)  # fmt: skip
     config = replace(StudyConfig(), **changes)

@@ -38,9 +38,8 @@ from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
 from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
-from .cost import cost_target, lean_rows, leaned, trajectory_cost
+from .cost import cost_target, lean_rows, reference_rows, shape_rows, trajectory_cost
 from .mpc import InputLimits, MPCConfig
-from .mppi import ReferenceAhead
 
 
 @dataclass(frozen=True)
@@ -257,9 +256,8 @@ def realized_cost(
     rec = np.flatnonzero(log.t >= -1e-9)
     if rec.size == 0 or rec[0] == 0:
         raise ValueError(f"{log.controller} {log.maneuver} s{log.seed}: no warm-up or no record")
-    lean = lean_rows(mpc, params.cable_length, params.gravity, params.dt)  # as the controller
-    ref = ReferenceAhead(reference.position[rec], reference.velocity[rec], reference.yaw[rec],
-                         leaned(reference.acceleration, rec, lean))  # fmt: skip
+    swing = (params.cable_length, params.gravity, params.dt)  # as the controller reads it
+    ref = reference_rows(reference, rec, lean_rows(mpc, *swing), shape_rows(mpc, *swing), params.dt)
     x, u = log.states[rec][None], log.inputs[rec][None]
     hover = (params.mass_quad + params.mass_load) * params.gravity
     target = cost_target(mpc, ref, params.cable_length, params.gravity)

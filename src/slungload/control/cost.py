@@ -22,10 +22,19 @@ COSTS: dict[str, str] = {
 }
 
 
-# What ``MPCConfig.lean`` does, for the help of each command that flies the MPC.
+# What ``MPCConfig.lean`` and ``MPCConfig.shape`` do, for the help of each command that flies the
+# MPC.
 LEAN_HELP = ("with the payload cost: the reference's acceleration the cable's direction "
              "follows, averaged over X x sqrt(cable length / g) each way (the cable leans only "
              "as fast as the load swings; 0: the reference's own; docs/control.md)")  # fmt: skip
+SHAPE_HELP = ("with the payload cost: the reference's jumps (position changes its velocity does "
+              "not account for, as a setpoint's steps) spread over X x sqrt(cable length / g) "
+              "each way into a path the load can follow, which the cost tracks (0: the jumps as "
+              "they are; docs/control.md)")  # fmt: skip
+# m a row: a reference position change its velocity leaves less than this unaccounted for is
+# the central differences' error on a smooth path (at most ~1 mm, at the roll doublets'
+# acceleration switches), not a jump (``jumps``)
+JUMP_TOL = 2e-3
 
 
 class ReferenceAhead(NamedTuple):
@@ -84,9 +93,24 @@ def lean_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float
     ``mppi.MPCConfig``, which takes a lean with the "payload" cost only) averages the
     reference's acceleration: ``cfg.lean`` x sqrt(l / g), the load's swing; 0: the rows as
     they are."""
-    if not cfg.lean:
-        return 0.0
     return cfg.lean * math.sqrt(cable_length / gravity) / dt
+
+
+def shape_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float:
+    """The time constant, in reference rows dt s apart, over which ``cfg``'s cost (``cfg`` an
+    ``mppi.MPCConfig``, which takes a shape with the "payload" cost only) spreads the
+    reference's jumps: ``cfg.shape`` x sqrt(l / g); 0: the jumps as they are."""
+    return cfg.shape * math.sqrt(cable_length / gravity) / dt
+
+
+def jumps(position: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
+    """(T, 3) m: a whole flight's reference position (T, 3) m, rows dt s apart, less the path
+    its velocity (T, 3) m/s accounts for (trapezoids): the sum of the row changes the velocity
+    leaves more than ``JUMP_TOL`` unaccounted for (a setpoint's steps, a path clipped to the
+    arena), zero before the first. A path whose velocity is its position's has none."""
+    change = np.diff(position, axis=0) - 0.5 * dt * (velocity[1:] + velocity[:-1])
+    change[np.linalg.norm(change, axis=-1) < JUMP_TOL] = 0.0
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(change, axis=0)])
 
 
 def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarray:
@@ -104,14 +128,38 @@ def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarra
     return np.einsum("j,njd->nd", w / w.sum(), np.asarray(acceleration, dtype=float)[near])
 
 
-def reference_ahead(ref, k: int, n: int, lean: float = 0.0) -> ReferenceAhead:
+def reference_ahead(
+    ref, k: int, n: int, lean: float = 0.0, shape: float = 0.0, dt: float = 0.0
+) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
-    velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end: position
-    (n, 3) m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the
-    acceleration averaged over ``lean`` rows each way (``leaned``; 0: as it is)."""
+    velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end, as the cost
+    reads them (``reference_rows``)."""
     idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return ReferenceAhead(ref.position[idx].copy(), ref.velocity[idx].copy(),
-                          ref.yaw[idx].copy(), leaned(ref.acceleration, idx, lean))  # fmt: skip
+    return reference_rows(ref, idx, lean, shape, dt)
+
+
+def reference_rows(
+    ref, rows: np.ndarray, lean: float = 0.0, shape: float = 0.0, dt: float = 0.0
+) -> ReferenceAhead:
+    """Rows ``rows`` (n,) of a whole flight's reference (rows ``dt`` s apart): position (n, 3)
+    m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the acceleration
+    averaged over ``lean`` rows each way (``leaned``; 0: as it is); the reference's jumps
+    (``jumps``) spread over ``shape`` rows each way with the same weights, their velocity and
+    acceleration added (0: as they are). From the whole flight, as ``leaned``. A step the
+    vehicle could fly but the hanging load cannot follow becomes a path it can: without it the
+    payload cost asks the load to jump on a vertical cable."""
+    pos, vel = np.array(ref.position[rows], dtype=float), np.array(ref.velocity[rows], dtype=float)
+    acc = leaned(ref.acceleration, rows, lean)
+    if shape:
+        if not dt > 0:
+            raise ValueError(f"reference_rows: a shape needs the rows' spacing dt > 0, got {dt}")
+        jump = jumps(np.asarray(ref.position, float), np.asarray(ref.velocity, float), dt)
+        if jump.any():
+            jump_vel = np.gradient(jump, dt, axis=0)
+            pos += leaned(jump, rows, shape) - jump[rows]
+            vel += leaned(jump_vel, rows, shape)
+            acc += leaned(np.gradient(jump_vel, dt, axis=0), rows, shape)
+    return ReferenceAhead(pos, vel, np.array(ref.yaw[rows], dtype=float), acc)
 
 
 def yaw_of(q: np.ndarray) -> np.ndarray:

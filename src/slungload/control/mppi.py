@@ -67,6 +67,7 @@ from .cost import (
     lean_rows,
     payload_first,
     reference_ahead,
+    shape_rows,
     tilt_of,
     trajectory_cost,
     yaw_of,
@@ -145,6 +146,10 @@ class MPCConfig:
     # the payload cost only: the reference's acceleration the cable follows averaged over lean x
     # sqrt(l / g) each way, so the cable leans only as fast as the load swings (``cost.leaned``)
     lean: float = 0.0
+    # the payload cost only: the reference's jumps (a setpoint's steps) spread over shape x
+    # sqrt(l / g) each way into a path the load can follow, which the cost tracks
+    # (``cost.reference_rows``)
+    shape: float = 0.0
     # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
     # Every member then predicts every candidate: E x one network's compute at equal K.
@@ -168,12 +173,14 @@ class MPCConfig:
             raise ValueError(
                 f"MPCConfig.constants: unknown {self.constants!r}; known: {list(NETWORK_CONSTANTS)}"
             )
-        if not 0.0 <= self.lean < math.inf:
-            raise ValueError(f"MPCConfig.lean must be a finite number >= 0, got {self.lean}")
-        if self.lean and self.cost != "payload":
-            raise ValueError(f"MPCConfig.lean is the payload cost's (the {self.cost!r} cost "
-                             f"reads no acceleration): give cost 'payload', or lean 0; got "
-                             f"lean {self.lean:g}")  # fmt: skip
+        for name in ("lean", "shape"):
+            value = getattr(self, name)
+            if not 0.0 <= value < math.inf:
+                raise ValueError(f"MPCConfig.{name} must be a finite number >= 0, got {value}")
+            if value and self.cost != "payload":
+                raise ValueError(f"MPCConfig.{name} is the payload cost's (the {self.cost!r} "
+                                 f"cost holds the vehicle to the reference as it is): give cost "
+                                 f"'payload', or {name} 0; got {name} {value:g}")  # fmt: skip
         if self.risk is not None and not 0.0 <= self.risk < math.inf:
             raise ValueError(
                 f"MPCConfig.risk must be None or a finite number >= 0, got {self.risk}"
@@ -375,9 +382,11 @@ class MPPIController:
     def ahead(self, reference, k: int) -> ReferenceAhead:
         """Rows k+1 .. k+N of a whole flight's reference as this controller's cost reads them
         (``reference_ahead``): for the "payload" cost the acceleration leaned over
-        ``MPCConfig.lean`` x sqrt(l / g), with the cable length the cost uses."""
-        lean = lean_rows(self.cfg, self.cable_length, self.params.gravity, self.params.dt)
-        return reference_ahead(reference, k, self.cfg.horizon, lean)
+        ``MPCConfig.lean`` x sqrt(l / g) and the jumps spread over ``MPCConfig.shape`` x
+        sqrt(l / g), with the cable length the cost uses."""
+        swing = (self.cable_length, self.params.gravity, self.params.dt)
+        return reference_ahead(reference, k, self.cfg.horizon, lean_rows(self.cfg, *swing),
+                               shape_rows(self.cfg, *swing), self.params.dt)  # fmt: skip
 
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
         """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of

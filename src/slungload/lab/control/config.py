@@ -87,7 +87,7 @@ def cost_changes(cost: str, lean: float) -> list[dict[str, float]]:
 # seeds, shifted plants, their horizons and the oracle's horizons can be added later.
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
-    "tune", "backend", "cost", "lean", "risk", "with_physics", "trust_window",
+    "tune", "backend", "cost", "lean", "shape", "risk", "with_physics", "trust_window",
 )  # fmt: skip
 
 
@@ -106,6 +106,7 @@ class ComparisonConfig:
     plant: str = DEFAULT_PLANT  # the simulated vehicle (``sim.plants.PLANTS``)
     cost: str = MPCConfig.cost  # the MPC's cost (``control.mppi.COSTS``)
     lean: float = MPCConfig.lean  # the "payload" cost's lean (``MPCConfig.lean``)
+    shape: float = MPCConfig.shape  # the "payload" cost's jumps shaped (``MPCConfig.shape``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     members: str = MPCConfig.members  # how an ensemble's members share the candidates
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
@@ -117,7 +118,7 @@ class ComparisonConfig:
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
         trust_steps(self.trust_window, self.with_physics)  # refuses a window without physics
-        _check_cost(self.cost, self.lean)
+        _check_cost(self.cost, self.lean, self.shape)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
@@ -133,7 +134,8 @@ class ComparisonConfig:
         """The MPC's settings but K (``MPCConfig`` with this horizon and its knots); ``risk``
         and ``members`` are an ensemble's only (``comparison``)."""
         return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
-                         lean=self.lean, risk=self.risk, members=self.members)  # fmt: skip
+                         lean=self.lean, shape=self.shape, risk=self.risk,
+                         members=self.members)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -160,6 +162,7 @@ class StudyConfig:
     plant: str = DEFAULT_PLANT
     cost: str = MPCConfig.cost  # every MPC's cost (``control.mppi.COSTS``)
     lean: float = MPCConfig.lean  # the "payload" cost's lean (``MPCConfig.lean``)
+    shape: float = MPCConfig.shape  # the "payload" cost's jumps shaped (``MPCConfig.shape``)
     # the learned MPC's plans priced under the network and the physics model by ``risk``
     # (``control.paired``): tuned, timed and matched at equal compute as that pair
     risk: float | None = MPCConfig.risk
@@ -175,7 +178,7 @@ class StudyConfig:
         """An MPC of this study: ``fields`` (horizon, knots, K, tuned settings) with its cost;
         ``members``: over a model of members (the paired learned one), priced by ``risk``."""
         # a tuned choice may carry its own lean (``cost_changes``)
-        return MPCConfig(**{"cost": self.cost, "lean": self.lean, **fields},
+        return MPCConfig(**{"cost": self.cost, "lean": self.lean, "shape": self.shape, **fields},
                          risk=self.risk if members else None)  # fmt: skip
 
     @property
@@ -185,7 +188,7 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         _check_steps("StudyConfig", self.steps)
-        _check_cost(self.cost, self.lean)
+        _check_cost(self.cost, self.lean, self.shape)
         _check_plant(self.plant)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
@@ -333,10 +336,10 @@ class RecordConfig:
         return range(self.first_seed, self.first_seed + max(n for _, n in self.flights))
 
 
-def _check_cost(cost: str, lean: float) -> None:
+def _check_cost(cost: str, lean: float, shape: float) -> None:
     if cost not in COSTS:
         raise ValueError(f"unknown MPC cost {cost!r}; known: {list(COSTS)}")
-    MPCConfig(cost=cost, lean=lean)  # its rules for the lean
+    MPCConfig(cost=cost, lean=lean, shape=shape)  # its rules for the lean and the shape
 
 
 # --- what a study folder's settings.json records of its configuration -----------------------
@@ -359,9 +362,9 @@ def settings_record(cfg: StudyConfig) -> dict[str, Any]:
 def recorded_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A settings file's ``config`` as ``settings_record`` would write it today: a field the
     file lacks was added since, with the value its flights had (no window, equal weights, no
-    lean); a null window meant the default then, ``_EARLIER_WINDOW``."""
+    lean, no shape); a null window meant the default then, ``_EARLIER_WINDOW``."""
     was = _jsonable(asdict(StudyConfig()))
-    was.update(trust_window=0, pair_weighs=False, lean=0.0)
+    was.update(trust_window=0, pair_weighs=False, lean=0.0, shape=0.0)
     theirs = {k: config.get(k, was[k]) for k in (*SETTINGS_FIELDS, "pair_weighs")}
     if theirs["trust_window"] is None:
         theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
