@@ -494,11 +494,13 @@ def test_control_help_is_light_and_bad_maneuvers_are_a_user_error(run_cli, tmp_p
     from slungload.cli.control import cmd_control
     from slungload.cli.study_control import cmd_study_control
 
-    for argv, func in ((["control", "--lean", "0.5", "--out", "x"], cmd_control),
-                       (["study", "control", "--lean", "0.5", "--out", "x"], cmd_study_control),
-                       (["fly", "m.mpc.npz", "--lean", "0.5"], cmd_fly)):  # fmt: skip
-        args = build_parser().parse_args(argv)
-        assert args.func is func and args.lean == 0.5
+    for argv, func in ((["control", "--out", "x"], cmd_control),
+                       (["study", "control", "--out", "x"], cmd_study_control),
+                       (["fly", "m.mpc.npz"], cmd_fly)):  # fmt: skip
+        args = build_parser().parse_args([*argv, "--lean", "0.5", "--shape", "2"])
+        assert args.func is func and args.lean == 0.5 and args.shape == 2.0
+    code, _, err = run_cli("control", "--shape", "1", "--out", tmp_path / "x")
+    assert code == 2 and "shape is the payload cost's" in err
 
 
 def _row(controller, seed, load, swing, vehicle, completed=True, k=32):
@@ -620,6 +622,21 @@ def test_the_realized_cost_of_a_perfect_hover_is_zero_and_each_error_lands_in_it
     raw = realized_cost(log, as_read, replace(payload, lean=0.0), PARAMS)
     assert realized_cost(log, jolted, payload, PARAMS) == pytest.approx(raw, rel=1e-12)
     assert realized_cost(log, jolted, replace(payload, lean=0.0), PARAMS)["swing"] != raw["swing"]
+    # and against the path its controller read a step shaped into
+    stepped = np.tile([0.2, -0.1, 1.5], (s, 1))
+    stepped[warm + 4 :, 0] += 0.5
+    shaped = replace(payload, lean=0.0, shape=1.0)
+    step = replace(ref, position=stepped)
+    seen = MPPIController(Still(), LIMITS, replace(shaped, horizon=n, knots=3), PARAMS)
+    path = seen.ahead(step, warm - 1)
+    before = slice(0, warm)
+    as_read = Reference(*(np.concatenate([whole[before], read]) for whole, read in
+                          ((stepped, path.position), (ref.velocity, path.velocity),
+                           (ref.acceleration, path.acceleration))), ref.yaw)  # fmt: skip
+    flown = realized_cost(log, step, shaped, PARAMS)
+    assert flown == pytest.approx(realized_cost(log, as_read, replace(shaped, shape=0.0), PARAMS))
+    assert flown["load"] != pytest.approx(realized_cost(log, step, replace(payload, lean=0.0),
+                                                        PARAMS)["load"])  # fmt: skip
 
 
 def test_what_to_know_before_a_network_flies_is_said(tiny_run, tmp_path):
