@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from slungload.config import VehicleParams
-from slungload.control.cost import jumps, reference_rows
+from slungload.control.cost import Shape, jumps, reference_rows
 from slungload.control.mppi import (
     Command,
     InputLimits,
@@ -331,51 +331,54 @@ def step_reference(t: int = 200, at: int = 100, size: float = 1.0):
 
 
 def test_the_shape_spreads_a_setpoints_step_into_a_path_and_leaves_a_path_alone():
-    """shape > 0: a step becomes a path with no lag (half way at the step, symmetric about
-    it), rising monotonically, its velocity the path's and integrating to the step, its
-    acceleration forward then back; far from the step and at shape 0 the rows as they are; each
-    row the flight's whatever the window; a path whose velocity accounts for its position is
-    left exactly as it is."""
-    dt, r = 0.03, 9.0
+    """shape > 0: a step becomes a path with no lag (half way at the step, odd about it),
+    rising monotonically, its velocity the path's and integrating to the step, its
+    acceleration forward then back, peaking at g / (2 shape^2) for a jump longer than the
+    cable and at |jump| g / (2 l shape^2) for a shorter one; far from the step and at shape 0
+    the rows as they are; each row the flight's whatever the window; a path whose velocity
+    accounts for its position is left exactly as it is."""
+    dt, g, cable = 0.03, 9.81, 0.7
+    shape = Shape(1.0, cable, g, dt)
     ref = step_reference()
     np.testing.assert_array_equal(reference_ahead(ref, 0, 199).position, ref.position[1:])
-    whole = reference_rows(ref, np.arange(200), shape=r, dt=dt)
+    whole = reference_rows(ref, np.arange(200), shape=shape)
     x, v, a = whole.position[:, 0], whole.velocity[:, 0], whole.acceleration[:, 0]
-    assert 0.0 < x[90] < 0.5 < x[110] < 1.0 and np.all(np.diff(x) >= -1e-12)
-    np.testing.assert_allclose(x[100 - 30 : 100] + x[129:99:-1], 1.0, atol=0.02)  # odd about it
-    np.testing.assert_array_equal(whole.position[:20], ref.position[:20])  # beyond 8 r: as is
-    np.testing.assert_allclose(v, np.gradient(x, dt), atol=0.05 * v.max())
-    assert v.min() >= 0.0 and abs(v.sum() * dt - 1.0) < 1e-6
-    assert a[85:99].min() > 0.0 and a[101:115].max() < 0.0
+    assert 0.0 < x[90] < 0.5 < x[110] < 1.0 and np.all(np.diff(x) > 0)
+    np.testing.assert_allclose(x[70:100] + x[129:99:-1], 1.0, rtol=1e-12)  # odd about 99.5
+    np.testing.assert_allclose(whole.position[:20], ref.position[:20], atol=1e-3)
+    np.testing.assert_allclose(v, np.gradient(x, dt), atol=0.02 * v.max())
+    assert v.min() > 0.0 and abs(v.sum() * dt - 1.0) < 1e-3
+    assert a[85:100].min() > 0.0 and a[100:115].max() < 0.0
     for k, n in ((40, 60), (95, 10), (150, 49)):
-        got = reference_ahead(ref, k, n, shape=r, dt=dt)
+        got = reference_ahead(ref, k, n, shape=shape)
         np.testing.assert_array_equal(got.position, whole.position[k + 1 : k + n + 1])
+    for size, peak in ((3.0, g / 2), (0.2, 0.2 * g / (2 * cable))):
+        stepped = reference_rows(step_reference(size=size), np.arange(200), shape=shape)
+        assert np.abs(stepped.acceleration).max() == pytest.approx(peak, rel=0.1)
     t = np.arange(200) * dt
     circle = np.stack([np.cos(t), np.sin(t), 1.5 + 0 * t], -1)
     turning = np.stack([-np.sin(t), np.cos(t), 0 * t], -1)
     path = type("R", (), dict(position=circle, velocity=turning,
                               acceleration=-circle * [1, 1, 0], yaw=np.zeros(200)))  # fmt: skip
-    same = reference_rows(path, np.arange(200), shape=r, dt=dt)
+    same = reference_rows(path, np.arange(200), shape=shape)
     for got, want in zip(same[:2], (path.position, path.velocity), strict=True):
         np.testing.assert_array_equal(got, want)
-    np.testing.assert_array_equal(jumps(path.position, path.velocity, dt), 0.0)
-    with pytest.raises(ValueError, match="shape needs the rows' spacing"):
-        reference_rows(ref, np.arange(5), shape=r)
+    assert jumps(path.position, path.velocity, dt)[0].size == 0
     with pytest.raises(ValueError, match="shape must be a finite number >= 0"):
         MPCConfig(cost="payload", shape=-1.0)
 
 
 def test_the_controller_shapes_only_the_payload_costs_reference():
-    """``MPPIController.ahead``: the payload cost reads the step spread over shape x sqrt(l / g)
-    (in rows of dt); shape 0 and the vehicle cost the rows as they are; the vehicle cost
-    refuses a shape."""
+    """``MPPIController.ahead``: the payload cost reads the step shaped with its cable length
+    and the rows' spacing dt; shape 0 and the vehicle cost the rows as they are; the vehicle
+    cost refuses a shape."""
     ref = step_reference()
-    rows = math.sqrt(PARAMS.cable_length / PARAMS.gravity) / PARAMS.dt
-    for cost, shape, expect in (("payload", 1.0, rows), ("payload", 0.0, 0.0),
+    for cost, shape, expect in (("payload", 1.0, 1.0), ("payload", 0.0, 0.0),
                                 ("vehicle", 0.0, 0.0)):  # fmt: skip
         mpc = MPPIController(HoldModel(), LIMITS, replace(SMALL, cost=cost, shape=shape), PARAMS)
         got = mpc.ahead(ref, 96)
-        want = reference_ahead(ref, 96, SMALL.horizon, shape=expect, dt=PARAMS.dt)
+        swing = (PARAMS.cable_length, PARAMS.gravity, PARAMS.dt)
+        want = reference_ahead(ref, 96, SMALL.horizon, shape=Shape(expect, *swing))
         np.testing.assert_array_equal(got.position, want.position)
         assert (np.abs(got.position - ref.position[97:103]).max() > 0.1) == (expect > 0)
     with pytest.raises(ValueError, match="shape is the payload cost's"):

@@ -38,7 +38,7 @@ from ..sim.config import SimConfig
 from ..sim.controller import Controller, Measurement
 from ..sim.flight import published, simulate_flight
 from ..sim.maneuvers import Reference
-from .cost import cost_target, lean_rows, reference_rows, shape_rows, trajectory_cost
+from .cost import cost_target, lean_rows, reference_rows, shape_of, trajectory_cost
 from .mpc import InputLimits, MPCConfig
 
 
@@ -257,7 +257,7 @@ def realized_cost(
     if rec.size == 0 or rec[0] == 0:
         raise ValueError(f"{log.controller} {log.maneuver} s{log.seed}: no warm-up or no record")
     swing = (params.cable_length, params.gravity, params.dt)  # as the controller reads it
-    ref = reference_rows(reference, rec, lean_rows(mpc, *swing), shape_rows(mpc, *swing), params.dt)
+    ref = reference_rows(reference, rec, lean_rows(mpc, *swing), shape_of(mpc, *swing))
     x, u = log.states[rec][None], log.inputs[rec][None]
     hover = (params.mass_quad + params.mass_load) * params.gravity
     target = cost_target(mpc, ref, params.cable_length, params.gravity)

@@ -28,9 +28,9 @@ LEAN_HELP = ("with the payload cost: the reference's acceleration the cable's di
              "follows, averaged over X x sqrt(cable length / g) each way (the cable leans only "
              "as fast as the load swings; 0: the reference's own; docs/control.md)")  # fmt: skip
 SHAPE_HELP = ("with the payload cost: the reference's jumps (position changes its velocity does "
-              "not account for, as a setpoint's steps) spread over X x sqrt(cable length / g) "
-              "each way into a path the load can follow, which the cost tracks (0: the jumps as "
-              "they are; docs/control.md)")  # fmt: skip
+              "not account for, as a setpoint's steps) spread into a path the load can follow, "
+              "over X x sqrt(max(cable length, jump) / g) each way, which the cost tracks (0: "
+              "the jumps as they are; docs/control.md)")  # fmt: skip
 # m a row: a reference position change its velocity leaves less than this unaccounted for is
 # the central differences' error on a smooth path (at most ~1 mm, at the roll doublets'
 # acceleration switches), not a jump (``jumps``)
@@ -46,6 +46,16 @@ class ReferenceAhead(NamedTuple):
     velocity: np.ndarray  # (N, 3) m/s
     yaw: np.ndarray  # (N,) rad
     acceleration: np.ndarray | None = None  # (N, 3) m/s^2
+
+
+class Shape(NamedTuple):
+    """How the payload cost spreads a reference's jumps (``shaped_jumps``): ``MPCConfig.shape``
+    and the cost's cable length, gravity, and the reference rows' spacing."""
+
+    factor: float  # MPCConfig.shape; 0: the jumps as they are
+    cable_length: float  # m
+    gravity: float  # m/s^2
+    dt: float  # s
 
 
 class VehicleTarget(NamedTuple):
@@ -88,6 +98,12 @@ def cost_target(
     return payload_first(ref, cable_length, gravity)
 
 
+def shape_of(cfg: Any, cable_length: float, gravity: float, dt: float) -> Shape:
+    """``cfg``'s (an ``mppi.MPCConfig``) shape with the cost's cable length, for rows dt s
+    apart."""
+    return Shape(cfg.shape, cable_length, gravity, dt)
+
+
 def lean_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float:
     """The time constant, in reference rows dt s apart, over which ``cfg``'s cost (``cfg`` an
     ``mppi.MPCConfig``, which takes a lean with the "payload" cost only) averages the
@@ -96,21 +112,14 @@ def lean_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float
     return cfg.lean * math.sqrt(cable_length / gravity) / dt
 
 
-def shape_rows(cfg: Any, cable_length: float, gravity: float, dt: float) -> float:
-    """The time constant, in reference rows dt s apart, over which ``cfg``'s cost (``cfg`` an
-    ``mppi.MPCConfig``, which takes a shape with the "payload" cost only) spreads the
-    reference's jumps: ``cfg.shape`` x sqrt(l / g); 0: the jumps as they are."""
-    return cfg.shape * math.sqrt(cable_length / gravity) / dt
-
-
-def jumps(position: np.ndarray, velocity: np.ndarray, dt: float) -> np.ndarray:
-    """(T, 3) m: a whole flight's reference position (T, 3) m, rows dt s apart, less the path
-    its velocity (T, 3) m/s accounts for (trapezoids): the sum of the row changes the velocity
-    leaves more than ``JUMP_TOL`` unaccounted for (a setpoint's steps, a path clipped to the
-    arena), zero before the first. A path whose velocity is its position's has none."""
+def jumps(position: np.ndarray, velocity: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The jumps of a whole flight's reference position (T, 3) m, rows dt s apart: the row
+    changes its velocity (T, 3) m/s leaves more than ``JUMP_TOL`` unaccounted for
+    (trapezoids; a setpoint's steps, a path clipped to the arena). Returns the rows each lands
+    on (m,) and its size (m, 3) m; none for a path whose velocity is its position's."""
     change = np.diff(position, axis=0) - 0.5 * dt * (velocity[1:] + velocity[:-1])
-    change[np.linalg.norm(change, axis=-1) < JUMP_TOL] = 0.0
-    return np.concatenate([np.zeros((1, 3)), np.cumsum(change, axis=0)])
+    at = np.flatnonzero(np.linalg.norm(change, axis=-1) >= JUMP_TOL)
+    return at + 1, change[at]
 
 
 def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarray:
@@ -128,37 +137,49 @@ def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarra
     return np.einsum("j,njd->nd", w / w.sum(), np.asarray(acceleration, dtype=float)[near])
 
 
+def shaped_jumps(
+    ref, rows: np.ndarray, shape: float, cable_length: float, gravity: float, dt: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What ``shape`` (``MPCConfig.shape``) adds to a whole flight's reference at rows ``rows``
+    (n,) (rows dt s apart): each jump (``jumps``) taken out and put back as a path, its
+    size times the Laplace distribution's CDF about the jump with scale tau = shape x
+    sqrt(max(l, |jump|) / g): no lag (half way at the jump), the load's swing time, and for a
+    jump longer than the cable the time that keeps the path's peak acceleration at
+    g / (2 shape^2) (the cable leaning atan(1 / (2 shape^2)), 27 deg at shape 1). Position
+    (n, 3) m, velocity (n, 3) m/s, acceleration (n, 3) m/s^2 to add, float64; zeros without
+    jumps."""
+    at, size = jumps(np.asarray(ref.position, float), np.asarray(ref.velocity, float), dt)
+    scale = shape * np.sqrt(np.maximum(cable_length, np.linalg.norm(size, axis=-1)) / gravity)
+    x = ((rows[:, None] - at + 0.5) * dt) / scale  # (n, m): s from each jump, in its scales
+    half = 0.5 * np.exp(-np.abs(x))  # the density x scale
+    path = np.where(x < 0, half, 1.0 - half) - (x > 0)  # the CDF less the step itself
+    return path @ size, (half / scale) @ size, (-np.sign(x) * half / scale**2) @ size
+
+
 def reference_ahead(
-    ref, k: int, n: int, lean: float = 0.0, shape: float = 0.0, dt: float = 0.0
+    ref, k: int, n: int, lean: float = 0.0, shape: Shape | None = None
 ) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
     velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end, as the cost
     reads them (``reference_rows``)."""
     idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return reference_rows(ref, idx, lean, shape, dt)
+    return reference_rows(ref, idx, lean, shape)
 
 
 def reference_rows(
-    ref, rows: np.ndarray, lean: float = 0.0, shape: float = 0.0, dt: float = 0.0
+    ref, rows: np.ndarray, lean: float = 0.0, shape: Shape | None = None
 ) -> ReferenceAhead:
-    """Rows ``rows`` (n,) of a whole flight's reference (rows ``dt`` s apart): position (n, 3)
-    m, velocity (n, 3) m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the acceleration
-    averaged over ``lean`` rows each way (``leaned``; 0: as it is); the reference's jumps
-    (``jumps``) spread over ``shape`` rows each way with the same weights, their velocity and
-    acceleration added (0: as they are). From the whole flight, as ``leaned``. A step the
-    vehicle could fly but the hanging load cannot follow becomes a path it can: without it the
-    payload cost asks the load to jump on a vertical cable."""
+    """Rows ``rows`` (n,) of a whole flight's reference: position (n, 3) m, velocity (n, 3)
+    m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the acceleration averaged over
+    ``lean`` rows each way (``leaned``; 0: as it is); with a ``shape``, the jumps spread into a
+    path (``shaped_jumps``; None: as they are). From the whole flight, as ``leaned``. A step
+    the vehicle could fly but the hanging load cannot follow becomes a path it can: without
+    it the payload cost asks the load to jump on a vertical cable."""
     pos, vel = np.array(ref.position[rows], dtype=float), np.array(ref.velocity[rows], dtype=float)
     acc = leaned(ref.acceleration, rows, lean)
-    if shape:
-        if not dt > 0:
-            raise ValueError(f"reference_rows: a shape needs the rows' spacing dt > 0, got {dt}")
-        jump = jumps(np.asarray(ref.position, float), np.asarray(ref.velocity, float), dt)
-        if jump.any():
-            jump_vel = np.gradient(jump, dt, axis=0)
-            pos += leaned(jump, rows, shape) - jump[rows]
-            vel += leaned(jump_vel, rows, shape)
-            acc += leaned(np.gradient(jump_vel, dt, axis=0), rows, shape)
+    if shape is not None and shape.factor:
+        dp, dv, da = shaped_jumps(ref, rows, *shape)
+        pos, vel, acc = pos + dp, vel + dv, acc + da
     return ReferenceAhead(pos, vel, np.array(ref.yaw[rows], dtype=float), acc)
 
 

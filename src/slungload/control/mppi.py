@@ -67,7 +67,7 @@ from .cost import (
     lean_rows,
     payload_first,
     reference_ahead,
-    shape_rows,
+    shape_of,
     tilt_of,
     trajectory_cost,
     yaw_of,
@@ -386,7 +386,7 @@ class MPPIController:
         sqrt(l / g), with the cable length the cost uses."""
         swing = (self.cable_length, self.params.gravity, self.params.dt)
         return reference_ahead(reference, k, self.cfg.horizon, lean_rows(self.cfg, *swing),
-                               shape_rows(self.cfg, *swing), self.params.dt)  # fmt: skip
+                               shape_of(self.cfg, *swing))  # fmt: skip
 
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
         """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of
