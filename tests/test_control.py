@@ -565,6 +565,7 @@ def test_the_control_report_shows_results_only():
                     machine={"cpu": "x", "cores": 2, "load_average": None})  # fmt: skip
     text = report_markdown(ControlComparison(rows, settings))
     assert "load average at the end unknown" in text and "| mpc-net K=32 |" in text
+    assert "K = 32, cost vehicle;" in text  # an old results.json names no cost: the default
     assert "0.140 vs 0.200 m (30 % lower)" in text
     assert "target" not in text.lower() and "met**" not in text
     assert "Smoke run" not in text
@@ -574,6 +575,8 @@ def test_the_control_report_shows_results_only():
     assert "Smoke run: these numbers are not results" in banner
     assert "`runs/net`" in banner and "runs/other" not in banner
     assert "GPU" not in text  # an old results.json names none; a GPU is named where flown
+    settings["mpc"] = {"horizon": 15, "cost": "payload", "lean": 0.0, "shape": 1.0}
+    assert "K = 32, cost payload (shape 1);" in report_markdown(ControlComparison(rows, settings))
     settings["machine"] = {"cpu": "x", "cores": 16, "gpu": "NVIDIA H100", "load_average": None}
     assert "(16 cores, load average at the end unknown); GPU NVIDIA H100." in report_markdown(
         ControlComparison(rows, settings)

@@ -37,6 +37,12 @@ SHAPE_HELP = ("with the payload cost: the reference's jumps (position changes it
 JUMP_TOL = 2e-3
 
 
+def cost_words(cost: str, lean: float = 0.0, shape: float = 0.0) -> str:
+    """The MPC's cost as a report names it: "cost vehicle", "cost payload (lean 1, shape 1)"."""
+    options = [f"{name} {value:g}" for name, value in (("lean", lean), ("shape", shape)) if value]
+    return f"cost {cost}" + (f" ({', '.join(options)})" if options else "")
+
+
 class ReferenceAhead(NamedTuple):
     """The reference at the N steps ahead, x_{k+1} ... x_{k+N} (world frame, z up): the
     vehicle's; the load's is l e3 below (``MPCConfig.cost`` "payload" reads it as the load's

@@ -146,9 +146,9 @@ class MPCConfig:
     # the payload cost only: the reference's acceleration the cable follows averaged over lean x
     # sqrt(l / g) each way, so the cable leans only as fast as the load swings (``cost.leaned``)
     lean: float = 0.0
-    # the payload cost only: the reference's jumps (a setpoint's steps) spread over shape x
-    # sqrt(l / g) each way into a path the load can follow, which the cost tracks
-    # (``cost.reference_rows``)
+    # the payload cost only: the reference's jumps (a setpoint's steps) put back as paths the
+    # load can follow, each over shape x sqrt(max(l, |jump|) / g) each way, which the cost
+    # tracks (``cost.shaped_jumps``)
     shape: float = 0.0
     # An ensemble's pricing (``predict_candidates_members``): None, the cost of the members'
     # mean; beta >= 0, the mean of the members' costs + beta x their std (docs/control.md).
@@ -382,8 +382,8 @@ class MPPIController:
     def ahead(self, reference, k: int) -> ReferenceAhead:
         """Rows k+1 .. k+N of a whole flight's reference as this controller's cost reads them
         (``reference_ahead``): for the "payload" cost the acceleration leaned over
-        ``MPCConfig.lean`` x sqrt(l / g) and the jumps spread over ``MPCConfig.shape`` x
-        sqrt(l / g), with the cable length the cost uses."""
+        ``MPCConfig.lean`` x sqrt(l / g) and the jumps shaped by ``MPCConfig.shape``
+        (``cost.shaped_jumps``), with the cable length the cost uses."""
         swing = (self.cable_length, self.params.gravity, self.params.dt)
         return reference_ahead(reference, k, self.cfg.horizon, lean_rows(self.cfg, *swing),
                                shape_of(self.cfg, *swing))  # fmt: skip

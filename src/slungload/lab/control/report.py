@@ -15,6 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ...control.closed_loop import FlightLog
+from ...control.cost import cost_words
 from ...fileio import write_text
 from ...frames import swing_angle
 from ...reporting import markdown_table, model_colors, networks_banner, save_figure
@@ -113,7 +114,9 @@ def report_markdown(result: ControlComparison) -> str:
         f"{s['date']}; maneuvers {', '.join(s['maneuvers'])}; sim seeds "
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
         f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "
-        f"{', '.join(map(str, s['samples']))}; torch threads {s['threads']}; prediction "
+        f"{', '.join(map(str, s['samples']))}, "
+        f"{cost_words(mpc.get('cost', 'vehicle'), mpc.get('lean', 0.0), mpc.get('shape', 0.0))}"
+        f"; torch threads {s['threads']}; prediction "
         f"backend {s.get('backend', 'eager')}; {machine['cpu']} ({machine['cores']} cores, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in load) if load else 'unknown'})"
         + (f"; GPU {machine['gpu']}" if machine.get("gpu") else "")

@@ -31,6 +31,7 @@ from typing import Any, NamedTuple
 from matplotlib.figure import Figure
 
 from ...control import paired as pairing
+from ...control.cost import cost_words
 from ...fileio import read_json, write_text
 from ...models.prediction import PHYSICS
 from ...reporting import (
@@ -403,6 +404,7 @@ def _settings_line(config: StudyConfig, settings: dict[str, Any], seeds: list[in
         f"Maneuvers {', '.join(cfg['maneuvers'])}; evaluation seeds "
         f"{', '.join(map(str, seeds))}; {chosen}; "
         f"{cfg['steps'] or 'all'} recorded steps per flight; "
+        f"{cost_words(cfg['cost'], cfg['lean'], cfg['shape'])}; "
         f"backend {cfg['backend']}; every unmodelled effect on."
     )
 
