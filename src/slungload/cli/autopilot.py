@@ -110,14 +110,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from ..autopilot.bridge import fly
 
     changes = _changes(args, FLY_OPTIONS)
-    mpc = given(
-        samples=args.samples,
-        cost=args.cost,
-        lean=args.lean,
-        shape=args.shape,
-        risk=args.risk,
-        members=args.members,
-    )
+    mpc = given(samples=args.samples, cost=args.cost, lean=args.lean, shape=args.shape,
+                risk=args.risk, members=args.members)  # fmt: skip
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)
