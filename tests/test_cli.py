@@ -7,6 +7,7 @@ import csv
 import dataclasses
 import json
 import math
+import re
 
 import pytest
 
@@ -23,6 +24,22 @@ def test_help_lists_every_command(capsys):
     out = capsys.readouterr().out
     for command in ("simulate", "inspect", "train", "evaluate", "reproduce", "maneuvers"):
         assert command in out
+
+
+def _parsers(parser: argparse.ArgumentParser):
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _parsers(sub)
+
+
+def test_no_help_text_shows_an_unfilled_placeholder():
+    """A help string that lost its f prefix prints "{default.x:g}" to the user."""
+    helps = {p.prog: p.format_help() for p in _parsers(build_parser())}
+    assert len(helps) > 20
+    placeholder = re.compile(r"\{[\w.]+(:[^}]*)?\}")
+    assert not [prog for prog, text in helps.items() if placeholder.search(text)]
 
 
 def test_maneuvers_lists_the_paper_families(run_cli):

@@ -151,7 +151,7 @@ def _add_import_resampling(p: argparse.ArgumentParser) -> None:
         help="longest time a stream may go without a sample, s; STREAM=S for one stream "
         f"(streams: {', '.join(GAP_STREAMS)}; groups: {groups_text()}; e.g. --max-gap "
         "position,velocity=0.3 for a 5 Hz EKF position beside 100 Hz motion capture; repeat "
-        "the option) (default {default.max_gap:g} s for every stream)",
+        f"the option) (default {default.max_gap:g} s for every stream)",
     )
     p.add_argument(
         "--on-gap",
