@@ -16,6 +16,7 @@ from matplotlib.figure import Figure
 
 from ...control.closed_loop import FlightLog
 from ...control.cost import cost_words
+from ...control.mppi import MPCConfig
 from ...fileio import write_text
 from ...frames import swing_angle
 from ...reporting import markdown_table, model_colors, networks_banner, save_figure
@@ -32,6 +33,8 @@ from .results import (
 )
 
 LINESTYLES = ("-", "--", ":", "-.")  # one per K of a model, in the order flown
+# the MPCConfig fields the report names the cost by (an older results.json lacks them: the defaults)
+COST_FIELDS = ("cost", "lean", "shape")
 
 
 def write_report(result: ControlComparison, out: str | Path) -> Path:
@@ -115,7 +118,7 @@ def report_markdown(result: ControlComparison) -> str:
         f"{', '.join(map(str, s['seeds']))}; every unmodelled effect on; MPC horizon N = "
         f"{mpc['horizon']} ({mpc['horizon'] * SimConfig.control_dt:.2f} s), K = "
         f"{', '.join(map(str, s['samples']))}, "
-        f"{cost_words(mpc.get('cost', 'vehicle'), mpc.get('lean', 0.0), mpc.get('shape', 0.0))}"
+        f"{cost_words(**{k: mpc.get(k, getattr(MPCConfig, k)) for k in COST_FIELDS})}"
         f"; torch threads {s['threads']}; prediction "
         f"backend {s.get('backend', 'eager')}; {machine['cpu']} ({machine['cores']} cores, load "
         f"average at the end {', '.join(f'{x:.1f}' for x in load) if load else 'unknown'})"
