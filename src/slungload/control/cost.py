@@ -144,7 +144,13 @@ def leaned(acceleration: np.ndarray, rows: np.ndarray, lean: float) -> np.ndarra
 
 
 def shaped_jumps(
-    ref, rows: np.ndarray, shape: float, cable_length: float, gravity: float, dt: float
+    ref,
+    rows: np.ndarray,
+    shape: float,
+    cable_length: float,
+    gravity: float,
+    dt: float,
+    found: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What ``shape`` (``MPCConfig.shape``) adds to a whole flight's reference at rows ``rows``
     (n,) (rows dt s apart): each jump (``jumps``) taken out and put back as a path, its
@@ -153,8 +159,11 @@ def shaped_jumps(
     jump longer than the cable the time that keeps the path's peak acceleration at
     g / (2 shape^2) (the cable leaning atan(1 / (2 shape^2)), 27 deg at shape 1). Position
     (n, 3) m, velocity (n, 3) m/s, acceleration (n, 3) m/s^2 to add, float64; zeros without
-    jumps."""
-    at, size = jumps(np.asarray(ref.position, float), np.asarray(ref.velocity, float), dt)
+    jumps. ``found``: ``jumps`` of ``ref`` already found (they read every row of the flight);
+    None: found now."""
+    if found is None:
+        found = jumps(np.asarray(ref.position, float), np.asarray(ref.velocity, float), dt)
+    at, size = found
     scale = shape * np.sqrt(np.maximum(cable_length, np.linalg.norm(size, axis=-1)) / gravity)
     x = ((rows[:, None] - at + 0.5) * dt) / scale  # (n, m): s from each jump, in its scales
     half = 0.5 * np.exp(-np.abs(x))  # the density x scale
@@ -163,28 +172,37 @@ def shaped_jumps(
 
 
 def reference_ahead(
-    ref, k: int, n: int, lean: float = 0.0, shape: Shape | None = None
+    ref,
+    k: int,
+    n: int,
+    lean: float = 0.0,
+    shape: Shape | None = None,
+    found: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> ReferenceAhead:
     """Rows k+1 .. k+n of a whole flight's reference (``sim.maneuvers.Reference``: position,
     velocity, acceleration (T, 3), yaw (T,)), held at its last row past the end, as the cost
     reads them (``reference_rows``)."""
     idx = np.minimum(np.arange(k + 1, k + n + 1), len(ref.yaw) - 1)
-    return reference_rows(ref, idx, lean, shape)
+    return reference_rows(ref, idx, lean, shape, found)
 
 
 def reference_rows(
-    ref, rows: np.ndarray, lean: float = 0.0, shape: Shape | None = None
+    ref,
+    rows: np.ndarray,
+    lean: float = 0.0,
+    shape: Shape | None = None,
+    found: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> ReferenceAhead:
     """Rows ``rows`` (n,) of a whole flight's reference: position (n, 3) m, velocity (n, 3)
     m/s, yaw (n,) rad, acceleration (n, 3) m/s^2, float64; the acceleration averaged over
     ``lean`` rows each way (``leaned``; 0: as it is); with a ``shape``, the jumps spread into a
-    path (``shaped_jumps``; None: as they are). From the whole flight, as ``leaned``. A step
-    the vehicle could fly but the hanging load cannot follow becomes a path it can: without
-    it the payload cost asks the load to jump on a vertical cable."""
+    path (``shaped_jumps``, with its ``found`` jumps; None: as they are). From the whole flight,
+    as ``leaned``. A step the vehicle could fly but the hanging load cannot follow becomes a
+    path it can: without it the payload cost asks the load to jump on a vertical cable."""
     pos, vel = np.array(ref.position[rows], dtype=float), np.array(ref.velocity[rows], dtype=float)
     acc = leaned(ref.acceleration, rows, lean)
     if shape is not None and shape.factor:
-        dp, dv, da = shaped_jumps(ref, rows, *shape)
+        dp, dv, da = shaped_jumps(ref, rows, *shape, found=found)
         pos, vel, acc = pos + dp, vel + dv, acc + da
     return ReferenceAhead(pos, vel, np.array(ref.yaw[rows], dtype=float), acc)
 

@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -64,6 +64,7 @@ from .cost import (
     ReferenceAhead,
     VehicleTarget,
     cost_target,
+    jumps,
     lean_rows,
     payload_first,
     reference_ahead,
@@ -281,6 +282,7 @@ class MPPIController:
         self.rng = np.random.default_rng(cfg.seed)
         self.stats = MPCStats()
         self._fallback_run = 0
+        self._found: tuple[Any, np.ndarray, tuple[np.ndarray, np.ndarray]] | None = None
         check_members(model, cfg.risk)
         prepare = getattr(model, "prepare", None)  # see ``CandidateModel``
         if prepare is not None:
@@ -385,8 +387,22 @@ class MPPIController:
         ``MPCConfig.lean`` x sqrt(l / g) and the jumps shaped by ``MPCConfig.shape``
         (``cost.shaped_jumps``), with the cable length the cost uses."""
         swing = (self.cable_length, self.params.gravity, self.params.dt)
+        shape = shape_of(self.cfg, *swing)
+        found = self._jumps(reference) if shape.factor else None
         return reference_ahead(reference, k, self.cfg.horizon, lean_rows(self.cfg, *swing),
-                               shape_of(self.cfg, *swing))  # fmt: skip
+                               shape, found)  # fmt: skip
+
+    def _jumps(self, reference) -> tuple[np.ndarray, np.ndarray]:
+        """``cost.jumps`` of a whole flight's reference, found at its first step and kept while
+        the same reference (object and position array) is flown: they read every row, which
+        on a long mission would cost each step more than the step's own rows. A reference
+        changed in place is read as first seen: give the controller a new one."""
+        kept = self._found
+        if kept is None or kept[0] is not reference or kept[1] is not reference.position:
+            found = jumps(np.asarray(reference.position, float),
+                          np.asarray(reference.velocity, float), self.params.dt)  # fmt: skip
+            self._found = kept = (reference, reference.position, found)
+        return kept[2]
 
     def target(self, ref: ReferenceAhead) -> VehicleTarget | None:
         """Where the cost holds the vehicle and the cable at this step: ``payload_first`` of
