@@ -87,6 +87,16 @@ def comma_ints(text: str) -> list[int]:
         ) from None
 
 
+def input_lag(text: str) -> tuple[float, float, float]:
+    """'0.1,0.1,0.2' -> (0.1, 0.1, 0.2): ``--input-lag``'s three time constants, s, >= 0."""
+    from ..input_lag import check_lag  # numpy only
+
+    try:
+        return check_lag(float(t) for t in text.split(","))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (e.g. 0.1,0.1,0.2), got {text!r}") from None
+
+
 def positive_int(text: str) -> int:
     """'48' -> 48: an option's count, at least 1."""
     try:

@@ -18,6 +18,7 @@ from .common import (
     comma_ints,
     comma_names,
     given,
+    input_lag,
     joined,
     new_command,
     plants_help,
@@ -87,6 +88,16 @@ def add_flight_options(
                        "predicts the last H steps flown at least as well as physics (another "
                        "vehicle's network flies as physics; 0: always; docs/control.md) "
                        f"(default {TRUST_WINDOW})")  # fmt: skip
+    if hasattr(cfg, "input_lag"):
+        from ..input_lag import LAG_CHANNELS  # numpy only
+
+        p.add_argument("--input-lag", type=input_lag, metavar="T,R,Y",
+                       help="time constants (s) of the first-order lags the physics model "
+                       f"(alone or paired) is fed the plans through: {', '.join(LAG_CHANNELS)} "
+                       "(fitted by `slungload identify DATA --input-lag`; a network learned "
+                       "its own; docs/control.md) (default "
+                       f"{','.join(f'{t:g}' for t in cfg.input_lag)}: none, the paper's "
+                       "model)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip
@@ -167,6 +178,7 @@ def cmd_control(args: argparse.Namespace) -> int:
                                          backend=args.backend, plant=args.plant,
                                          cost=args.cost, lean=args.lean, shape=args.shape,
                                          risk=args.risk, members=args.members,
+                                         input_lag=args.input_lag,
                                          with_physics=args.with_physics or None,
                                          trust_window=args.trust_window)  # fmt: skip
     config = replace(ComparisonConfig(), **changes)

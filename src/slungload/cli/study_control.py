@@ -88,7 +88,7 @@ def cmd_study_control(args: argparse.Namespace) -> int:
                      oracle_samples=args.oracle_samples, samples=args.samples,
                      backend=args.backend, steps=args.steps, plant=args.plant,
                      cost=args.cost, lean=args.lean, shape=args.shape, risk=args.risk,
-                     with_physics=args.with_physics or None,
+                     with_physics=args.with_physics or None, input_lag=args.input_lag,
                      trust_window=args.trust_window)  # fmt: skip
     config = replace(StudyConfig(), **changes)
     warn_model_notes(args.model, max(config.horizons), paired=config.with_physics,

@@ -251,7 +251,9 @@ def add_identify(sub: Any) -> None:
         "that make the discrete model's open-loop rollouts (--horizon steps from every "
         "training window) closest to the recorded flights, starting from vehicle.json (or the "
         "defaults listed below). The vehicle mass stays as given. `train --fit-constants` does "
-        "the same before training.",
+        "the same before training. With --input-lag: the time constants of the commands' lags "
+        "the model leaves out (thrust, roll and pitch rates, yaw rate), for the physics MPC's "
+        "--input-lag (docs/control.md).",
     )
     p.add_argument("data", type=Path, help="dataset folder")
     p.add_argument(
@@ -260,6 +262,11 @@ def add_identify(sub: Any) -> None:
     p.add_argument(
         "--out", type=Path, help="write the fitted constants as a vehicle.json file here"
     )
+    p.add_argument(
+        "--input-lag",
+        action="store_true",
+        help="fit the commands' lags instead, over --horizon steps (give the MPC's N, e.g. 15)",
+    )
     add_vehicle_options(p)
     p.set_defaults(func=cmd_identify)
 
@@ -267,9 +274,15 @@ def add_identify(sub: Any) -> None:
 def cmd_identify(args: argparse.Namespace) -> int:
     from ..config import to_dict
     from ..fileio import write_json
-    from ..training.identify import identify
+    from ..training.identify import fit_input_lag, identify
 
-    found = identify(args.data, params=resolve_params(Path(args.data), args), horizon=args.horizon)
+    params = resolve_params(Path(args.data), args)
+    if args.input_lag:
+        if args.out is not None:
+            raise ValueError("--input-lag prints the lags to fly with; it writes no --out file")
+        print(fit_input_lag(args.data, params=params, horizon=args.horizon).summary())
+        return 0
+    found = identify(args.data, params=params, horizon=args.horizon)
     print(found.summary())
     if args.out is not None:
         if args.out.is_dir():

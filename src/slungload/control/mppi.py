@@ -26,12 +26,11 @@ At every step the controller
    convex combination of samples, is within them by construction; sample 0 is the plan;
 3. predicts their N-step outcomes with its model;
 4. scores them (``trajectory_cost``): vehicle position and velocity against the reference,
-   load position against its reference (vehicle reference minus l e3), load swing
-   (horizontal cable offset; with ``MPCConfig.cost`` "payload" the vehicle's targets and the
-   offset follow the cable direction the load's path needs, ``payload_first``), yaw, tilt
-   beyond ``max_tilt``, swing angle beyond ``max_swing``,
-   vehicle height below ``min_height``, input effort about hover and input rate (position
-   errors beyond ``position_huber`` growing linearly);
+   load position against its reference (vehicle reference minus l e3), load swing (horizontal
+   cable offset; with ``MPCConfig.cost`` "payload" the targets follow the cable direction the
+   load's path needs, ``payload_first``), yaw, tilt beyond ``max_tilt``, swing angle beyond
+   ``max_swing``, height below ``min_height``, input effort and rate (position errors beyond
+   ``position_huber`` growing linearly);
 5. weights them by ``exp(-(c - c_min) / lambda)`` with lambda = ``temperature`` times the
    spread ``mean(c) - c_min`` (a scale-free temperature) and applies the first input of the
    weighted plan (receding horizon).
@@ -42,7 +41,6 @@ falls back to the last safe plan (shifted), and after ``max_fallback_steps`` con
 fallbacks to a hover command (hover thrust, body rates that level the vehicle at the
 reference's yaw). An in-flight estimate of the constants that is not finite (a NaN in the
 history) is not used: the last good constants stay. Every event is counted in ``MPCStats``.
-
 numpy only (no torch): a test imports this module in a fresh interpreter and checks.
 """
 
@@ -57,6 +55,7 @@ import numpy as np
 
 from .. import frames
 from ..config import NETWORK_CONSTANTS, VehicleParams
+from ..input_lag import NO_LAG, check_lag
 from ..layout import INPUT_DIM, QUAT, STATE_DIM
 from .contract import CandidateModel, ConstantsEstimate, check_members, has_members, priced
 from .cost import (
@@ -74,6 +73,7 @@ from .cost import (
     yaw_of,
 )
 from .history import History
+from .lagged import with_input_lag
 from .limits import InputLimits
 from .split import ALL, MEMBER_USES, SPLIT, SplitMembers
 from .tracked import TrackedMembers, calibration_of
@@ -158,6 +158,9 @@ class MPCConfig:
     # How an ensemble's members predict the candidates (a name of ``MEMBER_USES``): "all"
     # every member each candidate; "split" candidate k by member k mod E (``SplitMembers``).
     members: str = ALL
+    # s: the commands' first-order lags (thrust, roll and pitch rates, yaw rate) the physics
+    # model is fed through (``lagged.with_input_lag``; fitted by `identify --input-lag`)
+    input_lag: tuple[float, float, float] = NO_LAG
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -189,6 +192,7 @@ class MPCConfig:
         if self.members not in MEMBER_USES:
             raise ValueError(f"MPCConfig.members: unknown {self.members!r}; known: "
                              f"{list(MEMBER_USES)}")  # fmt: skip
+        check_lag(self.input_lag)
         if self.members == SPLIT and self.risk is not None:
             raise ValueError("MPCConfig.members 'split' gives each candidate one member's cost, "
                              "and risk prices every member's: give one of the two")  # fmt: skip
@@ -241,13 +245,12 @@ class MPPIController:
     """The sampling MPC (see the module): ``step(state, reference) -> Command``, once per
     measurement, in order; one controller per flight.
 
-    model: a ``CandidateModel``; limits: the input box; config: ``MPCConfig`` (default:
-    K = 32, N = 15); params: the vehicle constants for hover thrust and cable length (default
-    ``VehicleParams()``); estimate: (x_hist (M, 13), u_past (M-1, 4)) -> (cable length m,
-    load mass kg), called every step when ``config.constants`` is "window". ``stats`` counts
-    steps and fallbacks; ``plan`` is the nominal plan (N, 4) for the next step (the last safe
-    plan, shifted).
-    """
+    model: a ``CandidateModel`` (a physics one fed through ``config.input_lag``); limits: the
+    input box; config: ``MPCConfig`` (default: K = 32, N = 15); params: the vehicle constants
+    for hover thrust, cable length and dt (default ``VehicleParams()``); estimate: (x_hist (M,
+    13), u_past (M-1, 4)) -> (cable length m, load mass kg), called every step when
+    ``config.constants`` is "window". ``stats`` counts steps and fallbacks; ``plan`` is the
+    nominal plan (N, 4) for the next step (the last safe plan, shifted)."""
 
     def __init__(
         self,
@@ -258,6 +261,8 @@ class MPPIController:
         estimate: ConstantsEstimate | None = None,
     ) -> None:
         self.cfg = cfg = config or MPCConfig()
+        self.params = params = params or VehicleParams()
+        model = with_input_lag(model, cfg.input_lag, params.dt)
         if cfg.members == SPLIT:
             model = SplitMembers(model, cfg.samples)
         calibration = calibration_of(model)  # a calibrated ensemble's interval is tracked
@@ -271,7 +276,6 @@ class MPPIController:
                 f"estimate needs constants='window'; got {cfg.constants!r} and "
                 f"{'an' if estimate else 'no'} estimate"
             )
-        self.params = params = params or VehicleParams()
         self.estimate = estimate
         self.history = History(max(2, model.history))
         self._use_constants(params.cable_length, params.mass_load)
@@ -366,12 +370,8 @@ class MPPIController:
                 "reference: the payload-first cost (MPCConfig.cost 'payload') needs the "
                 f"acceleration of the N = {n} steps ahead (ReferenceAhead.acceleration)"
             )
-        if (
-            p.shape[1:] != (3,)
-            or v.shape[1:] != (3,)
-            or yaw.ndim != 1
-            or min(len(p), len(v), len(yaw)) < n
-        ):
+        shapes_ok = p.shape[1:] == (3,) and v.shape[1:] == (3,) and yaw.ndim == 1
+        if not shapes_ok or min(len(p), len(v), len(yaw)) < n:
             raise ValueError(
                 f"reference: need position ({n}, 3), velocity ({n}, 3) and yaw ({n},) for the "
                 f"N = {n} steps ahead; got {p.shape}, {v.shape}, {yaw.shape}"

@@ -32,8 +32,8 @@ import math
 import numpy as np
 
 from ..layout import LOAD_POS, POS
+from .contract import CandidateModel
 from .history import flown_window, history_tail
-from .mppi import CandidateModel
 
 # steps (0.75 s) each member predicts of the path just flown, at most the plans' N: as long as
 # the N = 25 the MPC plans with, a network right over 0.3 s and wrong over 0.75 s has no say

@@ -18,7 +18,9 @@ from torch import Tensor
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import Dataset, load_dataset
 from ..data.windows import Windows, make_windows, physics_rollout
+from ..input_lag import LAG_CHANNELS, NO_LAG, lagged, warm_rows
 from ..models.constants import FITTED, LearnedConstants
+from ..physics import rollout
 from ..state import group_errors
 
 
@@ -118,3 +120,90 @@ def _value(constants: LearnedConstants, windows: Windows) -> float:
         return float("nan")
     with torch.no_grad():
         return float(rollout_error(constants, windows))
+
+
+# s: the time constants ``fit_input_lag`` tries for each channel
+LAG_GRID = (0.0, 0.01, 0.02, 0.03, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3)
+
+
+@dataclass(frozen=True)
+class LagFit:
+    """What ``fit_input_lag`` found: the commands' time constants (s, ``input_lag.LAG_CHANNELS``)
+    and the rollout error (as ``Identification``'s) without a lag and with the fitted one."""
+
+    lag: tuple[float, float, float]
+    horizon: int
+    windows: int
+    train_error: tuple[float, float]  # no lag, fitted
+    val_error: tuple[float, float]
+
+    def summary(self) -> str:
+        rows = [f"{name:<22} {tau:.3g} s" for name, tau in zip(LAG_CHANNELS, self.lag, strict=True)]
+        (t0, t1), (v0, v1) = self.train_error, self.val_error
+        rows.append(
+            f"{self.horizon}-step rollout error: train {t0:.4g} -> {t1:.4g}, val {v0:.4g} -> "
+            f"{v1:.4g} ({self.windows} training windows)"
+        )
+        rows.append(
+            "fly the physics model with it: --input-lag " + ",".join(f"{t:g}" for t in self.lag)
+        )
+        return "\n".join(rows)
+
+
+def fit_input_lag(
+    data: str | Path | Dataset,
+    *,
+    params: VehicleParams | None = None,
+    horizon: int = 15,
+    max_windows: int = 8192,
+    seed: int = 0,
+    grid: tuple[float, ...] = LAG_GRID,
+    rounds: int = 2,
+) -> LagFit:
+    """The commands' lags (``input_lag.lagged``) that make the physics model's open-loop
+    rollouts over ``horizon`` steps closest to the training flights: each channel's time
+    constant chosen from ``grid`` in turn, ``rounds`` times over (a lag is one number a channel
+    and the error is cheap; the grid keeps the fit free of the rollout's gradient through the
+    filter). ``params``: the model's constants (default: the dataset's)."""
+    if horizon < 1:
+        raise ValueError(f"horizon must be >= 1 step, got {horizon}")
+    probe = VehicleParams() if params is None else params
+    warm = warm_rows((max(grid),) * len(LAG_CHANNELS), probe.dt)
+    window = WindowConfig(history=warm + 2, horizon=horizon, stride=1)
+    if not isinstance(data, Dataset):
+        data = load_dataset(data, window=window, params=params)
+    params = params or data.params
+    train, val = (_windows(data, split, window, max_windows, seed) for split in ("train", "val"))
+    if len(train) == 0:
+        raise ValueError(f"{data.folder}: no training window of {window.length} steps")
+    lag, best = NO_LAG, lagged_error(train, params, NO_LAG)
+    for _ in range(rounds):
+        for channel in range(len(LAG_CHANNELS)):
+            for tau in grid:
+                trial = tuple(tau if c == channel else t for c, t in enumerate(lag))
+                error = lagged_error(train, params, trial)
+                if error < best:
+                    lag, best = trial, error
+    return LagFit(
+        lag=lag,  # type: ignore[arg-type]
+        horizon=horizon,
+        windows=len(train),
+        train_error=(lagged_error(train, params, NO_LAG), best),
+        val_error=tuple(lagged_error(val, params, t) for t in (NO_LAG, lag)),  # type: ignore[arg-type]
+    )
+
+
+def lagged_error(windows: Windows, params: VehicleParams, lag: tuple[float, ...]) -> float:
+    """Mean squared rollout error of the physics model (summed over the state groups, as
+    ``rollout_error``) on ``windows`` with the commands lagged by ``lag``: from x_{M-1}, the
+    history's inputs warming the filter (nan without windows)."""
+    if len(windows) == 0:
+        return float("nan")
+    m, n = windows.window.history, windows.window.horizon
+    inputs = windows.inputs.double().numpy()
+    received = lagged(inputs[:, : m - 1], inputs[:, m - 1 : m + n - 1], lag, params.dt)
+    x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
+    with torch.no_grad():
+        predicted, _ = rollout(x0, aux0, torch.from_numpy(received), params)
+        errors = group_errors(predicted, windows.future.states.double())
+        return float(sum(e.square().mean() for e in errors.values()))

@@ -88,6 +88,7 @@ def cost_changes(cost: str, lean: float) -> list[dict[str, float]]:
 SETTINGS_FIELDS = (
     "plant", "maneuvers", "tuning_seeds", "horizons", "samples", "oracle_samples", "steps",
     "tune", "backend", "cost", "lean", "shape", "risk", "with_physics", "trust_window",
+    "input_lag",
 )  # fmt: skip
 
 
@@ -109,6 +110,7 @@ class ComparisonConfig:
     shape: float = MPCConfig.shape  # the "payload" cost's jumps shaped (``MPCConfig.shape``)
     risk: float | None = MPCConfig.risk  # an ensemble's pricing (``MPCConfig.risk``)
     members: str = MPCConfig.members  # how an ensemble's members share the candidates
+    input_lag: tuple[float, float, float] = MPCConfig.input_lag  # s, physics's (``MPCConfig``)
     with_physics: bool = False  # each network priced with physics by ``risk`` (control.paired)
     # with ``with_physics``: steps of the flown path on which the network must predict at least
     # as well as physics to take part (``control.paired.trust_steps``: None, its default; 0:
@@ -118,7 +120,7 @@ class ComparisonConfig:
     def __post_init__(self) -> None:
         _check_steps("ComparisonConfig", self.steps)
         trust_steps(self.trust_window, self.with_physics)  # refuses a window without physics
-        _check_cost(self.cost, self.lean, self.shape)
+        _check_cost(self.cost, self.lean, self.shape, self.input_lag)
         _check_plant(self.plant)
         _check_maneuvers(self.maneuvers)
         if not self.samples or min(self.samples) < 2:
@@ -135,7 +137,7 @@ class ComparisonConfig:
         and ``members`` are an ensemble's only (``comparison``)."""
         return MPCConfig(horizon=self.horizon, knots=knots_for(self.horizon), cost=self.cost,
                          lean=self.lean, shape=self.shape, risk=self.risk,
-                         members=self.members)  # fmt: skip
+                         members=self.members, input_lag=self.input_lag)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -168,6 +170,7 @@ class StudyConfig:
     risk: float | None = MPCConfig.risk
     with_physics: bool = False
     trust_window: int | None = None  # with ``with_physics``: ``ComparisonConfig``'s
+    input_lag: tuple[float, float, float] = MPCConfig.input_lag  # s, physics's (``MPCConfig``)
 
     @property
     def pair_window(self) -> int:
@@ -179,7 +182,8 @@ class StudyConfig:
         ``members``: over a model of members (the paired learned one), priced by ``risk``."""
         # a tuned choice may carry its own lean (``cost_changes``)
         return MPCConfig(**{"cost": self.cost, "lean": self.lean, "shape": self.shape, **fields},
-                         risk=self.risk if members else None)  # fmt: skip
+                         risk=self.risk if members else None,
+                         input_lag=self.input_lag)  # fmt: skip
 
     @property
     def shifted_horizons(self) -> tuple[int, ...]:
@@ -188,7 +192,7 @@ class StudyConfig:
 
     def __post_init__(self) -> None:
         _check_steps("StudyConfig", self.steps)
-        _check_cost(self.cost, self.lean, self.shape)
+        _check_cost(self.cost, self.lean, self.shape, self.input_lag)
         _check_plant(self.plant)
         unknown = set(self.shifts) - set(SHIFTS)
         if unknown:
@@ -336,10 +340,11 @@ class RecordConfig:
         return range(self.first_seed, self.first_seed + max(n for _, n in self.flights))
 
 
-def _check_cost(cost: str, lean: float, shape: float) -> None:
+def _check_cost(cost: str, lean: float, shape: float, input_lag=MPCConfig.input_lag) -> None:
     if cost not in COSTS:
         raise ValueError(f"unknown MPC cost {cost!r}; known: {list(COSTS)}")
-    MPCConfig(cost=cost, lean=lean, shape=shape)  # its rules for the lean and the shape
+    # its rules for the lean, the shape and the lag
+    MPCConfig(cost=cost, lean=lean, shape=shape, input_lag=input_lag)
 
 
 # --- what a study folder's settings.json records of its configuration -----------------------
@@ -362,9 +367,9 @@ def settings_record(cfg: StudyConfig) -> dict[str, Any]:
 def recorded_settings(config: dict[str, Any]) -> dict[str, Any]:
     """A settings file's ``config`` as ``settings_record`` would write it today: a field the
     file lacks was added since, with the value its flights had (no window, equal weights, no
-    lean, no shape); a null window meant the default then, ``_EARLIER_WINDOW``."""
+    lean, no shape, no input lag); a null window meant the default then, ``_EARLIER_WINDOW``."""
     was = _jsonable(asdict(StudyConfig()))
-    was.update(trust_window=0, pair_weighs=False, lean=0.0, shape=0.0)
+    was.update(trust_window=0, pair_weighs=False, lean=0.0, shape=0.0, input_lag=[0.0] * 3)
     theirs = {k: config.get(k, was[k]) for k in (*SETTINGS_FIELDS, "pair_weighs")}
     if theirs["trust_window"] is None:
         theirs["trust_window"] = _EARLIER_WINDOW if theirs["with_physics"] else 0
