@@ -26,6 +26,11 @@ LAG_CHANNELS: dict[str, tuple[int, ...]] = {
     "yaw rate": (3,),
 }
 NO_LAG = (0.0, 0.0, 0.0)  # s: the paper's model (the commands act at once)
+# ``--input-lag``'s help, for every command that flies the MPC
+INPUT_LAG_HELP = ("time constants (s) of the first-order lags the physics model (alone or "
+                  "paired) is fed the plans through: " + ", ".join(LAG_CHANNELS) + " (fitted "
+                  "by `slungload identify DATA --input-lag`; a network learned its own; "
+                  "docs/control.md)")  # fmt: skip
 # time constants of warm-up: history rows the filter runs over before the plan (``warm_rows``)
 WARM_TAUS = 4.0
 
@@ -37,6 +42,11 @@ def check_lag(lag: Sequence[float]) -> tuple[float, float, float]:
         names = ", ".join(LAG_CHANNELS)
         raise ValueError(f"input lag: three time constants >= 0 s ({names}), got {lag}")
     return lag  # type: ignore[return-value]
+
+
+def lag_text(lag: Sequence[float]) -> str:
+    """Three time constants as ``--input-lag`` takes them: (0.1, 0.1, 0.2) -> '0.1,0.1,0.2'."""
+    return ",".join(f"{t:g}" for t in check_lag(lag))
 
 
 def smoothing(lag: Sequence[float], dt: float) -> np.ndarray:

@@ -14,7 +14,8 @@ from ..autopilot.config import HANDBACK, BridgeConfig, SilConfig, option_help
 from ..control.cost import LEAN_HELP, SHAPE_HELP
 from ..control.mppi import COSTS, MPCConfig
 from ..control.split import MEMBER_USES, MEMBERS_HELP
-from .common import choices, given, new_command, plants_help
+from ..input_lag import INPUT_LAG_HELP, lag_text
+from .common import choices, given, input_lag, new_command, plants_help
 
 FLY_OPTIONS = ("connection", "target_system", "component", "load_system", "load_component",
                "hover_throttle", "newtons_per_throttle", "min_thrust_share", "max_throttle",
@@ -101,6 +102,8 @@ def add_fly(sub: Any) -> None:
                    "model and physics with --with-physics (docs/control.md)")  # fmt: skip
     p.add_argument("--members", choices=list(MEMBER_USES),
                    help=f"{MEMBERS_HELP} (default {MPCConfig.members})")  # fmt: skip
+    p.add_argument("--input-lag", type=input_lag, metavar="T,R,Y",
+                   help=f"{INPUT_LAG_HELP} (default {lag_text(MPCConfig.input_lag)})")  # fmt: skip
     _add_options(p, BridgeConfig, FLY_OPTIONS)
     p.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     p.set_defaults(func=cmd_fly)
@@ -111,7 +114,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
 
     changes = _changes(args, FLY_OPTIONS)
     mpc = given(samples=args.samples, cost=args.cost, lean=args.lean, shape=args.shape,
-                risk=args.risk, members=args.members)  # fmt: skip
+                risk=args.risk, members=args.members, input_lag=args.input_lag)  # fmt: skip
     if mpc:
         changes["mpc"] = replace(MPCConfig(), **mpc)
     config = replace(BridgeConfig(), **changes)

@@ -89,15 +89,11 @@ def add_flight_options(
                        "vehicle's network flies as physics; 0: always; docs/control.md) "
                        f"(default {TRUST_WINDOW})")  # fmt: skip
     if hasattr(cfg, "input_lag"):
-        from ..input_lag import LAG_CHANNELS  # numpy only
+        from ..input_lag import INPUT_LAG_HELP, lag_text  # numpy only
 
         p.add_argument("--input-lag", type=input_lag, metavar="T,R,Y",
-                       help="time constants (s) of the first-order lags the physics model "
-                       f"(alone or paired) is fed the plans through: {', '.join(LAG_CHANNELS)} "
-                       "(fitted by `slungload identify DATA --input-lag`; a network learned "
-                       "its own; docs/control.md) (default "
-                       f"{','.join(f'{t:g}' for t in cfg.input_lag)}: none, the paper's "
-                       "model)")  # fmt: skip
+                       help=f"{INPUT_LAG_HELP} (default {lag_text(cfg.input_lag)}: none, the "
+                       "paper's model)")  # fmt: skip
     if hasattr(cfg, "horizon"):
         p.add_argument("--horizon", type=int, metavar="N",
                        help=f"MPC horizon, steps of 0.03 s (default {cfg.horizon})")  # fmt: skip

@@ -18,7 +18,7 @@ from torch import Tensor
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import Dataset, load_dataset
 from ..data.windows import Windows, make_windows, physics_rollout
-from ..input_lag import LAG_CHANNELS, NO_LAG, lagged, warm_rows
+from ..input_lag import LAG_CHANNELS, NO_LAG, lag_text, lagged, warm_rows
 from ..models.constants import FITTED, LearnedConstants
 from ..physics import rollout
 from ..state import group_errors
@@ -144,9 +144,7 @@ class LagFit:
             f"{self.horizon}-step rollout error: train {t0:.4g} -> {t1:.4g}, val {v0:.4g} -> "
             f"{v1:.4g} ({self.windows} training windows)"
         )
-        rows.append(
-            "fly the physics model with it: --input-lag " + ",".join(f"{t:g}" for t in self.lag)
-        )
+        rows.append(f"fly the physics model with it: --input-lag {lag_text(self.lag)}")
         return "\n".join(rows)
 
 
