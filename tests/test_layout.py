@@ -19,7 +19,7 @@ PACKAGE = Path(slungload.__file__).parent
 ORDER = {  # wing -> floor; a module may import its own floor and those below
     "_version": 0, "_lazy": 0, "config": 0, "state": 0, "fileio": 0, "run_config": 0,
     "layout": 0, "frames": 0, "reporting": 0, "workers": 0, "cluster": 0, "vehicle_file": 0,
-    "vehicle_constants": 0, "smoothing": 0, "online_interval": 0,
+    "vehicle_constants": 0, "smoothing": 0, "online_interval": 0, "input_lag": 0,
     "physics": 1, "load_state": 1, "constants_estimate": 1,
     "data": 2,
     "sim": 3,
