@@ -71,15 +71,9 @@ def identify(
     """Fit ``fitted`` constants, starting from ``params`` (default: the dataset's own), to the
     training flights of a dataset folder; ``horizon`` steps per rollout, at most ``max_windows``
     windows (a seeded draw), ``iterations`` L-BFGS steps."""
-    if horizon < 1:
-        raise ValueError(f"horizon must be >= 1 step, got {horizon}")
     window = WindowConfig(history=2, horizon=horizon, stride=1)
-    if not isinstance(data, Dataset):
-        data = load_dataset(data, window=window, params=params)
+    data, train, val = _fit_windows(data, params, window, max_windows, seed)
     initial = params or data.params
-    train, val = (_windows(data, split, window, max_windows, seed) for split in ("train", "val"))
-    if len(train) == 0:
-        raise ValueError(f"{data.folder}: no training window of {window.length} steps")
     constants = LearnedConstants(initial, fitted)
     before = (_value(constants, train), _value(constants, val))
     optimiser = torch.optim.LBFGS(
@@ -103,6 +97,23 @@ def identify(
         train_error=(before[0], after[0]),
         val_error=(before[1], after[1]),
     )
+
+
+def _fit_windows(
+    data: str | Path | Dataset,
+    params: VehicleParams | None,
+    window: WindowConfig,
+    count: int,
+    seed: int,
+) -> tuple[Dataset, Windows, Windows]:
+    """The dataset (loaded with ``params`` unless given loaded) and at most ``count`` of its
+    train and val windows (``_windows``); no training window is a ValueError naming why."""
+    if not isinstance(data, Dataset):
+        data = load_dataset(data, window=window, params=params)
+    train, val = (_windows(data, split, window, count, seed) for split in ("train", "val"))
+    if len(train) == 0:
+        raise ValueError(f"{data.folder}: no training window of {window.length} steps")
+    return data, train, val
 
 
 def _windows(dataset: Dataset, split: str, window: WindowConfig, count: int, seed: int) -> Windows:
@@ -163,17 +174,11 @@ def fit_input_lag(
     constant chosen from ``grid`` in turn, ``rounds`` times over (a lag is one number a channel
     and the error is cheap; the grid keeps the fit free of the rollout's gradient through the
     filter). ``params``: the model's constants (default: the dataset's)."""
-    if horizon < 1:
-        raise ValueError(f"horizon must be >= 1 step, got {horizon}")
     probe = VehicleParams() if params is None else params
     warm = warm_rows((max(grid),) * len(LAG_CHANNELS), probe.dt)
     window = WindowConfig(history=warm + 2, horizon=horizon, stride=1)
-    if not isinstance(data, Dataset):
-        data = load_dataset(data, window=window, params=params)
+    data, train, val = _fit_windows(data, params, window, max_windows, seed)
     params = params or data.params
-    train, val = (_windows(data, split, window, max_windows, seed) for split in ("train", "val"))
-    if len(train) == 0:
-        raise ValueError(f"{data.folder}: no training window of {window.length} steps")
     lag, best = NO_LAG, lagged_error(train, params, NO_LAG)
     for _ in range(rounds):
         for channel in range(len(LAG_CHANNELS)):
