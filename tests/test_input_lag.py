@@ -190,3 +190,41 @@ def test_identify_prints_the_lag_and_refuses_an_out_file(lagged_data, run_cli, t
     )
     assert code == 2 and "--input-lag" in err
     assert not (tmp_path / "vehicle.json").exists()
+
+
+def test_the_fit_defaults_to_the_mpc_horizon():
+    from slungload.input_lag import FIT_HORIZON
+
+    assert FIT_HORIZON == MPCConfig().horizon
+
+
+class _Prepared:
+    """A physics candidate model with a warm-up (as the compiled and graphed backends)."""
+
+    numpy, name, history = True, "physics", 2
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[int, int, int]] = []
+
+    def prepare(self, m: int, k: int, n: int) -> None:
+        self.calls.append((m, k, n))
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        return np.zeros((*plans.shape[:2], 13))
+
+
+def test_the_warm_up_reaches_the_wrapped_model_with_its_own_history():
+    inner = _Prepared()
+    limits = InputLimits.from_sim(SimConfig())
+    config = MPCConfig(samples=8, horizon=6, knots=3, input_lag=(0.04, 0.1, 0.2))
+    MPPIController(inner, limits, config, VehicleParams())
+    assert inner.calls == [(2, 8, 6)]
+    assert not hasattr(LaggedPhysics(_Network(), (0.1, 0.1, 0.1), DT), "prepare")
+
+
+def test_a_bad_lag_on_the_command_line_exits_2(run_cli, tmp_path, capsys):
+    for bad in ("0.1,-1,0", "0.1,0.1", "a,b,c"):
+        with pytest.raises(SystemExit) as stop:
+            run_cli("study", "control", "--input-lag", bad, "--out", tmp_path / "s")
+        assert stop.value.code == 2 and "--input-lag" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

@@ -26,10 +26,14 @@ LAG_CHANNELS: dict[str, tuple[int, ...]] = {
     "yaw rate": (3,),
 }
 NO_LAG = (0.0, 0.0, 0.0)  # s: the paper's model (the commands act at once)
+# steps: the fit's default rollout, the MPC's default N (``control.mppi.MPCConfig.horizon``,
+# above this floor; a test holds the two equal)
+FIT_HORIZON = 15
 # ``--input-lag``'s help, for every command that flies the MPC
 INPUT_LAG_HELP = ("time constants (s) of the first-order lags the physics model (alone or "
                   "paired) is fed the plans through: " + ", ".join(LAG_CHANNELS) + " (fitted "
-                  "by `slungload identify DATA --input-lag`; a network learned its own; "
+                  "by `slungload identify DATA --input-lag`; a network flown alone, or the "
+                  "oracle, flies without: it learned its vehicle's lag; "
                   "docs/control.md)")  # fmt: skip
 # time constants of warm-up: history rows the filter runs over before the plan (``warm_rows``)
 WARM_TAUS = 4.0

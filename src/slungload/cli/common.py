@@ -94,7 +94,7 @@ def input_lag(text: str) -> tuple[float, float, float]:
     try:
         return check_lag(float(t) for t in text.split(","))
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{exc} (e.g. 0.1,0.1,0.2), got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"{exc} (e.g. 0.1,0.1,0.2; given {text!r})") from None
 
 
 def positive_int(text: str) -> int:

@@ -243,6 +243,8 @@ def _train_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def add_identify(sub: Any) -> None:
+    from ..input_lag import FIT_HORIZON  # numpy only
+
     p = new_command(
         sub,
         "identify",
@@ -257,7 +259,10 @@ def add_identify(sub: Any) -> None:
     )
     p.add_argument("data", type=Path, help="dataset folder")
     p.add_argument(
-        "--horizon", type=int, default=10, metavar="N", help="steps per rollout (default 10)"
+        "--horizon",
+        type=int,
+        metavar="N",
+        help=f"steps per rollout (default 10; with --input-lag {FIT_HORIZON}, the MPC's N)",
     )
     p.add_argument(
         "--out", type=Path, help="write the fitted constants as a vehicle.json file here"
@@ -274,15 +279,17 @@ def add_identify(sub: Any) -> None:
 def cmd_identify(args: argparse.Namespace) -> int:
     from ..config import to_dict
     from ..fileio import write_json
+    from ..input_lag import FIT_HORIZON
     from ..training.identify import fit_input_lag, identify
 
     params = resolve_params(Path(args.data), args)
     if args.input_lag:
         if args.out is not None:
             raise ValueError("--input-lag prints the lags to fly with; it writes no --out file")
-        print(fit_input_lag(args.data, params=params, horizon=args.horizon).summary())
+        horizon = FIT_HORIZON if args.horizon is None else args.horizon
+        print(fit_input_lag(args.data, params=params, horizon=horizon).summary())
         return 0
-    found = identify(args.data, params=params, horizon=args.horizon)
+    found = identify(args.data, params=params, horizon=10 if args.horizon is None else args.horizon)
     print(found.summary())
     if args.out is not None:
         if args.out.is_dir():

@@ -30,6 +30,12 @@ class LaggedPhysics:
         self.physics, self.lag, self.dt = physics, check_lag(lag), dt
         self.name = physics.name
         self.history = physics.history + warm_rows(self.lag, dt)
+        if hasattr(physics, "prepare"):  # a compiled or graphed model's warm-up, passed on
+            self.prepare = self._prepare
+
+    def _prepare(self, m: int, k: int, n: int) -> None:
+        """``mppi.CandidateModel.prepare`` for the model's own history (it gets the tail)."""
+        self.physics.prepare(self.physics.history, k, n)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray

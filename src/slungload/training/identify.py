@@ -18,7 +18,7 @@ from torch import Tensor
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import Dataset, load_dataset
 from ..data.windows import Windows, make_windows, physics_rollout
-from ..input_lag import LAG_CHANNELS, NO_LAG, lag_text, lagged, warm_rows
+from ..input_lag import FIT_HORIZON, LAG_CHANNELS, NO_LAG, lag_text, lagged, warm_rows
 from ..models.constants import FITTED, LearnedConstants
 from ..physics import rollout
 from ..state import group_errors
@@ -163,7 +163,7 @@ def fit_input_lag(
     data: str | Path | Dataset,
     *,
     params: VehicleParams | None = None,
-    horizon: int = 15,
+    horizon: int = FIT_HORIZON,
     max_windows: int = 8192,
     seed: int = 0,
     grid: tuple[float, ...] = LAG_GRID,
