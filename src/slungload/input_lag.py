@@ -17,13 +17,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .layout import INPUT_DIM
+from .layout import INPUT_DIM, RATES, THRUST
 
+_COLUMNS = tuple(range(INPUT_DIM))
 # what each of the three time constants (s) delays: the input columns it covers
 LAG_CHANNELS: dict[str, tuple[int, ...]] = {
-    "thrust": (0,),
-    "roll and pitch rates": (1, 2),
-    "yaw rate": (3,),
+    "thrust": _COLUMNS[THRUST],
+    "roll and pitch rates": _COLUMNS[RATES][:2],
+    "yaw rate": _COLUMNS[RATES][2:],
 }
 NO_LAG = (0.0, 0.0, 0.0)  # s: the paper's model (the commands act at once)
 # steps: the fit's default rollout, the MPC's default N (``control.mppi.MPCConfig.horizon``,

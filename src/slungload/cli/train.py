@@ -12,6 +12,7 @@ from .common import (
     add_vehicle_options,
     add_window_options,
     choices,
+    given,
     new_command,
     positive_int,
     preset_help,
@@ -279,17 +280,16 @@ def add_identify(sub: Any) -> None:
 def cmd_identify(args: argparse.Namespace) -> int:
     from ..config import to_dict
     from ..fileio import write_json
-    from ..input_lag import FIT_HORIZON
     from ..training.identify import fit_input_lag, identify
 
     params = resolve_params(Path(args.data), args)
+    horizon = given(horizon=args.horizon)  # each fit's own default otherwise
     if args.input_lag:
         if args.out is not None:
             raise ValueError("--input-lag prints the lags to fly with; it writes no --out file")
-        horizon = FIT_HORIZON if args.horizon is None else args.horizon
-        print(fit_input_lag(args.data, params=params, horizon=horizon).summary())
+        print(fit_input_lag(args.data, params=params, **horizon).summary())
         return 0
-    found = identify(args.data, params=params, horizon=10 if args.horizon is None else args.horizon)
+    found = identify(args.data, params=params, **horizon)
     print(found.summary())
     if args.out is not None:
         if args.out.is_dir():

@@ -16,6 +16,7 @@ import torch
 from torch import Tensor
 
 from ..config import WindowConfig, to_dict
+from ..input_lag import NO_LAG, check_lag, lagged
 from ..load_state import estimate_load_state
 from ..physics import VehicleConstants, rollout
 from ..state import STATE_DIM
@@ -189,23 +190,30 @@ def make_windows(
     return Windows(**out, names=tuple(f.name for f in flights), window=window, constants=constants)
 
 
-def physics_rollout(windows: Windows, params: Any, batch_size: int | None = 8192) -> Tensor:
+def physics_rollout(
+    windows: Windows,
+    params: Any,
+    batch_size: int | None = 8192,
+    lag: Sequence[float] = NO_LAG,
+) -> Tensor:
     """The physics-only open-loop prediction of every window (the paper's "physics" row),
     (W, N, 13) float64: ``physics.rollout`` from the last history state x_{M-1} with the data's
     load-state estimate there and the true inputs u_{M-1} ... u_{M+N-2}.
 
     The one place that cuts a window for the physics model: the physics prediction model,
-    training's ``physics_step_mse`` and ``identify``'s fit all call it. params: a
+    training's ``physics_step_mse`` and ``identify``'s fits all call it. params: a
     ``VehicleParams`` or anything with its attributes (e.g. fitted constants as float64
     tensors); nothing is detached, so the result is differentiable in them. batch_size:
-    windows per rollout, or None for all at once (no copy into a joined result).
+    windows per rollout, or None for all at once (no copy into a joined result). lag: the
+    commands' time constants (s, ``input_lag.lagged``), the history's inputs warming the filter
+    (one set of constants only); none: the inputs as recorded.
     """
     if batch_size is None:
-        return _rollout_from_history(windows, params)
+        return _rollout_from_history(windows, params, lag)
     parts = [torch.zeros(0, windows.window.horizon, STATE_DIM, dtype=torch.float64)]
     for i in range(0, len(windows), batch_size):
         part = slice(i, i + batch_size)
-        parts.append(_rollout_from_history(windows[part], _constants_of(params, part)))
+        parts.append(_rollout_from_history(windows[part], _constants_of(params, part), lag))
     return torch.cat(parts)
 
 
@@ -223,14 +231,19 @@ def _constants_of(params: Any, part: slice) -> Any:
     return type(params)(*(c[part] if isinstance(c, Tensor) and c.dim() > 0 else c for c in params))
 
 
-def _rollout_from_history(windows: Windows, params: Any) -> Tensor:
-    """One batch: x_{M-1}, aux_{M-1}, u_{M-1} ... u_{M+N-2} -> (W, N, 13) float64. With one
-    set of constants per window the load rate at M-1 is estimated again with each window's
-    cable length (the data's aux used the dataset's)."""
+def _rollout_from_history(windows: Windows, params: Any, lag: Sequence[float]) -> Tensor:
+    """One batch: x_{M-1}, aux_{M-1}, u_{M-1} ... u_{M+N-2} (through ``lag``) -> (W, N, 13)
+    float64. With one set of constants per window the load rate at M-1 is estimated again with
+    each window's cable length (the data's aux used the dataset's)."""
     m, n = windows.window.history, windows.window.horizon
     x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
     if _per_window(params):
         params = type(params)(*(c.double() if isinstance(c, Tensor) else c for c in params))
         aux0 = estimate_load_state(windows.states[:, m - 2 : m].double(), params)[:, -1]
-    states, _ = rollout(x0, aux0, windows.inputs[:, m - 1 : m + n - 1].double(), params)
+    inputs = windows.inputs.double()
+    future = inputs[:, m - 1 : m + n - 1]
+    if any(check_lag(lag)):
+        received = lagged(inputs[:, : m - 1].numpy(), future.numpy(), lag, float(params.dt))
+        future = torch.from_numpy(received)
+    states, _ = rollout(x0, aux0, future, params)
     return states

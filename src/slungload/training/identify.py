@@ -18,9 +18,8 @@ from torch import Tensor
 from ..config import VehicleParams, WindowConfig
 from ..data.dataset import Dataset, load_dataset
 from ..data.windows import Windows, make_windows, physics_rollout
-from ..input_lag import FIT_HORIZON, LAG_CHANNELS, NO_LAG, lag_text, lagged, warm_rows
+from ..input_lag import FIT_HORIZON, LAG_CHANNELS, NO_LAG, lag_text, warm_rows
 from ..models.constants import FITTED, LearnedConstants
-from ..physics import rollout
 from ..state import group_errors
 
 
@@ -53,7 +52,12 @@ class Identification:
 def rollout_error(constants: LearnedConstants, windows: Windows) -> Tensor:
     """Mean squared rollout error of the physics model with ``constants`` on ``windows``
     (history M = 1 or more: the rollout starts at x_{M-1}), summed over the state groups."""
-    predicted = physics_rollout(windows, constants.current(), batch_size=None)
+    return _squared_error(physics_rollout(windows, constants.current(), batch_size=None), windows)
+
+
+def _squared_error(predicted: Tensor, windows: Windows) -> Tensor:
+    """Mean squared error of a prediction (W, N, 13) of ``windows``' futures, summed over the
+    state groups (m, m/s, quaternion error, m), as the paper's RMSE weighs them."""
     errors = group_errors(predicted, windows.future.states.double())
     return sum(e.square().mean() for e in errors.values())
 
@@ -198,15 +202,9 @@ def fit_input_lag(
 
 def lagged_error(windows: Windows, params: VehicleParams, lag: tuple[float, ...]) -> float:
     """Mean squared rollout error of the physics model (summed over the state groups, as
-    ``rollout_error``) on ``windows`` with the commands lagged by ``lag``: from x_{M-1}, the
-    history's inputs warming the filter (nan without windows)."""
+    ``rollout_error``) on ``windows`` with the commands lagged by ``lag`` (``physics_rollout``'s
+    lag; nan without windows)."""
     if len(windows) == 0:
         return float("nan")
-    m, n = windows.window.history, windows.window.horizon
-    inputs = windows.inputs.double().numpy()
-    received = lagged(inputs[:, : m - 1], inputs[:, m - 1 : m + n - 1], lag, params.dt)
-    x0, aux0 = windows.states[:, m - 1].double(), windows.aux[:, m - 1].double()
     with torch.no_grad():
-        predicted, _ = rollout(x0, aux0, torch.from_numpy(received), params)
-        errors = group_errors(predicted, windows.future.states.double())
-        return float(sum(e.square().mean() for e in errors.values()))
+        return float(_squared_error(physics_rollout(windows, params, None, lag), windows))
