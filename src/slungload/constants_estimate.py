@@ -45,7 +45,8 @@ import torch
 from torch import Tensor
 
 from .config import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, ESTIMATE_SMOOTHING_STEPS, VehicleParams
-from .physics import VehicleConstants
+from .load_state import estimate_load_state
+from .physics import VehicleConstants, rollout
 from .state import body_z, split_input, split_state
 
 ESTIMATED = ("mass_load", "cable_length")  # what ``WindowConstants.vehicle`` replaces by default
@@ -128,6 +129,33 @@ def adapted(
             for name, (low, high) in ADAPT_RANGE.items()
         }
     return VehicleConstants.of(params)._replace(**clipped)  # the others stay floats
+
+
+def constants_shift(
+    states: Tensor,
+    inputs: Tensor,
+    future_inputs: Tensor,
+    params: VehicleParams,
+    prior_weight: float = ADAPT_PRIOR_WEIGHT,
+) -> Tensor:
+    """How far the physics model's prediction moves when it runs with the constants estimated
+    from the history (``adapted``) instead of ``params``: (..., N, 13) float64, each rolled out
+    from x_{M-1} with its own causal load-state estimate there.
+
+    states (..., M, 13), inputs (..., M, 4): the history (M >= 17); future_inputs (..., N, 4):
+    u_M ... u_{M+N-1}, as a window's future (u_{M+N-1} is not used). Members that all learned
+    one vehicle's constants agree on another vehicle's motion, so their spread cannot see a
+    changed cable or load; this term can (``models.ensemble.Calibration.constants_shift``).
+    """
+    x, u = states.double(), inputs.double()
+    drive = torch.cat([u[..., -1:, :], future_inputs.double()[..., :-1, :]], dim=-2)
+    est = adapted(x, u, params, prior_weight)
+
+    def roll(constants: VehicleParams | VehicleConstants) -> Tensor:
+        aux = estimate_load_state(x[..., -2:, :], constants)[..., -1, :]
+        return rollout(x[..., -1, :], aux, drive, constants)[0]
+
+    return roll(est) - roll(params)
 
 
 def pool(estimate: WindowConstants, dim: int | tuple[int, ...] = -1) -> WindowConstants:

@@ -31,11 +31,25 @@ def members_mean(members: np.ndarray) -> np.ndarray:
     return mean
 
 
+def members_only(calibration: dict) -> dict:
+    """``calibration`` (a dict), refused where it widens the spread by the constants shift
+    (``Calibration.constants_shift``): the numpy paths (the MPC, onboard, exported files)
+    compute the members' spread alone."""
+    if calibration.get("constants_shift"):
+        raise ValueError(
+            "this ensemble's calibration adds the physics model's constants shift to the "
+            "members' spread (calibrate --constants-shift), which the MPC and the exported "
+            "files do not compute yet: calibrate it without --constants-shift to fly it"
+        )
+    return calibration
+
+
 def members_half_width(members: np.ndarray, calibration: dict) -> np.ndarray:
     """Members' predictions (E, ..., N, 13) -> the calibrated interval's half width (..., N,
     13): z(level) x the fitted scale per step and group x the members' std
     (``models.ensemble.Calibration.half_width`` of ``spread``'s std in numpy, a test holds the
     two equal); past the calibration's steps, its last row."""
+    members_only(calibration)
     std = _aligned(members).std(0, ddof=1)
     scale = np.asarray(calibration["scale"], np.float64)  # (N_cal, G)
     if scale.shape[1] != len(GROUPS):
@@ -49,9 +63,9 @@ def calibration_of(model: object) -> dict | None:
     """An ensemble's calibration as a dict (an exported file's already is one; the torch
     ensemble's ``Calibration`` as its fields), None where it has none."""
     calibration = getattr(model, "calibration", None)
-    if calibration is None or isinstance(calibration, dict):
-        return calibration
-    return asdict(calibration) if is_dataclass(calibration) else None
+    if is_dataclass(calibration):
+        calibration = asdict(calibration)
+    return members_only(calibration) if isinstance(calibration, dict) else None
 
 
 def members_novel(members: np.ndarray, calibration: dict | None) -> np.ndarray:
@@ -60,6 +74,7 @@ def members_novel(members: np.ndarray, calibration: dict | None) -> np.ndarray:
     holds the two equal; ``calibration`` as a dict); all False without a calibration."""
     if calibration is None:
         return np.zeros(members.shape[1], bool)
+    members_only(calibration)
     std = _aligned(members).std(0, ddof=1)  # (K, N, 13)
     ref = np.asarray(calibration["reference_std"], np.float64)
     ref = ref[np.minimum(np.arange(std.shape[-2]), len(ref) - 1)]

@@ -32,6 +32,7 @@ import torch
 from torch import Tensor, nn
 
 from ..config import VehicleParams, WindowConfig
+from ..constants_estimate import constants_shift
 from ..layout import (
     INPUT_DIM,
     QUAT,
@@ -219,6 +220,17 @@ class EnsemblePredictor:
             raise ValueError("an uncalibrated ensemble states no interval: slungload calibrate")
         return self.calibration
 
+    def _shift(self, history: np.ndarray, future_inputs: np.ndarray) -> Tensor | None:
+        """(B, N, 13) float64: the windows' constants shift against the members' constants
+        where the calibration widens the spread by it (``Calibration.constants_shift``)."""
+        if not self._calibration().constants_shift:
+            return None
+        hist, fut, _ = check_inputs(history, future_inputs, caller="EnsemblePredictor")
+        h = torch.as_tensor(hist, dtype=torch.float64)
+        u_future = torch.as_tensor(fut, dtype=torch.float64)
+        x_hist = states_from_file(h[..., :STATE_DIM])
+        return constants_shift(x_hist, h[..., STATE_DIM:], u_future, self.members[0].params)
+
     def predict(self, history: np.ndarray, future_inputs: np.ndarray) -> np.ndarray:
         """The members' mean, as ``Predictor.predict`` (same arguments and layout)."""
         states, single = self._members(history, future_inputs)
@@ -233,12 +245,13 @@ class EnsemblePredictor:
         calibration = self._calibration()
         states, single = self._members(history, future_inputs)
         mean, std = spread(states)
-        half = calibration.half_width(std, level)
+        shift = self._shift(history, future_inputs)
+        half = calibration.half_width(std, level, shift)
         if self.tracker is not None:
             factor = self.tracker.component_multiplier(half.shape[-2])
             half = half * torch.as_tensor(factor, dtype=half.dtype)
         half[..., QUAT] = half[..., QUAT][..., list(WXYZ_TO_XYZW)]  # the file's x-y-z-w
-        novel = calibration.novel(std).numpy()
+        novel = calibration.novel(std, shift).numpy()
         return Interval(
             unbatch(states_to_file(mean).numpy(), single),
             unbatch(half.numpy(), single),
@@ -261,7 +274,8 @@ class EnsemblePredictor:
             )
         states, _ = self._members(history, applied_inputs)
         mean, std = spread(states[:, 0])
-        half = calibration.half_width(std)
+        shift = self._shift(history, applied_inputs)
+        half = calibration.half_width(std, shift=None if shift is None else shift[0])
         truth = states_from_file(torch.as_tensor(flown))
         if self.tracker is None:
             self.tracker = OnlineInterval(calibration.horizon, calibration.level, self.tracking)

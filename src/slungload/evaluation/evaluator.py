@@ -33,7 +33,12 @@ from ..state import GROUPS, group_errors
 from .metrics import Curve, mae_curve, metrics_from_errors
 from .report import write_report
 from .results import PHYSICS, PHYSICS_TRUTH, Example, Report, RunResult, TimingResult, table_rows
-from .uncertainty import UncertaintyStats, member_predictions, uncertainty_stats
+from .uncertainty import (
+    UncertaintyStats,
+    member_predictions,
+    shift_if_asked,
+    uncertainty_stats,
+)
 from .windows import horizon_windows
 
 # Batch-1 timing of the trained networks: (label, seed, network) triples, the test windows per
@@ -178,7 +183,7 @@ def _run_candidates(
             pred = spread(members).mean.to(windows[n].states.dtype)
             if c.model.calibration is not None:
                 spreads.setdefault(c.label, {})[n] = uncertainty_stats(
-                    members, truth, c.model.calibration
+                    members, truth, c.model.calibration, shift=shift_if_asked(c.model, windows[n])
                 )
         else:
             pred = c.model.predict_windows(windows[n])

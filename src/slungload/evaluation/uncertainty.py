@@ -33,7 +33,7 @@ from ..config import WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..fileio import write_text
-from ..layout import GROUPS, QUAT
+from ..layout import GROUPS, QUAT, STATE_DIM
 from ..models.ensemble import (
     LEVEL,
     Calibration,
@@ -79,10 +79,19 @@ def _ratio_quantiles(ratio: Tensor, q: float) -> np.ndarray:
 
 
 def fit_calibration(
-    members: Tensor, truth: Tensor, *, level: float = LEVEL, fitted_on: str = ""
+    members: Tensor,
+    truth: Tensor,
+    *,
+    level: float = LEVEL,
+    fitted_on: str = "",
+    shift: Tensor | None = None,
 ) -> Calibration:
-    """The ``Calibration`` of members (E, W, N, 13) against truth (W, N, 13) at ``level``."""
+    """The ``Calibration`` of members (E, W, N, 13) against truth (W, N, 13) at ``level``;
+    given the windows' constants shift (W, N, 13, ``window_shift``), one that widens the
+    members' spread by it (``Calibration.constants_shift``)."""
     mean, std = spread(members)
+    if shift is not None:
+        std = (std * std + shift.to(std) ** 2).sqrt()
     std = std.clamp_min(1e-12)
     ratio = (truth - mean).abs() / std
     scale = _ratio_quantiles(ratio, level) / z_of(level)
@@ -103,7 +112,25 @@ def fit_calibration(
         novelty_quantile=NOVELTY_QUANTILE,
         fitted_on=fitted_on,
         windows=int(truth.shape[0]),
+        constants_shift=shift is not None,
     )
+
+
+def window_shift(model: EnsembleModel, windows: Windows, batch: int = 4096) -> Tensor:
+    """(W, N, 13) float64: each window's ``constants_estimate.constants_shift`` against the
+    members' constants (``EnsembleModel.constants_shift``), ``batch`` windows at a time."""
+    m = windows.window.history
+    parts = [torch.zeros(0, windows.window.horizon, STATE_DIM, dtype=torch.float64)]
+    for i in range(0, len(windows), batch):
+        w = windows[i : i + batch]
+        parts.append(model.constants_shift(w.states[:, :m], w.inputs[:, :m], w.inputs[:, m:]))
+    return torch.cat(parts)
+
+
+def shift_if_asked(model: EnsembleModel, windows: Windows) -> Tensor | None:
+    """``window_shift`` where the model's calibration widens its spread by it, else None."""
+    cal = model.calibration
+    return window_shift(model, windows) if cal is not None and cal.constants_shift else None
 
 
 @dataclass(frozen=True)
@@ -169,14 +196,15 @@ def uncertainty_stats(
     tracked_in: Windows | None = None,
     online: OnlineIntervalConfig | None = None,
     carry: bool = False,
+    shift: Tensor | None = None,
 ) -> UncertaintyStats:
     """Coverage, error and spread of members (E, W, N, 13) against truth (W, N, 13); with
     ``tracked_in`` (the windows they are of) the interval as tracked in flight over their
     flights (``tracked_multipliers``, ``online`` its constants, ``carry`` from flight to
-    flight)."""
+    flight); ``shift``: the windows' constants shift, where the calibration widens by it."""
     lvl = calibration.level if level is None else level
     mean, std = spread(members)
-    half = calibration.half_width(std, lvl)
+    half = calibration.half_width(std, lvl, shift)
     surprised = None
     if tracked_in is not None:
         ratio = (truth - mean).abs() / half.clamp_min(1e-12)
@@ -195,7 +223,7 @@ def uncertainty_stats(
         rmse[g] = sq_err[..., cols].sum(-1).mean(0).sqrt().numpy()
         sig[g] = sq_sig[..., cols].sum(-1).mean(0).sqrt().numpy()
         cov[g] = inside[..., cols].mean(dim=(0, 2)).numpy()
-    novel = float(calibration.novel(std).double().mean())
+    novel = float(calibration.novel(std, shift).double().mean())
     carried = carry and tracked_in is not None
     return UncertaintyStats(rmse, sig, cov, novel, lvl, int(truth.shape[0]), surprised, carried)
 
@@ -227,14 +255,32 @@ def calibrate(
     split: str = "val",
     horizon: int | None = None,
     level: float = LEVEL,
+    constants_shift: bool = False,
 ) -> tuple[Calibration, UncertaintyStats]:
     """Fit the ensemble folder's calibration on a split (default val), store it in its
-    manifest, and return it with its in-sample stats."""
+    manifest, and return it with its in-sample stats. ``constants_shift``: widen the members'
+    spread by each window's constants shift (members of fixed constants only)."""
     model, windows, about = ensemble_and_windows(ensemble, data, split, horizon)
+    shift = None
+    if constants_shift:
+        adapting = [m.name for m in model.members if _adapts(m)]
+        if adapting:
+            raise ValueError(
+                f"{ensemble}: --constants-shift widens the interval of members trained on one "
+                "vehicle's constants; these adapt theirs in flight (constants='window'), so "
+                "their spread already follows the load: calibrate without it"
+            )
+        shift = window_shift(model, windows)
     members, truth = member_predictions(model, windows)
-    calibration = fit_calibration(members, truth, level=level, fitted_on=about)
+    calibration = fit_calibration(members, truth, level=level, fitted_on=about, shift=shift)
     set_calibration(ensemble, calibration)
-    return calibration, uncertainty_stats(members, truth, calibration)
+    return calibration, uncertainty_stats(members, truth, calibration, shift=shift)
+
+
+def _adapts(member: object) -> bool:
+    """Whether a member network runs f with each window's estimated constants."""
+    config = getattr(getattr(member, "net", None), "config", None)
+    return getattr(config, "constants", None) == "window"
 
 
 def assess(
@@ -254,8 +300,12 @@ def assess(
     if model.calibration is None:
         raise ValueError(f"{ensemble}: not calibrated; run `slungload calibrate {ensemble}`")
     members, truth = member_predictions(model, windows)
-    fixed = uncertainty_stats(members, truth, model.calibration, level)
-    tracked = uncertainty_stats(members, truth, model.calibration, level, windows, online, carry)
+    shift = shift_if_asked(model, windows)
+    if shift is not None:
+        about += " (the members' spread widened by the constants shift)"
+    fixed = uncertainty_stats(members, truth, model.calibration, level, shift=shift)
+    tracked = uncertainty_stats(members, truth, model.calibration, level, windows, online, carry,
+                                shift)  # fmt: skip
     return fixed, tracked, about
 
 

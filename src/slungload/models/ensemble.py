@@ -15,6 +15,10 @@ and stored in ``ensemble.json``) scales it per horizon step and state group, so 
 divided by the Gaussian z of that level), Gaussian z at any other level. Steps beyond the
 fitted horizon keep its last step's scale. ``Calibration.novelty`` flags windows whose
 spread is far above what the fitting windows showed (the model outside what it has seen).
+With ``Calibration.constants_shift`` the spread the scale multiplies is sqrt(std^2 +
+shift^2), shift the physics model's move under the constants estimated in flight
+(``constants_estimate.constants_shift``): members that learned one vehicle all agree on
+another's motion, the physics model's constants do not.
 """
 
 from __future__ import annotations
@@ -31,7 +35,8 @@ from torch import Tensor
 
 from .._version import __version__
 from ..config import ENSEMBLE_LEVEL as LEVEL
-from ..config import from_dict, to_dict
+from ..config import VehicleParams, from_dict, to_dict
+from ..constants_estimate import constants_shift
 from ..fileio import read_json, write_json
 from ..layout import GROUPS, QUAT, STATE_DIM
 from ..state import with_unit_quaternion
@@ -88,6 +93,8 @@ class Calibration:
     ``z_of(level) * scale * std`` is the interval's half width. reference_std: (N, 13) the
     median std per step and component on the fitting windows; novelty_threshold: the
     ``novelty_quantile`` of ``novelty_score`` there. fitted_on: where (a dataset and split).
+    constants_shift: whether the std these apply to is first widened by each window's
+    constants shift (``interval_std``); such a calibration needs the shift wherever it is used.
     """
 
     scale: tuple[tuple[float, ...], ...]
@@ -98,6 +105,7 @@ class Calibration:
     groups: tuple[str, ...] = tuple(GROUPS)
     fitted_on: str = ""
     windows: int = 0
+    constants_shift: bool = False
 
     def __post_init__(self) -> None:
         if self.groups != tuple(GROUPS):
@@ -124,21 +132,44 @@ class Calibration:
         out[:, have] = scale[:, idx[have]]
         return out
 
-    def half_width(self, std: Tensor, level: float | None = None) -> Tensor:
-        """std (..., N, 13) -> the interval's half width, same shape and dtype."""
+    def interval_std(self, std: Tensor, shift: Tensor | None = None) -> Tensor:
+        """The spread the scale multiplies: the members' std (..., N, 13), or with
+        ``constants_shift`` sqrt(std^2 + shift^2), shift (..., N, 13) the windows'
+        ``constants_estimate.constants_shift``. A ``ValueError`` where the shift is missing or
+        not wanted."""
+        if not self.constants_shift:
+            if shift is not None:
+                raise ValueError("a constants shift given to a calibration fitted without one")
+            return std
+        if shift is None:
+            raise ValueError(
+                "this calibration widens the spread by the physics model's constants shift "
+                "(calibrate --constants-shift), and no shift was given: compute it "
+                "(constants_estimate.constants_shift), or calibrate without --constants-shift"
+            )
+        return (std * std + shift.to(std) ** 2).sqrt()
+
+    def half_width(
+        self, std: Tensor, level: float | None = None, shift: Tensor | None = None
+    ) -> Tensor:
+        """std (..., N, 13) (and ``interval_std``'s shift) -> the interval's half width, same
+        shape and dtype."""
         lvl = self.level if level is None else level
+        std = self.interval_std(std, shift)
         scale = self.component_scale(std.shape[-2]).to(std.device, std.dtype)
         return z_of(lvl) * scale * std
 
-    def novelty_score(self, std: Tensor) -> Tensor:
-        """std (..., N, 13) -> (...): mean over steps and components of std / reference."""
+    def novelty_score(self, std: Tensor, shift: Tensor | None = None) -> Tensor:
+        """std (..., N, 13) (and ``interval_std``'s shift) -> (...): mean over steps and
+        components of the interval's std / reference."""
+        std = self.interval_std(std, shift)
         ref = torch.tensor(self.reference_std, dtype=torch.float64)[self._rows(std.shape[-2])]
         ratio = std / ref.to(std.device, std.dtype).clamp_min(1e-12)
         return ratio.mean(dim=(-2, -1))
 
-    def novel(self, std: Tensor) -> Tensor:
+    def novel(self, std: Tensor, shift: Tensor | None = None) -> Tensor:
         """std (..., N, 13) -> (...) bool: spread beyond what the fitting windows showed."""
-        return self.novelty_score(std) > self.novelty_threshold
+        return self.novelty_score(std, shift) > self.novelty_threshold
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Calibration:
@@ -155,6 +186,7 @@ class EnsembleModel:
     members: tuple[Any, ...]  # PredictionModel each
     name: str = "ensemble"
     calibration: Calibration | None = None
+    params: VehicleParams | None = None  # the constants the members learned (the shift's)
     history: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -177,6 +209,13 @@ class EnsembleModel:
         """The members' own numpy entries, their mean."""
         out = self._numpy_candidates_members(x_hist, u_past, plans)
         return spread(torch.from_numpy(out)).mean.numpy()
+
+    def constants_shift(self, x_hist: Tensor, u_hist: Tensor, u_future: Tensor) -> Tensor:
+        """``constants_estimate.constants_shift`` against the members' constants: (B, M, 13),
+        (B, M, 4), (B, N, 4) -> (B, N, 13) float64."""
+        if self.params is None:
+            raise ValueError(f"{self.name}: no vehicle constants recorded for the constants shift")
+        return constants_shift(x_hist, u_hist, u_future, self.params)
 
     def novel(self, members: Any) -> Any:
         """Members' predictions (E, K, N, 13) numpy -> (K,) bool numpy: ``Calibration.novel``

@@ -229,7 +229,7 @@ def ensemble_model(
         network_model(lm, constants, label=folder.name, **options)
         for lm, folder in zip(members, manifest.members, strict=True)
     ]
-    return EnsembleModel(tuple(nets), manifest.folder.name, manifest.calibration)
+    return EnsembleModel(tuple(nets), manifest.folder.name, manifest.calibration, members[0].params)
 
 
 def network_model(

@@ -1,0 +1,180 @@
+"""The constants shift (the physics model's move under the constants estimated from a window's
+history) and an ensemble interval widened by it: near zero on the vehicle the constants are of,
+large on a longer cable; the calibration fitted with it covers its level, needs the shift
+wherever it is used, round-trips, and is refused where the numpy paths cannot compute it."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from slungload.config import to_dict
+from slungload.constants_estimate import constants_shift
+from slungload.data.readers.npz import from_arrays
+from slungload.deploy.members import calibration_of, members_half_width, members_novel
+from slungload.evaluation.uncertainty import fit_calibration, uncertainty_stats
+from slungload.layout import GROUPS, LOAD_POS, QUAT, STATE_DIM, WXYZ_TO_XYZW
+from slungload.models.ensemble import Calibration, EnsembleModel, spread
+from slungload.sim import Effects, SimConfig, simulate_flight
+from slungload.sim.config import vehicle_params
+
+M, N = 50, 25
+CLEAN = Effects().without("thrust_error", "wind", "mocap_noise", "thrust_offset")
+
+
+def _windows(cable: float):
+    """(the nominal vehicle's constants, the flight's, states (W, M+N, 13), inputs (W, M+N, 4))
+    of one clean flight with the given cable length, windows 10 steps apart."""
+    cfg = SimConfig(effects=CLEAN).with_loads(cable_length=cable)
+    nominal = vehicle_params(SimConfig(effects=CLEAN).nominal)
+    flight = simulate_flight("fast_ellipses_xy", seed=0, config=cfg, steps=300)
+    read = from_arrays(flight.arrays, Path("f"), nominal)
+    x, u = torch.from_numpy(read.states), torch.from_numpy(read.inputs)
+    states = x.unfold(0, M + N, 10).permute(0, 2, 1)
+    inputs = u.unfold(0, M + N, 10).permute(0, 2, 1)
+    return nominal, vehicle_params(flight.config), states, inputs
+
+
+def _load_shift(states, inputs, params) -> torch.Tensor:
+    """Median over windows of the load position's shift at the last step (m)."""
+    shift = constants_shift(states[:, :M], inputs[:, :M], inputs[:, M:], params)
+    assert shift.shape == (states.shape[0], N, STATE_DIM) and shift.dtype == torch.float64
+    return shift[:, -1, LOAD_POS].norm(dim=-1).median()
+
+
+def test_the_shift_is_small_on_its_own_vehicle_and_large_on_a_longer_cable():
+    nominal, _, states, inputs = _windows(cable=nominal_cable())
+    own = _load_shift(states, inputs, nominal)
+    nominal, longer, states, inputs = _windows(cable=1.2 * nominal_cable())
+    assert longer.cable_length == pytest.approx(1.2 * nominal.cable_length)
+    against_nominal = _load_shift(states, inputs, nominal)
+    against_truth = _load_shift(states, inputs, longer)
+    assert against_nominal > 0.05  # metres at 0.5 s: the cable the members never saw
+    assert own < 0.2 * against_nominal and against_truth < 0.2 * against_nominal
+    # batched over any leading dimensions
+    one = constants_shift(states[:1, :M], inputs[:1, :M], inputs[:1, M:], nominal)
+    two = constants_shift(states[None, :2, :M], inputs[None, :2, :M], inputs[None, :2, M:], nominal)
+    torch.testing.assert_close(two[0, :1], one)
+
+
+def nominal_cable() -> float:
+    return SimConfig().nominal.cable_length
+
+
+def _members_and_truth(windows: int, shift_scale: float, seed: int):
+    """64 members of std ~1 per component, a shift of up to ``shift_scale`` per window, and
+    truth off the mean by a Gaussian of sqrt(std^2 + shift^2) (the quaternion far away)."""
+    g = torch.Generator().manual_seed(seed)
+    centre = torch.zeros(windows, 2, STATE_DIM, dtype=torch.float64)
+    centre[..., QUAT.start] = 1000.0
+    members = centre + torch.randn(64, windows, 2, STATE_DIM, generator=g, dtype=torch.float64)
+    shift = shift_scale * torch.rand(windows, 1, 1, generator=g, dtype=torch.float64)
+    shift = shift.expand(windows, 2, STATE_DIM).clone()
+    mean, std = spread(members)
+    noise = torch.randn(windows, 2, STATE_DIM, generator=g, dtype=torch.float64)
+    return members, mean + (std**2 + shift**2).sqrt() * noise, shift
+
+
+def test_a_calibration_with_the_shift_covers_its_level_where_the_members_alone_cannot():
+    members, truth, shift = _members_and_truth(4000, 5.0, seed=0)
+    cal = fit_calibration(members, truth, shift=shift)
+    assert cal.constants_shift
+    fresh_members, fresh_truth, fresh_shift = _members_and_truth(4000, 10.0, seed=1)
+    stats = uncertainty_stats(fresh_members, fresh_truth, cal, shift=fresh_shift)
+    alone = uncertainty_stats(fresh_members, fresh_truth, fit_calibration(members, truth))
+    for g, name in enumerate(GROUPS):
+        if name != "quaternion":  # renormalised by spread's mean
+            assert stats.coverage[g] == pytest.approx([0.9, 0.9], abs=0.03)
+            # fitted where the shift was half as large, the members' spread alone misses
+            assert (alone.coverage[g] < 0.85).all()
+    _, std = spread(fresh_members)
+    torch.testing.assert_close(
+        cal.half_width(std, shift=fresh_shift),
+        cal.half_width((std**2 + fresh_shift**2).sqrt(), shift=torch.zeros_like(std)),
+    )
+    with pytest.raises(ValueError, match="no shift was given"):
+        cal.half_width(std)
+    with pytest.raises(ValueError, match="no shift was given"):
+        cal.novel(std)
+    with pytest.raises(ValueError, match="fitted without one"):
+        fit_calibration(members, truth).half_width(std, shift=fresh_shift)
+    # the flag round-trips; a manifest written before it reads as without
+    assert Calibration.from_dict(json.loads(json.dumps(to_dict(cal)))) == cal
+    older = {k: v for k, v in to_dict(cal).items() if k != "constants_shift"}
+    assert not Calibration.from_dict(older).constants_shift
+
+
+class _Constant:
+    """Predicts a fixed state everywhere (an ensemble member for the MPC's refusal)."""
+
+    def __init__(self, value: float):
+        self.value, self.history, self.name = value, 2, f"c{value}"
+
+    def predict_candidates(self, x_hist, u_past, plans):
+        out = torch.zeros(*plans.shape[:2], STATE_DIM, dtype=plans.dtype)
+        out[..., 0] = self.value
+        out[..., QUAT.start] = 1.0
+        return out
+
+
+def test_the_numpy_paths_refuse_a_calibration_they_cannot_widen():
+    from slungload.control.limits import InputLimits
+    from slungload.control.mppi import MPPIController
+
+    members, truth, shift = _members_and_truth(200, 1.0, seed=2)
+    cal = fit_calibration(members, truth, shift=shift)
+    as_dict = to_dict(cal)
+    e = np.zeros((2, 3, 2, STATE_DIM))
+    for call in (lambda: members_half_width(e, as_dict), lambda: members_novel(e, as_dict)):
+        with pytest.raises(ValueError, match="do not compute"):
+            call()
+    ensemble = EnsembleModel((_Constant(1.0), _Constant(2.0)), calibration=cal)
+    with pytest.raises(ValueError, match="do not compute"):
+        calibration_of(ensemble)
+    with pytest.raises(ValueError, match="do not compute"):
+        MPPIController(ensemble, InputLimits(2.0, 30.0, 4.0))
+    # without the shift both still work
+    plain = replace(ensemble, calibration=fit_calibration(members, truth))
+    assert calibration_of(plain)["constants_shift"] is False
+    assert members_novel(e, calibration_of(plain)).shape == (3,)
+
+
+def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
+    run_cli, tmp_path, tiny_run, trained_ensemble
+):
+    from slungload.data.readers import read_flight
+    from slungload.deploy.predictor import EnsemblePredictor, flight_window
+    from slungload.models.ensemble import read_manifest
+
+    # the shared tiny ensemble's M = 6 is too short for the estimate: refused, naming why
+    before = read_manifest(trained_ensemble).calibration
+    code, _, err = run_cli("calibrate", trained_ensemble, "--constants-shift")
+    assert code == 2 and "17 steps" in err
+    assert read_manifest(trained_ensemble).calibration == before  # untouched
+    ens = tmp_path / "E"
+    code, out, err = run_cli("train", "--data", tiny_run.data, "--out", ens, "--preset", "quick",
+                             "--size", "tiny", "--device", "cpu", "--threads", "1", "--quiet",
+                             "--ensemble", "2", "--epochs", "1", "--history", "20",
+                             "--horizon", "4")  # fmt: skip
+    assert code == 0, err
+    code, out, err = run_cli("calibrate", ens, "--constants-shift")
+    assert code == 0 and "constants shift" in out, err
+    cal = read_manifest(ens).calibration
+    assert cal is not None and cal.constants_shift
+    code, out, _ = run_cli("uncertainty", ens)
+    assert code == 0 and "as calibrated" in out and "widened by the constants shift" in out
+    # the predictor widens its interval by the same shift
+    predictor = EnsemblePredictor.from_folder(ens)
+    w = flight_window(read_flight(tiny_run.data / "test_3.npz"), 0, history=20, horizon=4)
+    interval = predictor.predict_interval(w.history, w.future_inputs)
+    states, _ = predictor._members(w.history, w.future_inputs)
+    shift = predictor._shift(w.history, w.future_inputs)
+    assert shift is not None and shift.shape == (1, 4, STATE_DIM)
+    half = cal.half_width(spread(states).std, shift=shift)[0].numpy()
+    half[:, QUAT] = half[:, QUAT][:, list(WXYZ_TO_XYZW)]  # the file's x-y-z-w
+    np.testing.assert_allclose(interval.half_width, half, rtol=1e-9)
