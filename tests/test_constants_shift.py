@@ -18,7 +18,7 @@ from slungload.constants_estimate import constants_shift
 from slungload.data.readers.npz import from_arrays
 from slungload.deploy.members import calibration_of, members_half_width, members_novel
 from slungload.evaluation.uncertainty import fit_calibration, uncertainty_stats
-from slungload.layout import GROUPS, LOAD_POS, QUAT, STATE_DIM, WXYZ_TO_XYZW
+from slungload.layout import GROUPS, LOAD_POS, POS, QUAT, STATE_DIM, WXYZ_TO_XYZW
 from slungload.models.ensemble import Calibration, EnsembleModel, spread
 from slungload.sim import Effects, SimConfig, simulate_flight
 from slungload.sim.config import vehicle_params
@@ -117,7 +117,7 @@ class _Constant:
 
     def predict_candidates(self, x_hist, u_past, plans):
         out = torch.zeros(*plans.shape[:2], STATE_DIM, dtype=plans.dtype)
-        out[..., 0] = self.value
+        out[..., POS.start] = self.value
         out[..., QUAT.start] = 1.0
         return out
 
@@ -168,6 +168,17 @@ def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
     assert cal is not None and cal.constants_shift
     code, out, _ = run_cli("uncertainty", ens)
     assert code == 0 and "as calibrated" in out and "widened by the constants shift" in out
+    # evaluate states the same interval: its coverage is the assessment's on the test split
+    from slungload.evaluation.evaluator import evaluate
+    from slungload.evaluation.uncertainty import assess
+
+    report = evaluate([ens], data=tiny_run.data, out=tmp_path / "r", horizons=(4,), progress=False)
+    label = next(la for la in report.labels if la.startswith("E (mean of 2)"))
+    np.testing.assert_allclose(report.spreads[label][4].coverage, assess(ens)[0].coverage)
+    # a calibration is what the shift belongs to
+    code, _, err = run_cli("ensemble", ens / "member-0", ens / "member-1", "--out",
+                           tmp_path / "F", "--no-calibrate", "--constants-shift")  # fmt: skip
+    assert code == 2 and "--constants-shift" in err
     # the predictor widens its interval by the same shift
     predictor = EnsemblePredictor.from_folder(ens)
     w = flight_window(read_flight(tiny_run.data / "test_3.npz"), 0, history=20, horizon=4)
@@ -175,6 +186,28 @@ def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
     states, _ = predictor._members(w.history, w.future_inputs)
     shift = predictor._shift(w.history, w.future_inputs)
     assert shift is not None and shift.shape == (1, 4, STATE_DIM)
+    # the same shift as the windows' (the package layout, the members' constants)
+    flight = read_flight(tiny_run.data / "test_3.npz")
+    x, u = torch.from_numpy(flight.states), torch.from_numpy(flight.inputs)
+    params = predictor.members[0].params
+    torch.testing.assert_close(shift[0], constants_shift(x[:20], u[:20], u[20:24], params))
     half = cal.half_width(spread(states).std, shift=shift)[0].numpy()
     half[:, QUAT] = half[:, QUAT][:, list(WXYZ_TO_XYZW)]  # the file's x-y-z-w
     np.testing.assert_allclose(interval.half_width, half, rtol=1e-9)
+    # in flight too: a resolved prediction far off widens it
+    off = w.truth.copy()
+    off[:, POS] += 1.0
+    for _ in range(30):
+        predictor.resolve(w.history, w.future_inputs, off)
+    later = predictor.predict_interval(w.history, w.future_inputs)
+    assert (later.half_width[:, POS] > interval.half_width[:, POS]).all()
+
+
+def test_members_that_adapt_their_constants_are_refused_and_nothing_is_left(
+    run_cli, tmp_path, adaptive_run
+):
+    out = tmp_path / "A"
+    code, _, err = run_cli("ensemble", adaptive_run, adaptive_run, "--out", out,
+                           "--constants-shift")  # fmt: skip
+    assert code == 2 and "adapt theirs in flight" in err
+    assert not out.exists()  # no uncalibrated ensemble left behind

@@ -61,13 +61,22 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
 
     if is_ensemble(args.out):
         raise FileExistsError(f"{args.out} already is an ensemble folder; choose another --out")
+    if args.no_calibrate and args.constants_shift:
+        raise ValueError("--constants-shift is a calibration's: drop --no-calibrate or it")
     for run in args.runs:
         checkpoint_meta(run)  # a readable checkpoint, or the error that names it
-    write_manifest(args.out, list(args.runs))
-    print(f"wrote {args.out / 'ensemble.json'} ({len(args.runs)} members)")
+    existed = args.out.exists()
+    path = write_manifest(args.out, list(args.runs))
     if not args.no_calibrate:
-        report_calibration(args.out, args.data, split="val", horizon=None, level=LEVEL,
-                           constants_shift=args.constants_shift)  # fmt: skip
+        try:
+            report_calibration(args.out, args.data, split="val", horizon=None, level=LEVEL,
+                               constants_shift=args.constants_shift)  # fmt: skip
+        except BaseException:  # nothing half-written: no uncalibrated ensemble left behind
+            path.unlink(missing_ok=True)
+            if not existed:
+                args.out.rmdir()
+            raise
+    print(f"wrote {path} ({len(args.runs)} members)")
     return 0
 
 

@@ -340,7 +340,8 @@ def _ensemble_source(folder: str | Path, horizon: int) -> _Source:
     if len({m.history for m in members}) != 1:
         raise ValueError(f"{folder}: ensemble members with different histories M")
     first = members[0]
-    calibration = manifest.calibration and members_only(to_dict(manifest.calibration))
+    calibration = manifest.calibration
+    calibration = None if calibration is None else members_only(to_dict(calibration))
     net = EnsembleCandidatesNet([m.net for m in members], calibration).eval()
     name = Path(folder).expanduser().resolve().name
     return first._replace(net=net, name=name, architecture="ensemble",

@@ -29,7 +29,7 @@ import torch
 from matplotlib.figure import Figure
 from torch import Tensor
 
-from ..config import WindowConfig
+from ..config import ESTIMATE_MIN_STEPS, WindowConfig
 from ..data.dataset import load_dataset
 from ..data.windows import Windows
 from ..fileio import write_text
@@ -43,6 +43,7 @@ from ..models.ensemble import (
     load_members,
     set_calibration,
     spread,
+    widened,
     z_of,
 )
 from ..models.prediction import ensemble_model
@@ -91,7 +92,7 @@ def fit_calibration(
     members' spread by it (``Calibration.constants_shift``)."""
     mean, std = spread(members)
     if shift is not None:
-        std = (std * std + shift.to(std) ** 2).sqrt()
+        std = widened(std, shift)
     std = std.clamp_min(1e-12)
     ratio = (truth - mean).abs() / std
     scale = _ratio_quantiles(ratio, level) / z_of(level)
@@ -263,6 +264,11 @@ def calibrate(
     model, windows, about = ensemble_and_windows(ensemble, data, split, horizon)
     shift = None
     if constants_shift:
+        if model.history < ESTIMATE_MIN_STEPS:
+            raise ValueError(
+                f"{ensemble}: --constants-shift estimates the load from each window's history, "
+                f"which needs M >= {ESTIMATE_MIN_STEPS} steps; its members keep M = {model.history}"
+            )
         adapting = [m.name for m in model.members if _adapts(m)]
         if adapting:
             raise ValueError(

@@ -74,6 +74,12 @@ def spread(members: Tensor) -> Spread:
     return Spread(with_unit_quaternion(aligned.mean(0)), aligned.std(0))
 
 
+def widened(std: Tensor, shift: Tensor) -> Tensor:
+    """The members' std (..., N, 13) widened in quadrature by a constants shift of the same
+    shape: sqrt(std^2 + shift^2), in std's dtype."""
+    return (std * std + shift.to(std) ** 2).sqrt()
+
+
 def group_index() -> Tensor:
     """(13,) the ``layout.GROUPS`` index of each state component; -1 where in none."""
     index = torch.full((STATE_DIM,), -1, dtype=torch.long)
@@ -147,7 +153,7 @@ class Calibration:
                 "(calibrate --constants-shift), and no shift was given: compute it "
                 "(constants_estimate.constants_shift), or calibrate without --constants-shift"
             )
-        return (std * std + shift.to(std) ** 2).sqrt()
+        return widened(std, shift)
 
     def half_width(
         self, std: Tensor, level: float | None = None, shift: Tensor | None = None

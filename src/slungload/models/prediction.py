@@ -229,7 +229,9 @@ def ensemble_model(
         network_model(lm, constants, label=folder.name, **options)
         for lm, folder in zip(members, manifest.members, strict=True)
     ]
-    return EnsembleModel(tuple(nets), manifest.folder.name, manifest.calibration, members[0].params)
+    # the shift is measured against the constants the members' f runs with
+    params = constants or members[0].params
+    return EnsembleModel(tuple(nets), manifest.folder.name, manifest.calibration, params)
 
 
 def network_model(
