@@ -175,6 +175,10 @@ def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
     report = evaluate([ens], data=tiny_run.data, out=tmp_path / "r", horizons=(4,), progress=False)
     label = next(la for la in report.labels if la.startswith("E (mean of 2)"))
     np.testing.assert_allclose(report.spreads[label][4].coverage, assess(ens)[0].coverage)
+    # the MPC cannot fly it yet: refused before any flight, nothing written
+    code, _, err = run_cli("control", "--model", ens, "--maneuvers", "xy_step", "--seeds", "100",
+                           "--steps", "5", "--out", tmp_path / "flown")  # fmt: skip
+    assert code == 2 and "do not compute" in err and not (tmp_path / "flown").exists()
     # a calibration is what the shift belongs to
     code, _, err = run_cli("ensemble", ens / "member-0", ens / "member-1", "--out",
                            tmp_path / "F", "--no-calibrate", "--constants-shift")  # fmt: skip

@@ -62,7 +62,9 @@ def cmd_ensemble(args: argparse.Namespace) -> int:
     if is_ensemble(args.out):
         raise FileExistsError(f"{args.out} already is an ensemble folder; choose another --out")
     if args.no_calibrate and args.constants_shift:
-        raise ValueError("--constants-shift is a calibration's: drop --no-calibrate or it")
+        raise ValueError(
+            "--constants-shift widens a calibration and --no-calibrate skips it: give one"
+        )
     for run in args.runs:
         checkpoint_meta(run)  # a readable checkpoint, or the error that names it
     existed = args.out.exists()
