@@ -1,12 +1,11 @@
 """The constants shift (the physics model's move under the constants estimated from a window's
 history) and an ensemble interval widened by it: near zero on the vehicle the constants are of,
 large on a longer cable; the calibration fitted with it covers its level, needs the shift
-wherever it is used, round-trips, and is refused where the numpy paths cannot compute it."""
+wherever it is used, round-trips, and the numpy paths (the MPC, onboard) compute it alike."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,9 @@ import torch
 from slungload.config import to_dict
 from slungload.constants_estimate import constants_shift
 from slungload.data.readers.npz import from_arrays
-from slungload.deploy.members import calibration_of, members_half_width, members_novel
 from slungload.evaluation.uncertainty import fit_calibration, uncertainty_stats
 from slungload.layout import GROUPS, LOAD_POS, POS, QUAT, STATE_DIM, WXYZ_TO_XYZW
-from slungload.models.ensemble import Calibration, EnsembleModel, spread
+from slungload.models.ensemble import Calibration, spread
 from slungload.sim import Effects, SimConfig, simulate_flight
 from slungload.sim.config import vehicle_params
 
@@ -109,39 +107,32 @@ def test_a_calibration_with_the_shift_covers_its_level_where_the_members_alone_c
     assert not Calibration.from_dict(older).constants_shift
 
 
-class _Constant:
-    """Predicts a fixed state everywhere (an ensemble member for the MPC's refusal)."""
+def test_the_numpy_shift_and_interval_equal_the_torch_ones():
+    from slungload.deploy.compiled.physics import candidates_shift
+    from slungload.deploy.members import members_half_width, members_novel
+    from slungload.vehicle_constants import VehicleConstants
 
-    def __init__(self, value: float):
-        self.value, self.history, self.name = value, 2, f"c{value}"
-
-    def predict_candidates(self, x_hist, u_past, plans):
-        out = torch.zeros(*plans.shape[:2], STATE_DIM, dtype=plans.dtype)
-        out[..., POS.start] = self.value
-        out[..., QUAT.start] = 1.0
-        return out
-
-
-def test_the_numpy_paths_refuse_a_calibration_they_cannot_widen():
-    from slungload.control.limits import InputLimits
-    from slungload.control.mppi import MPPIController
-
-    members, truth, shift = _members_and_truth(200, 1.0, seed=2)
-    cal = fit_calibration(members, truth, shift=shift)
-    as_dict = to_dict(cal)
-    e = np.zeros((2, 3, 2, STATE_DIM))
-    for call in (lambda: members_half_width(e, as_dict), lambda: members_novel(e, as_dict)):
-        with pytest.raises(ValueError, match="do not compute"):
-            call()
-    ensemble = EnsembleModel((_Constant(1.0), _Constant(2.0)), calibration=cal)
-    with pytest.raises(ValueError, match="do not compute"):
-        calibration_of(ensemble)
-    with pytest.raises(ValueError, match="do not compute"):
-        MPPIController(ensemble, InputLimits(2.0, 30.0, 4.0))
-    # without the shift both still work
-    plain = replace(ensemble, calibration=fit_calibration(members, truth))
-    assert calibration_of(plain)["constants_shift"] is False
-    assert members_novel(e, calibration_of(plain)).shape == (3,)
+    nominal, _, states, inputs = _windows(cable=1.2 * nominal_cable())
+    x, u = states[3, :M].numpy(), inputs[3].numpy()
+    plans = np.stack([u[M - 1 : M + N - 1], 1.02 * u[M - 1 : M + N - 1]])  # (2, N, 4)
+    shift = candidates_shift(x, u[: M - 1], plans, VehicleConstants.of(nominal))
+    u_hist = np.concatenate([np.broadcast_to(u[: M - 1], (2, M - 1, 4)), plans[:, :1]], 1)
+    u_future = np.concatenate([plans[:, 1:], plans[:, -1:]], 1)
+    x_hist = torch.from_numpy(np.broadcast_to(x, (2, M, STATE_DIM)).copy())
+    want = constants_shift(x_hist, torch.from_numpy(u_hist), torch.from_numpy(u_future), nominal)
+    np.testing.assert_allclose(shift, want.numpy(), atol=1e-12)
+    # the interval and the flag in numpy, as calibrated in torch
+    members, truth, fit_shift = _members_and_truth(300, 1.0, seed=2)
+    cal = fit_calibration(members, truth, shift=fit_shift)
+    some = members[:, :3].numpy()
+    d = fit_shift[:3].numpy()
+    _, std = spread(members[:, :3])
+    half = cal.half_width(std, shift=fit_shift[:3]).numpy()
+    np.testing.assert_allclose(members_half_width(some, to_dict(cal), d), half, rtol=1e-9)
+    novel = cal.novel(std[None], shift=fit_shift[None, :3]).numpy()
+    np.testing.assert_array_equal(members_novel(some[:, None], to_dict(cal), d[None]), novel)
+    with pytest.raises(ValueError, match="no shift was given"):
+        members_half_width(some, to_dict(cal))
 
 
 def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
@@ -175,10 +166,25 @@ def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
     report = evaluate([ens], data=tiny_run.data, out=tmp_path / "r", horizons=(4,), progress=False)
     label = next(la for la in report.labels if la.startswith("E (mean of 2)"))
     np.testing.assert_allclose(report.spreads[label][4].coverage, assess(ens)[0].coverage)
-    # the MPC cannot fly it yet: refused before any flight, nothing written
-    code, _, err = run_cli("control", "--model", ens, "--maneuvers", "xy_step", "--seeds", "100",
-                           "--steps", "5", "--out", tmp_path / "flown")  # fmt: skip
-    assert code == 2 and "do not compute" in err and not (tmp_path / "flown").exists()
+    # the MPC flies it, the tracked interval and the novelty count with the shift
+    code, out, err = run_cli("control", "--model", ens, "--maneuvers", "xy_step", "--seeds", "100",
+                             "--steps", "30", "--horizon", "4", "--samples", "8",
+                             "--out", tmp_path / "flown")  # fmt: skip
+    assert code == 0, err
+    # and its exported file onboard
+    from slungload.control.mppi import InputLimits, MPCConfig, MPPIController, ReferenceAhead
+    from slungload.control.tracked import TrackedMembers
+    from slungload.deploy.candidates import export_for_mpc
+
+    result = export_for_mpc(ens, tmp_path, horizon=4, format="compiled")
+    mpc = MPPIController.from_file(result.model, InputLimits(4.0, 30.0, 4.0),
+                                   MPCConfig(samples=8, horizon=4, knots=2, risk=1.0))  # fmt: skip
+    flight = read_flight(tiny_run.data / "test_3.npz")
+    for x in flight.states[:25]:
+        ref = ReferenceAhead(np.tile(x[:3], (4, 1)), np.zeros((4, 3)), np.zeros(4))
+        assert np.isfinite(mpc.step(x, ref).thrust)
+    assert isinstance(mpc.model, TrackedMembers) and mpc.model.constants is not None
+    assert mpc.model.tracker.resolved > 0 and mpc.stats.fallback_steps == 0
     # a calibration is what the shift belongs to
     code, _, err = run_cli("ensemble", ens / "member-0", ens / "member-1", "--out",
                            tmp_path / "F", "--no-calibrate", "--constants-shift")  # fmt: skip

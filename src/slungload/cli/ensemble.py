@@ -88,8 +88,7 @@ def _add_shift_option(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="widen the members' spread by the physics model's move under the cable length "
         "and load mass estimated from each window's history, so the interval widens on a "
-        "vehicle whose load differs from training's (members of fixed constants; the MPC and "
-        "exported files do not take such a calibration yet)",
+        "vehicle whose load differs from training's (members of fixed constants, M >= 17)",
     )
 
 

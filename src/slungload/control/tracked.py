@@ -9,15 +9,20 @@ their errors over the calibrated half width move ``online_interval.OnlineInterva
 is ``surprised`` (errors some ``surprise`` times what the calibration expects: a longer cable,
 where the members agree on a wrong prediction and the spread-based novelty flag stays silent)
 the controller counts the step (``MPCStats.surprised_steps``). It flags; it does not change
-the plans. numpy only (the onboard path).
+the plans. A calibration fitted with the constants shift (``Calibration.constants_shift``)
+gets it here too, against ``constants`` (``deploy.compiled.physics.candidates_shift``): for
+the window resolved and for the nominal plan the novelty count asks about (the plans of the
+last call). numpy only (the onboard path).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..config import VehicleParams
 from ..deploy.members import calibration_of, members_half_width, members_mean
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
+from ..vehicle_constants import VehicleConstants
 from .contract import CandidateModel, has_members
 from .history import flown_window, history_tail
 
@@ -26,7 +31,8 @@ __all__ = ["TrackedMembers", "calibration_of"]
 
 class TrackedMembers:
     """``model`` (an ensemble's numpy candidate model) whose interval is tracked over the
-    last ``window`` steps flown; ``calibration``: its ``Calibration`` as a dict."""
+    last ``window`` steps flown; ``calibration``: its ``Calibration`` as a dict; ``constants``:
+    the vehicle's, which a calibration with the constants shift measures it against."""
 
     numpy = True
 
@@ -36,19 +42,43 @@ class TrackedMembers:
         calibration: dict,
         window: int,
         config: OnlineIntervalConfig | None = None,
+        constants: VehicleParams | VehicleConstants | None = None,
     ) -> None:
         if not has_members(model):
             raise ValueError(f"TrackedMembers: {getattr(model, 'name', model)!r} has no members")
         if window < 1:
             raise ValueError(f"TrackedMembers: window must be >= 1 step, got {window}")
         self.model, self.window, self.calibration = model, window, calibration
+        shifted = bool(calibration.get("constants_shift"))
+        self.constants = VehicleConstants.of(constants) if shifted and constants else None
+        if shifted and constants is None:
+            raise ValueError("TrackedMembers: a calibration with the constants shift needs the "
+                             "vehicle's constants")  # fmt: skip
+        self.nominal: tuple[np.ndarray, ...] | None = None  # the last call's history, plan 0
         self.name = model.name
         self.history = model.history + window
         self.horizon = getattr(model, "horizon", None)
         self.tracker = OnlineInterval(window, calibration["level"], config)
         self.unresolved = 0  # windows whose prediction raised or was not finite
         if hasattr(model, "novel"):
-            self.novel = model.novel
+            self.novel = self._novel
+
+    def _shift(
+        self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray
+    ) -> np.ndarray | None:
+        """(K, N, 13) the plans' constants shift from the members' history, where the
+        calibration widens by it; else None."""
+        if self.constants is None:
+            return None
+        from ..deploy.compiled.physics import candidates_shift  # Numba, only when asked
+
+        return candidates_shift(x_hist, u_past, plans, self.constants)
+
+    def _novel(self, members: np.ndarray) -> np.ndarray:
+        """The model's novelty flag of members (E, 1, N, 13) of the last call's nominal plan,
+        with its constants shift where the calibration asks for it."""
+        shift = None if self.nominal is None else self._shift(*self.nominal)
+        return self.model.novel(members) if shift is None else self.model.novel(members, shift)
 
     @property
     def surprised(self) -> bool:
@@ -69,9 +99,8 @@ class TrackedMembers:
                 self.unresolved += 1
                 return
             members = np.asarray(members, np.float64)
-            ratio = normalized_errors(members_mean(members)[0, :h],
-                                      members_half_width(members, self.calibration)[0, :h],
-                                      w.flown)  # fmt: skip
+            half = members_half_width(members, self.calibration, self._shift(*then, w.plan))
+            ratio = normalized_errors(members_mean(members)[0, :h], half[0, :h], w.flown)
         if np.isfinite(ratio).all():
             self.tracker.update(ratio)
         else:
@@ -91,9 +120,9 @@ class TrackedMembers:
     ) -> np.ndarray:
         """(E, K, N, 13): each member's prediction, after resolving the window just flown."""
         self.resolve(x_hist, u_past, plans.shape[1])
-        return self.model.predict_candidates_members(
-            *history_tail(x_hist, u_past, self.model.history), plans
-        )
+        tail = history_tail(x_hist, u_past, self.model.history)
+        self.nominal = (*tail, plans[:1])
+        return self.model.predict_candidates_members(*tail, plans)
 
     def prepare(self, m: int, k: int, n: int) -> None:
         prepare = getattr(self.model, "prepare", None)

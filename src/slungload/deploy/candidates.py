@@ -38,7 +38,6 @@ from ..reporting import versions
 from ..state import with_unit_quaternion
 from ..vehicle_constants import VehicleConstants
 from . import onboard
-from .members import members_only
 from .onnx import (
     OPSET,
     _check_model_path,
@@ -340,8 +339,7 @@ def _ensemble_source(folder: str | Path, horizon: int) -> _Source:
     if len({m.history for m in members}) != 1:
         raise ValueError(f"{folder}: ensemble members with different histories M")
     first = members[0]
-    calibration = manifest.calibration
-    calibration = None if calibration is None else members_only(to_dict(calibration))
+    calibration = None if manifest.calibration is None else to_dict(manifest.calibration)
     net = EnsembleCandidatesNet([m.net for m in members], calibration).eval()
     name = Path(folder).expanduser().resolve().name
     return first._replace(net=net, name=name, architecture="ensemble",

@@ -31,26 +31,31 @@ def members_mean(members: np.ndarray) -> np.ndarray:
     return mean
 
 
-def members_only(calibration: dict) -> dict:
-    """``calibration`` (a dict), refused where it widens the spread by the constants shift
-    (``Calibration.constants_shift``): the numpy paths (the MPC, onboard, exported files)
-    compute the members' spread alone."""
-    if calibration.get("constants_shift"):
+def interval_std(std: np.ndarray, calibration: dict, shift: np.ndarray | None) -> np.ndarray:
+    """``models.ensemble.Calibration.interval_std`` in numpy: the members' std (..., N, 13), or
+    with the calibration's ``constants_shift`` sqrt(std^2 + shift^2), shift (..., N, 13) from
+    ``deploy.compiled.physics.candidates_shift``."""
+    if not calibration.get("constants_shift"):
+        if shift is not None:
+            raise ValueError("a constants shift given to a calibration fitted without one")
+        return std
+    if shift is None:
         raise ValueError(
-            "this ensemble's calibration adds the physics model's constants shift to the "
-            "members' spread (calibrate --constants-shift), which the MPC and the exported "
-            "files do not compute yet: calibrate it without --constants-shift to fly it"
+            "this calibration widens the spread by the physics model's constants shift "
+            "(calibrate --constants-shift), and no shift was given"
         )
-    return calibration
+    return np.sqrt(std * std + np.asarray(shift, np.float64) ** 2)
 
 
-def members_half_width(members: np.ndarray, calibration: dict) -> np.ndarray:
+def members_half_width(
+    members: np.ndarray, calibration: dict, shift: np.ndarray | None = None
+) -> np.ndarray:
     """Members' predictions (E, ..., N, 13) -> the calibrated interval's half width (..., N,
-    13): z(level) x the fitted scale per step and group x the members' std
-    (``models.ensemble.Calibration.half_width`` of ``spread``'s std in numpy, a test holds the
-    two equal); past the calibration's steps, its last row."""
-    members_only(calibration)
-    std = _aligned(members).std(0, ddof=1)
+    13): z(level) x the fitted scale per step and group x the members' std (widened by
+    ``shift`` where the calibration asks: ``interval_std``); ``models.ensemble.Calibration.
+    half_width`` in numpy, a test holds the two equal; past the calibration's steps, its last
+    row."""
+    std = interval_std(_aligned(members).std(0, ddof=1), calibration, shift)
     scale = np.asarray(calibration["scale"], np.float64)  # (N_cal, G)
     if scale.shape[1] != len(GROUPS):
         raise ValueError(f"a calibration of {scale.shape[1]} groups, not {len(GROUPS)}")
@@ -65,17 +70,19 @@ def calibration_of(model: object) -> dict | None:
     calibration = getattr(model, "calibration", None)
     if is_dataclass(calibration):
         calibration = asdict(calibration)
-    return members_only(calibration) if isinstance(calibration, dict) else None
+    return calibration if isinstance(calibration, dict) else None
 
 
-def members_novel(members: np.ndarray, calibration: dict | None) -> np.ndarray:
-    """Members' predictions (E, K, N, 13) -> (K,) bool: the spread beyond what the
-    calibration's windows showed (``models.ensemble.Calibration.novel`` in numpy, a test
-    holds the two equal; ``calibration`` as a dict); all False without a calibration."""
+def members_novel(
+    members: np.ndarray, calibration: dict | None, shift: np.ndarray | None = None
+) -> np.ndarray:
+    """Members' predictions (E, K, N, 13) -> (K,) bool: the spread (widened by ``shift``
+    where the calibration asks, ``interval_std``) beyond what the calibration's windows showed
+    (``models.ensemble.Calibration.novel`` in numpy, a test holds the two equal;
+    ``calibration`` as a dict); all False without a calibration."""
     if calibration is None:
         return np.zeros(members.shape[1], bool)
-    members_only(calibration)
-    std = _aligned(members).std(0, ddof=1)  # (K, N, 13)
+    std = interval_std(_aligned(members).std(0, ddof=1), calibration, shift)  # (K, N, 13)
     ref = np.asarray(calibration["reference_std"], np.float64)
     ref = ref[np.minimum(np.arange(std.shape[-2]), len(ref) - 1)]
     score = (std / np.maximum(ref, 1e-12)).mean(axis=(-2, -1))

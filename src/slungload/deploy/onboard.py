@@ -111,9 +111,10 @@ class OnnxCandidateModel:
             self.predict_candidates_members = self._run
             self.novel = self._novel
 
-    def _novel(self, members: np.ndarray) -> np.ndarray:
-        """(E, K, N, 13) -> (K,) bool: ``members.members_novel``."""
-        return members_novel(members, self.calibration)
+    def _novel(self, members: np.ndarray, shift: np.ndarray | None = None) -> np.ndarray:
+        """(E, K, N, 13) (and the constants shift, where calibrated with it) -> (K,) bool:
+        ``members.members_novel``."""
+        return members_novel(members, self.calibration, shift)
 
     def predict_candidates(
         self, x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray

@@ -223,12 +223,14 @@ class EnsembleModel:
             raise ValueError(f"{self.name}: no vehicle constants recorded for the constants shift")
         return constants_shift(x_hist, u_hist, u_future, self.params)
 
-    def novel(self, members: Any) -> Any:
-        """Members' predictions (E, K, N, 13) numpy -> (K,) bool numpy: ``Calibration.novel``
-        of their spread; all False without a calibration (the MPC's count)."""
+    def novel(self, members: Any, shift: Any = None) -> Any:
+        """Members' predictions (E, K, N, 13) numpy (and their constants shift, where the
+        calibration widens by it) -> (K,) bool numpy: ``Calibration.novel`` of their spread;
+        all False without a calibration (the MPC's count)."""
         if self.calibration is None:
             return np.zeros(members.shape[1], bool)
-        return self.calibration.novel(spread(torch.from_numpy(members)).std).numpy()
+        shift = None if shift is None else torch.as_tensor(shift)
+        return self.calibration.novel(spread(torch.from_numpy(members)).std, shift).numpy()
 
     def predict_windows_members(self, windows: Any) -> Tensor:
         """(E, W, N, 13): each member's ``predict_windows``."""

@@ -186,9 +186,9 @@ class EnsembleColumns:
         for member in self.members:
             member.prepare(m, k, n)
 
-    def novel(self, members: np.ndarray) -> np.ndarray:
+    def novel(self, members: np.ndarray, shift: np.ndarray | None = None) -> np.ndarray:
         """``members_novel`` under this ensemble's calibration."""
-        return members_novel(members, self.calibration)
+        return members_novel(members, self.calibration, shift)
 
 
 class _Work:

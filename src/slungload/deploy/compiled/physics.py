@@ -318,3 +318,26 @@ def adapted_constants(
         mass_load=float(np.clip(mass, m_lo * c.mass_load, m_hi * c.mass_load)),
         cable_length=float(np.clip(length, l_lo * c.cable_length, l_hi * c.cable_length)),
     )
+
+
+def candidates_shift(
+    x_hist: np.ndarray,
+    u_past: np.ndarray,
+    plans: np.ndarray,
+    c: VehicleConstants,
+    prior_weight: float = ADAPT_PRIOR_WEIGHT,
+) -> np.ndarray:
+    """``constants_estimate.constants_shift`` of a candidate call, numpy float64: x_hist (M,
+    13), u_past (M-1, 4), plans (K, N, 4) u_{M-1} ... u_{M+N-2} -> (K, N, 13), f rolled out
+    with the history's ``adapted_constants`` minus with ``c``, each from its own load-state
+    estimate at x_{M-1}."""
+    x = np.ascontiguousarray(x_hist, np.float64)
+    drive = np.ascontiguousarray(plans, np.float64)
+    out = []
+    for constants in (history_constants(x, u_past, c, prior_weight), c):
+        aux = np.empty(AUX_DIM)
+        estimate_load_state(x[-2], x[-1], constants, aux)
+        states = np.empty((*drive.shape[:2], STATE_DIM))
+        physics_rollout(x[-1], aux, drive, constants, states)
+        out.append(states)
+    return out[0] - out[1]

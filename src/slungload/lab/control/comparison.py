@@ -27,7 +27,6 @@ from ...control.mppi import has_members
 from ...control.paired import PhysicsPaired
 from ...control.split import ALL
 from ...deploy.backends import load_model
-from ...deploy.members import calibration_of
 from ...deploy.predictor import torch_threads
 from ...fileio import write_json
 from ...models.ensemble import model_meta
@@ -60,8 +59,6 @@ def compare(
     limits = InputLimits.from_sim(plant)
     predictors: list[PredictionModel] = [load_model(PHYSICS, params, backend=cfg.backend)]
     predictors += [load_model(m, backend=cfg.backend) for m in models]
-    for p in predictors[1:]:
-        calibration_of(p)  # what the MPC cannot fly is refused before any flight
     if cfg.with_physics:  # each network priced together with the physics model
         if cfg.risk is None or not models:
             raise ValueError("--with-physics prices each --model's plans under it and physics "
