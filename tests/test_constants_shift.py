@@ -121,16 +121,21 @@ def test_the_numpy_shift_and_interval_equal_the_torch_ones():
     x_hist = torch.from_numpy(np.broadcast_to(x, (2, M, STATE_DIM)).copy())
     want = constants_shift(x_hist, torch.from_numpy(u_hist), torch.from_numpy(u_future), nominal)
     np.testing.assert_allclose(shift, want.numpy(), atol=1e-12)
+    assert np.abs(shift[..., LOAD_POS]).max() > 0.05  # not two degenerate outputs
+    with pytest.raises(ValueError, match="M >= 17"):
+        candidates_shift(x[:16], u[:15], plans, VehicleConstants.of(nominal))
     # the interval and the flag in numpy, as calibrated in torch
     members, truth, fit_shift = _members_and_truth(300, 1.0, seed=2)
     cal = fit_calibration(members, truth, shift=fit_shift)
     some = members[:, :3].numpy()
-    d = fit_shift[:3].numpy()
+    d = 3 * fit_shift[:3]  # some windows beyond the fitting windows' spread, some not
     _, std = spread(members[:, :3])
-    half = cal.half_width(std, shift=fit_shift[:3]).numpy()
-    np.testing.assert_allclose(members_half_width(some, to_dict(cal), d), half, rtol=1e-9)
-    novel = cal.novel(std[None], shift=fit_shift[None, :3]).numpy()
-    np.testing.assert_array_equal(members_novel(some[:, None], to_dict(cal), d[None]), novel)
+    half = cal.half_width(std, shift=d).numpy()
+    np.testing.assert_allclose(members_half_width(some, to_dict(cal), d.numpy()), half, rtol=1e-9)
+    novel = cal.novel(std, shift=d).numpy()
+    assert novel.any() and not novel.all()
+    flags = members_novel(some, to_dict(cal), d.numpy())
+    np.testing.assert_array_equal(flags, novel)
     with pytest.raises(ValueError, match="no shift was given"):
         members_half_width(some, to_dict(cal))
 
@@ -176,15 +181,30 @@ def test_calibrate_with_the_shift_through_the_cli_and_the_predictor(
     from slungload.control.tracked import TrackedMembers
     from slungload.deploy.candidates import export_for_mpc
 
-    result = export_for_mpc(ens, tmp_path, horizon=4, format="compiled")
-    mpc = MPPIController.from_file(result.model, InputLimits(4.0, 30.0, 4.0),
-                                   MPCConfig(samples=8, horizon=4, knots=2, risk=1.0))  # fmt: skip
     flight = read_flight(tiny_run.data / "test_3.npz")
-    for x in flight.states[:25]:
-        ref = ReferenceAhead(np.tile(x[:3], (4, 1)), np.zeros((4, 3)), np.zeros(4))
-        assert np.isfinite(mpc.step(x, ref).thrust)
-    assert isinstance(mpc.model, TrackedMembers) and mpc.model.constants is not None
-    assert mpc.model.tracker.resolved > 0 and mpc.stats.fallback_steps == 0
+    for fmt in ("compiled", "onnx"):
+        (tmp_path / fmt).mkdir()
+        result = export_for_mpc(ens, tmp_path / fmt, horizon=4, format=fmt)
+        cfg = MPCConfig(samples=8, horizon=4, knots=2, risk=1.0)
+        mpc = MPPIController.from_file(result.model, InputLimits(4.0, 30.0, 4.0), cfg)
+        for x in flight.states[:25]:
+            ref = ReferenceAhead(np.tile(x[:3], (4, 1)), np.zeros((4, 3)), np.zeros(4))
+            assert np.isfinite(mpc.step(x, ref).thrust)
+        assert isinstance(mpc.model, TrackedMembers) and mpc.model.constants is not None
+        assert mpc.model.tracker.resolved > 0 and mpc.stats.fallback_steps == 0
+    # the shift is measured against the constants the members learned, not the MPC's
+    from slungload.config import VehicleParams
+    from slungload.control.mpc import candidate_model
+    from slungload.deploy.backends import load_model
+    from slungload.vehicle_constants import VehicleConstants
+
+    compiled = load_model(ens, backend="compiled")
+    learned = compiled.params
+    cfg = MPCConfig(samples=8, horizon=4, knots=2)
+    limits = InputLimits(4.0, 30.0, 4.0)
+    other = MPPIController(candidate_model(compiled), limits, cfg, VehicleParams(cable_length=1.3))
+    assert other.model.constants == VehicleConstants.of(learned)
+    assert other.model.constants.cable_length != 1.3
     # a calibration is what the shift belongs to
     code, _, err = run_cli("ensemble", ens / "member-0", ens / "member-1", "--out",
                            tmp_path / "F", "--no-calibrate", "--constants-shift")  # fmt: skip

@@ -74,6 +74,7 @@ class TorchCandidates:
         if has_members(model):  # an ensemble's members, and its calibration (``tracked``)
             self.predict_candidates_members = self._members
             self.calibration = getattr(model, "calibration", None)
+            self.params = getattr(model, "params", None)  # what the members learned
             # each member alone (``split.SplitMembers``)
             self.members = tuple(candidate_model(m) for m in getattr(model, "members", ()))
 
@@ -107,6 +108,7 @@ class _NumpyEntry:
         if hasattr(model, "numpy_candidates_members"):  # an ensemble's members
             self.predict_candidates_members = model.numpy_candidates_members
             self.novel, self.calibration = model.novel, model.calibration
+            self.params = getattr(model, "params", None)  # what the members learned
             # each member alone (``split.SplitMembers``)
             self.members = tuple(candidate_model(m) for m in getattr(model, "members", ()))
 

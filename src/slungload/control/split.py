@@ -59,6 +59,7 @@ class SplitMembers:
         self.horizon = getattr(model, "horizon", None)
         self.predict_candidates_members = model.predict_candidates_members
         self.calibration = getattr(model, "calibration", None)
+        self.params = getattr(model, "params", None)
         if hasattr(model, "novel"):
             self.novel = model.novel
 

@@ -10,17 +10,19 @@ is ``surprised`` (errors some ``surprise`` times what the calibration expects: a
 where the members agree on a wrong prediction and the spread-based novelty flag stays silent)
 the controller counts the step (``MPCStats.surprised_steps``). It flags; it does not change
 the plans. A calibration fitted with the constants shift (``Calibration.constants_shift``)
-gets it here too, against ``constants`` (``deploy.compiled.physics.candidates_shift``): for
-the window resolved and for the nominal plan the novelty count asks about (the plans of the
-last call). numpy only (the onboard path).
+gets it here too, against the constants the members learned (the model's ``params``, an
+exported file's sidecar; else the ``constants`` given), by ``deploy.compiled.physics.
+candidates_shift``: for the window resolved and for the nominal plan the novelty count asks
+about (plan 0 of the last call). numpy only (the onboard path; Numba where the shift is asked).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..config import VehicleParams
+from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.members import calibration_of, members_half_width, members_mean
+from ..layout import INPUT_DIM, LOAD_POS, QUAT, STATE_DIM, THRUST
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
 from ..vehicle_constants import VehicleConstants
 from .contract import CandidateModel, has_members
@@ -32,7 +34,8 @@ __all__ = ["TrackedMembers", "calibration_of"]
 class TrackedMembers:
     """``model`` (an ensemble's numpy candidate model) whose interval is tracked over the
     last ``window`` steps flown; ``calibration``: its ``Calibration`` as a dict; ``constants``:
-    the vehicle's, which a calibration with the constants shift measures it against."""
+    the vehicle's, for a calibration with the constants shift where the model carries no
+    ``params`` of its own (the members' constants, which the shift is measured against)."""
 
     numpy = True
 
@@ -49,11 +52,19 @@ class TrackedMembers:
         if window < 1:
             raise ValueError(f"TrackedMembers: window must be >= 1 step, got {window}")
         self.model, self.window, self.calibration = model, window, calibration
-        shifted = bool(calibration.get("constants_shift"))
-        self.constants = VehicleConstants.of(constants) if shifted and constants else None
-        if shifted and constants is None:
-            raise ValueError("TrackedMembers: a calibration with the constants shift needs the "
-                             "vehicle's constants")  # fmt: skip
+        self.constants: VehicleConstants | None = None
+        if calibration.get("constants_shift"):
+            learned = getattr(model, "params", None) or constants
+            if learned is None:
+                raise ValueError("TrackedMembers: a calibration with the constants shift needs "
+                                 "the constants the members learned")  # fmt: skip
+            if model.history < ESTIMATE_MIN_STEPS:
+                raise ValueError(f"TrackedMembers: the constants shift needs M >= "
+                                 f"{ESTIMATE_MIN_STEPS} history steps; {model.name} keeps "
+                                 f"{model.history}")  # fmt: skip
+            from ..deploy.compiled.physics import candidates_shift  # Numba: fail before flying
+
+            self.constants, self._candidates_shift = VehicleConstants.of(learned), candidates_shift
         self.nominal: tuple[np.ndarray, ...] | None = None  # the last call's history, plan 0
         self.name = model.name
         self.history = model.history + window
@@ -70,15 +81,23 @@ class TrackedMembers:
         calibration widens by it; else None."""
         if self.constants is None:
             return None
-        from ..deploy.compiled.physics import candidates_shift  # Numba, only when asked
-
-        return candidates_shift(x_hist, u_past, plans, self.constants)
+        return self._candidates_shift(x_hist, u_past, plans, self.constants)
 
     def _novel(self, members: np.ndarray) -> np.ndarray:
         """The model's novelty flag of members (E, 1, N, 13) of the last call's nominal plan,
-        with its constants shift where the calibration asks for it."""
-        shift = None if self.nominal is None else self._shift(*self.nominal)
-        return self.model.novel(members) if shift is None else self.model.novel(members, shift)
+        with its constants shift where the calibration asks for it (a shift that cannot be
+        computed flags nothing: the flag never changes a plan)."""
+        if self.constants is None:
+            return self.model.novel(members)
+        if members.shape[1] != 1 or self.nominal is None:
+            raise ValueError(
+                "TrackedMembers.novel: the last call's nominal plan alone (E, 1, N, 13)"
+            )
+        try:
+            with np.errstate(all="ignore"):
+                return self.model.novel(members, self._shift(*self.nominal))
+        except (ValueError, FloatingPointError):
+            return np.zeros(1, bool)
 
     @property
     def surprised(self) -> bool:
@@ -95,11 +114,12 @@ class TrackedMembers:
             try:
                 then = history_tail(w.x_hist, w.u_past, self.model.history)
                 members = self.model.predict_candidates_members(*then, w.plan)
+                shift = self._shift(*then, w.plan)
             except (RuntimeError, ValueError):  # the plans' call decides the fallback
                 self.unresolved += 1
                 return
             members = np.asarray(members, np.float64)
-            half = members_half_width(members, self.calibration, self._shift(*then, w.plan))
+            half = members_half_width(members, self.calibration, shift)
             ratio = normalized_errors(members_mean(members)[0, :h], half[0, :h], w.flown)
         if np.isfinite(ratio).all():
             self.tracker.update(ratio)
@@ -125,6 +145,17 @@ class TrackedMembers:
         return self.model.predict_candidates_members(*tail, plans)
 
     def prepare(self, m: int, k: int, n: int) -> None:
+        """The model's own warm-up, and the shift's compiled physics where it is asked (its
+        first call compiles: seconds, not the first control step's)."""
         prepare = getattr(self.model, "prepare", None)
         if prepare is not None:
             prepare(self.model.history, k, n)
+        if self.constants is not None:
+            c = self.constants
+            x = np.zeros((self.model.history, STATE_DIM))
+            x[:, QUAT.start], x[:, LOAD_POS.start + 2] = 1.0, -c.cable_length  # hovering
+            hover = (c.mass_quad + c.mass_load) * c.gravity
+            u = np.zeros((self.model.history - 1, INPUT_DIM))
+            u[:, THRUST.start] = hover
+            with np.errstate(all="ignore"):
+                self._shift(x, u, np.tile(u[:1], (1, n, 1)))

@@ -28,7 +28,12 @@ import math
 
 import numpy as np
 
-from ...config import ADAPT_PRIOR_WEIGHT, ADAPT_RANGE, ESTIMATE_SMOOTHING_STEPS
+from ...config import (
+    ADAPT_PRIOR_WEIGHT,
+    ADAPT_RANGE,
+    ESTIMATE_MIN_STEPS,
+    ESTIMATE_SMOOTHING_STEPS,
+)
 from ...frames import rotation_matrix
 from ...layout import (
     AUX_DIM,
@@ -330,7 +335,10 @@ def candidates_shift(
     """``constants_estimate.constants_shift`` of a candidate call, numpy float64: x_hist (M,
     13), u_past (M-1, 4), plans (K, N, 4) u_{M-1} ... u_{M+N-2} -> (K, N, 13), f rolled out
     with the history's ``adapted_constants`` minus with ``c``, each from its own load-state
-    estimate at x_{M-1}."""
+    estimate at x_{M-1}. M >= ``ESTIMATE_MIN_STEPS`` (the estimate's smoothing)."""
+    if len(x_hist) < ESTIMATE_MIN_STEPS:
+        raise ValueError(f"the constants shift needs M >= {ESTIMATE_MIN_STEPS} history steps, "
+                         f"got {len(x_hist)}")  # fmt: skip
     x = np.ascontiguousarray(x_hist, np.float64)
     drive = np.ascontiguousarray(plans, np.float64)
     out = []
