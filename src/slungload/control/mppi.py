@@ -267,7 +267,7 @@ class MPPIController:
             model = SplitMembers(model, cfg.samples)
         calibration = calibration_of(model)  # a calibrated ensemble's interval is tracked
         if calibration is not None and has_members(model) and not isinstance(model, TrackedMembers):
-            model = TrackedMembers(model, calibration, cfg.horizon, None, params)
+            model = TrackedMembers(model, calibration, cfg.horizon, constants=params)
         self.model = model
         self.limits = limits
         if (cfg.constants == "window") != (estimate is not None):
