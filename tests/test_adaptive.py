@@ -157,6 +157,7 @@ def test_constants_are_a_physics_step_option_recorded_in_the_run():
     run = RunConfig(
         model=ModelConfig.sized("small", architecture="physics-step", constants="window")
     )
+    assert run.model.adapts_constants and not ModelConfig().adapts_constants
     assert "adaptive" in run.folder() and run.label().endswith("+adaptive")
     assert RunConfig.from_toml(run.to_toml()) == run
 

@@ -306,6 +306,11 @@ class ModelConfig:
         )
 
     @property
+    def adapts_constants(self) -> bool:
+        """Whether f runs with each window's cable length and load mass, estimated in flight."""
+        return self.constants == "window"
+
+    @property
     def size(self) -> str | None:
         """The name of ``MODEL_SIZES`` whose widths these are, or None (custom widths)."""
         mine = tuple(getattr(self, name) for name in _WIDTHS)

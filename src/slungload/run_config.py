@@ -218,7 +218,7 @@ class RunConfig:
         tags += [f"N{self.window.horizon}"] if self.window.horizon != default_horizon else []
         estimate = self.model.load_estimate
         tags += [estimate] if estimate != ModelConfig().load_estimate else []
-        tags += [ADAPTIVE] if self.model.constants == "window" else []
+        tags += [ADAPTIVE] if self.model.adapts_constants else []
         tags += [SEEING] if self.model.constants_input else []
         tags += [HEADING] if self.model.heading_frame else []
         return tags
@@ -245,7 +245,7 @@ class RunConfig:
         label += f"+{tag}" if tag else ""
         label += f"+N{self.window.horizon}" if with_horizon else ""
         label += "+smoothed" if self.model.load_estimate == "smoothed" else ""
-        label += f"+{ADAPTIVE}" if self.model.constants == "window" else ""
+        label += f"+{ADAPTIVE}" if self.model.adapts_constants else ""
         label += f"+{SEEING}" if self.model.constants_input else ""
         return label + (f"+{HEADING}" if self.model.heading_frame else "")
 

@@ -286,7 +286,7 @@ def calibrate(
 def _adapts(member: object) -> bool:
     """Whether a member network runs f with each window's estimated constants."""
     config = getattr(getattr(member, "net", None), "config", None)
-    return getattr(config, "constants", None) == "window"
+    return bool(getattr(config, "adapts_constants", False))
 
 
 def assess(

@@ -102,7 +102,7 @@ class PhysicsStepNet(SlungLoadNet):
                 f"(vL, Omega_L); got M = {x_rel.shape[1]}"
             )
         params: physics.Vehicle = self.params
-        if self.config.constants == "window":
+        if self.config.adapts_constants:
             params = adapted(x_rel, u_hist, self.params)  # (B,) each
         if self.config.load_estimate == "smoothed":
             window = min(LOAD_FIT_STEPS, x_rel.shape[1])

@@ -116,7 +116,7 @@ def fly_loads(
             f"{network}: not a physics-step network (or an ensemble of them); the loads flights "
             "give its f the true constants, which only a physics-step network runs"
         )
-    kinds = {ADAPTIVE if n.config.constants == "window" else FIXED for n in nets}
+    kinds = {ADAPTIVE if n.config.adapts_constants else FIXED for n in nets}
     if len(kinds) > 1:
         raise ValueError(f"{network}: an ensemble of adaptive and fixed networks; fly each kind "
                          "as an ensemble of its own")  # fmt: skip
