@@ -400,12 +400,30 @@ def test_physics_step_mse_is_the_physics_models_error(dataset) -> None:
     from slungload.training.trainer import physics_step_mse
 
     windows = dataset.splits["train"]
-    mse = physics_step_mse(windows, dataset.params, batch_size=7)  # several batches
+    mse, diverged = physics_step_mse(windows, dataset.params, batch_size=7)  # several batches
     predicted = PhysicsModel(dataset.params).predict_windows(windows)
     errors = group_errors(predicted, windows.future.states)
     expected = torch.stack([errors[g].square().mean(0) for g in GROUPS])
     torch.testing.assert_close(mse, expected)
-    assert mse.shape == (len(GROUPS), dataset.window.horizon)
+    assert mse.shape == (len(GROUPS), dataset.window.horizon) and diverged == 0
+
+
+def test_windows_whose_physics_rollout_diverged_set_no_step_weight(dataset) -> None:
+    from slungload.training.trainer import physics_step_mse
+
+    windows = dataset.splits["train"]
+    mse, _ = physics_step_mse(windows, dataset.params)
+    far, lost = windows.states.clone(), windows.states.clone()
+    far[0, -2:, POS] += 1e4  # the truth 10 km away at the last steps: physics "misses" by 1e4 m
+    lost[1, -1, VEL] = float("nan")
+    for states, which in ((far, 0), (lost, 1)):
+        stray = dataclasses.replace(windows, states=states)
+        got, diverged = physics_step_mse(stray, dataset.params)
+        kept = torch.arange(len(windows)) != which
+        alone, _ = physics_step_mse(windows[kept], dataset.params)
+        assert diverged == 1 and torch.isfinite(got).all()
+        torch.testing.assert_close(got, alone)
+        assert (got[0, -1] - mse[0, -1]).abs() < 0.5 * mse[0, -1]  # not 1e8 times larger
 
 
 def test_physics_relative_run_records_its_scale_and_resumes(dataset, tmp_path: Path, train_tiny):

@@ -227,21 +227,39 @@ def _constants_and_step_scale(
         meta.update(constants=fitted.table, model_params=to_dict(params))
     if run.loss.steps == "paper":
         return params, None
-    physics_mse = physics_step_mse(dataset.splits["train"], params)
+    physics_mse, diverged = physics_step_mse(dataset.splits["train"], params)
     meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
+    meta["physics_diverged"] = diverged
     return params, step_scale(run.loss.steps, physics_mse, run.loss.alpha).float()
 
 
-def physics_step_mse(windows: Any, params: VehicleParams, batch_size: int = 8192) -> torch.Tensor:
+# A window whose physics rollout strays further than this many times the typical window's
+# worst error (or goes non-finite) diverged: a flight the arena stopped, a cable state the
+# discrete model cannot step through. Three such windows in 17,598 (4e4 m at step 50) made the
+# step weights of a `record` dataset 1e5 times larger at the early steps than without them.
+DIVERGED_FACTOR = 100.0
+_ERROR_FLOOR = 1e-3  # group units: below it an error is the same as none (data from f itself)
+
+
+def physics_step_mse(
+    windows: Any, params: VehicleParams, batch_size: int = 8192
+) -> tuple[torch.Tensor, int]:
     """The physics model's mean-square error per group and horizon step, (4, N) float64, over
     ``windows`` (a ``data.windows.Windows``): the squared error norms (``state.group_errors``,
     ``GROUPS`` order) of its open-loop prediction (``data.windows.physics_rollout``), averaged
-    over the windows."""
+    over the windows whose rollout did not diverge (``DIVERGED_FACTOR``); and how many did."""
     if len(windows) == 0:
         raise ValueError("physics_step_mse: no training window")
     pred = physics_rollout(windows, params, batch_size)
     errors = group_errors(pred, windows.states[:, windows.window.history :])
-    return torch.stack([errors[g].square().mean(0) for g in GROUPS])
+    worst = torch.stack([errors[g].amax(1) for g in GROUPS])  # (4, W), NaN where non-finite
+    typical = worst.nan_to_num(nan=torch.inf).median(1, keepdim=True).values
+    bound = DIVERGED_FACTOR * typical.clamp_min(_ERROR_FLOOR)
+    diverged = (~torch.isfinite(worst) | (worst > bound)).any(0)
+    if bool(diverged.all()):
+        raise ValueError("physics_step_mse: the physics rollout diverged on every window")
+    kept = ~diverged
+    return torch.stack([errors[g][kept].square().mean(0) for g in GROUPS]), int(diverged.sum())
 
 
 def _is_global_zero() -> bool:
