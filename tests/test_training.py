@@ -433,6 +433,7 @@ def test_physics_relative_run_records_its_scale_and_resumes(dataset, tmp_path: P
     rms = summary["config"]["physics_rms"]
     assert set(rms) == {"position", "velocity", "quaternion", "load_position"}
     assert all(len(v) == dataset.window.horizon for v in rms.values())
+    assert "physics_diverged" not in summary["config"]  # none diverged: recorded only when any
     assert load_checkpoint(run.out).weights.steps == "physics-relative"
     again = train_tiny(dataset, tmp_path / "rel", loss=weights, max_epochs=2, resume=True)
     assert again.epochs == 2

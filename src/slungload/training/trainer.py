@@ -229,14 +229,15 @@ def _constants_and_step_scale(
         return params, None
     physics_mse, diverged = physics_step_mse(dataset.splits["train"], params)
     meta["physics_rms"] = {g: physics_mse[i].sqrt().tolist() for i, g in enumerate(GROUPS)}
-    meta["physics_diverged"] = diverged
+    if diverged:  # recorded only when any: runs on clean data resume as they were started
+        meta["physics_diverged"] = diverged
     return params, step_scale(run.loss.steps, physics_mse, run.loss.alpha).float()
 
 
 # A window whose physics rollout strays further than this many times the typical window's
 # worst error (or goes non-finite) diverged: a flight the arena stopped, a cable state the
-# discrete model cannot step through. Three such windows in 17,598 (4e4 m at step 50) made the
-# step weights of a `record` dataset 1e5 times larger at the early steps than without them.
+# discrete model cannot step through. Its squared errors would dwarf every other window's and
+# set the step weights alone, making the early steps weigh orders of magnitude too much.
 DIVERGED_FACTOR = 100.0
 _ERROR_FLOOR = 1e-3  # group units: below it an error is the same as none (data from f itself)
 
