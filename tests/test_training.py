@@ -439,3 +439,18 @@ def test_physics_relative_run_records_its_scale_and_resumes(dataset, tmp_path: P
     assert again.epochs == 2
     with pytest.raises(ValueError, match="weights.steps"):  # not with the paper's weighting
         train_tiny(dataset, tmp_path / "rel", max_epochs=3, resume=True)
+
+
+def test_a_run_whose_step_weights_changed_is_not_resumed(
+    dataset, tmp_path, train_tiny, monkeypatch
+):
+    from slungload.training import trainer
+
+    weights = LossWeights(steps="mixed")
+    train_tiny(dataset, tmp_path / "mixed", loss=weights, max_epochs=1)
+    computed = trainer.physics_step_mse
+    monkeypatch.setattr(  # as if a window of its flights now diverged
+        trainer, "physics_step_mse", lambda w, p: (computed(w, p)[0] * 0.5, 1)
+    )
+    with pytest.raises(ValueError, match="step weights came out otherwise"):
+        train_tiny(dataset, tmp_path / "mixed", loss=weights, max_epochs=2, resume=True)

@@ -200,9 +200,15 @@ def check_resumable(last: Path, meta: dict[str, Any]) -> None:
     if differ:
         details = "; ".join(f"{k}: {a!r} -> {b!r}" for k, a, b in differ[:8])
         details += f"; and {len(differ) - 8} more" if len(differ) > 8 else ""
+        weights = {k.split(".")[0] for k, _, _ in differ} <= {"physics_rms", "physics_diverged"}
+        advice = (
+            "its step weights came out otherwise (the training flights changed, or windows whose "
+            "physics rollout diverged are now left out): start a new run folder"
+            if weights
+            else "resume with the same options or start a new run folder"
+        )
         raise ValueError(
-            f"cannot resume {last}: it was started with other settings ({details}); "
-            "resume with the same options or start a new run folder"
+            f"cannot resume {last}: it was started with other settings ({details}); {advice}"
         )
 
 
