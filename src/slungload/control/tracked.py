@@ -22,7 +22,6 @@ import numpy as np
 
 from ..config import ESTIMATE_MIN_STEPS, VehicleParams
 from ..deploy.members import calibration_of, members_half_width, members_mean
-from ..layout import INPUT_DIM, LOAD_POS, QUAT, STATE_DIM, THRUST
 from ..online_interval import OnlineInterval, OnlineIntervalConfig, normalized_errors
 from ..vehicle_constants import VehicleConstants
 from .contract import CandidateModel, has_members
@@ -151,11 +150,7 @@ class TrackedMembers:
         if prepare is not None:
             prepare(self.model.history, k, n)
         if self.constants is not None:
-            c = self.constants
-            x = np.zeros((self.model.history, STATE_DIM))
-            x[:, QUAT.start], x[:, LOAD_POS.start + 2] = 1.0, -c.cable_length  # hovering
-            hover = (c.mass_quad + c.mass_load) * c.gravity
-            u = np.zeros((self.model.history - 1, INPUT_DIM))
-            u[:, THRUST.start] = hover
+            from ..deploy.compiled.columns import hovering  # with the shift's Numba kernels
+
             with np.errstate(all="ignore"):
-                self._shift(x, u, np.tile(u[:1], (1, n, 1)))
+                self._shift(*hovering(self.model.history, 1, n, self.constants))

@@ -60,18 +60,25 @@ def _blas() -> ThreadpoolController:
     return ThreadpoolController().select(user_api="blas")
 
 
-def warm_up(model, m: int, k: int, n: int, vehicle: VehicleConstants) -> None:
-    """One call of ``model.numpy_candidates`` at (M, K, N) = (m, k, n) on a vehicle hovering
-    with its load below: Numba compiles (or loads from its cache) every kernel now, and the
-    work arrays are made, rather than in the first control step (the MPC's ``prepare``)."""
+def hovering(
+    m: int, k: int, n: int, vehicle: VehicleConstants
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A candidates call at (M, K, N) = (m, k, n) of a vehicle hovering still with its load
+    below: x_hist (m, 13), u_past (m-1, 4) and plans (k, n, 4) all at hover thrust. A still
+    history reads no load: estimates from it may be nan (call under ``np.errstate``)."""
     x = np.zeros(STATE_DIM)
     x[_Q] = 1.0
     x[LOAD_POS.start + 2] = -vehicle.cable_length
     hover = np.array([(vehicle.mass_quad + vehicle.mass_load) * vehicle.gravity, 0.0, 0.0, 0.0])
-    with np.errstate(all="ignore"):  # a still history reads no load: the estimates may be nan
-        model.numpy_candidates(
-            np.tile(x, (m, 1)), np.tile(hover, (m - 1, 1)), np.tile(hover, (k, n, 1))
-        )
+    return np.tile(x, (m, 1)), np.tile(hover, (m - 1, 1)), np.tile(hover, (k, n, 1))
+
+
+def warm_up(model, m: int, k: int, n: int, vehicle: VehicleConstants) -> None:
+    """One call of ``model.numpy_candidates`` on ``hovering``'s inputs: Numba compiles (or
+    loads from its cache) every kernel now, and the work arrays are made, rather than in the
+    first control step (the MPC's ``prepare``)."""
+    with np.errstate(all="ignore"):
+        model.numpy_candidates(*hovering(m, k, n, vehicle))
 
 
 def check_arrays(x_hist: np.ndarray, u_past: np.ndarray, plans: np.ndarray, history: int) -> None:
